@@ -1,0 +1,70 @@
+# Helpers shared by the module files under cmake/modules/.
+
+# Warnings and sanitizers, per target (no global flag changes).
+function(omnicml_target_defaults target)
+  target_compile_options(${target} PRIVATE -Wall -Wextra -Wpedantic)
+  if(OMNICML_SANITIZE)
+    string(REPLACE ";" "," _san "${OMNICML_SANITIZE}")
+    target_compile_options(${target} PRIVATE -fsanitize=${_san} -fno-omit-frame-pointer)
+    target_link_options(${target} PRIVATE -fsanitize=${_san})
+  endif()
+endfunction()
+
+# omnicml_add_library(NAME SOURCES a.cc b.cc DEPS lib...)
+# A static module library; joins the umbrella target omnicml::omnicml.
+function(omnicml_add_library name)
+  cmake_parse_arguments(ARG "" "" "SOURCES;DEPS" ${ARGN})
+  add_library(${name} STATIC ${ARG_SOURCES})
+  target_include_directories(${name}
+    PUBLIC $<BUILD_INTERFACE:${PROJECT_SOURCE_DIR}/include> $<INSTALL_INTERFACE:${CMAKE_INSTALL_INCLUDEDIR}>
+    PRIVATE ${PROJECT_SOURCE_DIR}/src)
+  target_compile_features(${name} PUBLIC cxx_std_20)
+  target_link_libraries(${name} PUBLIC ${ARG_DEPS})
+  omnicml_target_defaults(${name})
+  if(OMNICML_SANITIZE)
+    target_link_options(${name} INTERFACE -fsanitize=$<JOIN:${OMNICML_SANITIZE},,>)
+  endif()
+  set_property(GLOBAL APPEND PROPERTY OMNICML_LIBS ${name})
+  install(TARGETS ${name} EXPORT omnicmlTargets
+    ARCHIVE DESTINATION ${CMAKE_INSTALL_LIBDIR}
+    LIBRARY DESTINATION ${CMAKE_INSTALL_LIBDIR})
+endfunction()
+
+# omnicml_add_test(NAME SOURCES x_test.cc DEPS lib...)
+# A GoogleTest program registered with CTest. Tests find the source tree through
+# OMNICML_SOURCE_DIR (for datasets/ and ../shared/datasets/).
+function(omnicml_add_test name)
+  if(NOT OMNICML_BUILD_TESTS)
+    return()
+  endif()
+  cmake_parse_arguments(ARG "" "" "SOURCES;DEPS" ${ARGN})
+  add_executable(${name} ${ARG_SOURCES})
+  target_link_libraries(${name} PRIVATE ${ARG_DEPS} GTest::gtest GTest::gtest_main GTest::gmock)
+  target_include_directories(${name} PRIVATE ${PROJECT_SOURCE_DIR}/tests ${PROJECT_SOURCE_DIR}/src)
+  target_compile_definitions(${name} PRIVATE OMNICML_SOURCE_DIR="${PROJECT_SOURCE_DIR}"
+    OMNICML_BINARY_DIR="${PROJECT_BINARY_DIR}")
+  omnicml_target_defaults(${name})
+  gtest_discover_tests(${name} DISCOVERY_TIMEOUT 120 PROPERTIES TIMEOUT 900)
+endfunction()
+
+# omnicml_add_benchmark(NAME SOURCES x_benchmark.cc DEPS lib...)
+function(omnicml_add_benchmark name)
+  if(NOT OMNICML_BUILD_BENCHMARKS)
+    return()
+  endif()
+  cmake_parse_arguments(ARG "" "" "SOURCES;DEPS" ${ARGN})
+  add_executable(${name} ${ARG_SOURCES})
+  target_link_libraries(${name} PRIVATE ${ARG_DEPS} benchmark::benchmark benchmark::benchmark_main)
+  omnicml_target_defaults(${name})
+endfunction()
+
+# omnicml_add_command(SOURCES apps/cmd_x.cc DEPS lib...)
+# Adds subcommand sources to the single `omnicml` binary (apps/command_registry.h).
+function(omnicml_add_command)
+  if(NOT OMNICML_BUILD_APPS)
+    return()
+  endif()
+  cmake_parse_arguments(ARG "" "" "SOURCES;DEPS" ${ARGN})
+  target_sources(omnicml_cli PRIVATE ${ARG_SOURCES})
+  target_link_libraries(omnicml_cli PRIVATE ${ARG_DEPS})
+endfunction()

@@ -1,0 +1,30 @@
+#!/usr/bin/env bash
+# Installs every dependency from Debian packages (idempotent, non-interactive), then
+# configures and builds a Release build in build/.
+#   scripts/setup.sh            # install + build everything (library, apps, tests, benchmarks)
+# Environment: OMNICML_BUILD_DIR (default build), OMNICML_JOBS (default: number of cores).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+packages=(build-essential cmake ninja-build pkg-config libeigen3-dev libopencv-dev libfftw3-dev
+  libceres-dev libgtest-dev libgmock-dev libbenchmark-dev libcli11-dev libyaml-cpp-dev
+  nlohmann-json3-dev)
+missing=()
+for p in "${packages[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if ((${#missing[@]})); then
+  echo "setup: installing ${missing[*]}"
+  SUDO=""
+  if [ "$(id -u)" != 0 ]; then SUDO=sudo; fi
+  $SUDO env DEBIAN_FRONTEND=noninteractive apt-get update -q
+  $SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends "${missing[@]}"
+fi
+
+build_dir="${OMNICML_BUILD_DIR:-build}"
+jobs="${OMNICML_JOBS:-$(nproc)}"
+launcher=()
+if command -v ccache >/dev/null 2>&1; then launcher=(-DCMAKE_CXX_COMPILER_LAUNCHER=ccache); fi
+cmake -S . -B "$build_dir" -G Ninja -DCMAKE_BUILD_TYPE=Release "${launcher[@]}" >/dev/null
+cmake --build "$build_dir" -j "$jobs"
+echo "setup: built $(pwd)/$build_dir"

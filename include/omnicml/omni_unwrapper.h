@@ -73,7 +73,13 @@ class OmniUnwrapper {
   cv::Mat Unwrap(const cv::Mat& raw) const;
 
   // Inverse mapping: panorama (any size; resampled to the calibration's width/height)
-  // -> raw ring image of the construction size; pixels outside the ring are `background`.
+  // -> raw ring image of the construction size and the panorama's type; pixels outside
+  // the ring are `background`. A raw pixel belongs to the ring when its centre lies within
+  // half a pixel of [inner_radius_px, outer_radius_px] (it touches the ring), so that
+  // Unwrap(Render(p)) reproduces p up to interpolation, edge rows included; the visible
+  // ring of a rendered image is therefore ~0.5 px wider on each side than the radii.
+  // Cost: one cv::remap over the ring's bounding box (well under 1 ms for 640x480).
+  // Throws omnicml::Error on an empty panorama or more than 4 channels.
   cv::Mat Render(const cv::Mat& panorama, const cv::Scalar& background = cv::Scalar::all(0)) const;
 
   const OmniCalibration& calibration() const { return calibration_; }
@@ -82,26 +88,46 @@ class OmniUnwrapper {
   OmniCalibration calibration_;
   int image_width_;
   int image_height_;
-  cv::Mat map_x_, map_y_;            // panorama pixel -> raw pixel (CV_32FC1)
-  cv::Mat inv_map_x_, inv_map_y_;    // raw pixel -> panorama pixel (CV_32FC1)
+  // Sampling maps in OpenCV's fixed-point form (cv::convertMaps: CV_16SC2 positions in the
+  // *_x_ member, CV_16UC1 interpolation indices in the *_y_ member; 1/32 pixel).
+  cv::Mat map_x_, map_y_;            // panorama pixel -> raw pixel
+  cv::Mat inv_map_x_, inv_map_y_;    // raw pixel -> panorama pixel (padded by one column)
 };
 
 // Estimates centre and radii of the ring: edge points, then a robust circle fit (Ceres,
 // Huber loss) for the inner and the outer boundary. `initial` gives sizes, direction and
 // the other fields carried over. Throws omnicml::Error if no ring can be found.
+// Method: Gaussian blur; Otsu split into dark (outside, hole) and bright (ring) levels; a
+// crossing threshold a third of the way from dark to bright; rays from the bright
+// region's centroid: the first dark->bright crossing from the centre is an inner edge
+// point, the first coming in from the image border an outer one, each refined to the
+// sub-pixel peak of the radial gradient; per boundary a Cauchy-loss circle fit marks
+// inliers (|residual| <= max(2 px, 3 robust sigma)); the rays are cast again from the
+// fitted centre; finally one concentric fit (shared centre, Huber loss) of both
+// boundaries' inliers. Needs a ring brighter than a dark outside and a dark hole; the
+// outer circle may be cut by the image border (those rays are skipped). Deterministic;
+// about 10 ms of CPU for 640x480. Accepts CV_8UC1 or CV_8UC3 images.
 AutoCalibrationResult AutoCalibrate(const cv::Mat& raw, const OmniCalibration& initial = {});
 
 // Panoramic input (already unwrapped): returned as is, or resized (bilinear, INTER_AREA
 // when shrinking) to width x height when both are positive. Throws omnicml::Error on
-// an empty or 1x1 image.
+// an empty or 1x1 image or a negative size. Resizing keeps the column convention: output
+// column c looks along the azimuth of input column c * W_in / W (columns are centred on
+// their azimuth and wrap around; plain cv::resize would shift them by a fraction of a
+// column). Render resamples panoramas of another size the same way.
 cv::Mat PreparePanorama(const cv::Mat& panorama, int width = 0, int height = 0);
 
 // Reads an image file as 8-bit grey or BGR. Throws omnicml::Error naming the file when
 // it is missing, unreadable, empty, 1x1, or has a channel count other than 1, 3 or 4
-// (4 is converted to 3).
+// (4 is converted to 3). 16-bit images are scaled to 8 bit (v * 255 / 65535); other
+// depths are an error.
 cv::Mat ReadImage(const std::string& path);
 
-// Writes an image atomically (temporary file in the same directory, then rename).
+// Writes an image atomically: encodes to <path>.tmp-<pid>-<n><ext> in the same directory
+// (keeping the extension, from which OpenCV picks the format), then renames it over
+// `path`; readers never see a partial file. Throws omnicml::Error naming the file on an
+// empty image, a path without extension or a failed write (missing directory, no
+// permission, format unable to store the image); no temporary file is left behind.
 void WriteImage(const std::string& path, const cv::Mat& image);
 
 }  // namespace omnicml

@@ -39,8 +39,9 @@ struct Descriptor {
   DescriptorKind kind = DescriptorKind::kFourier;
   // The vector distances are computed on (magnitudes / concatenated histogram bins).
   std::vector<float> features;
-  // Fourier only: coefficients 0..K-1 of each band, band-major (bands x K); empty for
-  // histograms. Used by RelativeHeading.
+  // Fourier only: the K stored complex coefficients of each band, band-major (bands x K;
+  // which harmonics they are is documented in fourier_signature.h); empty for histograms.
+  // Used by RelativeHeading.
   std::vector<std::complex<float>> coefficients;
   // Width in columns of the panorama it was computed from (heading resolution).
   int panorama_width = 0;
@@ -48,8 +49,12 @@ struct Descriptor {
   bool operator==(const Descriptor&) const = default;
 };
 
-// Versioned little-endian byte encoding; Deserialize throws omnicml::Error on a
-// truncated or malformed buffer.
+// Versioned little-endian byte encoding, independent of the host's byte order:
+//   magic "OMDS" | u16 version (1) | u8 kind | u8 reserved (0) | i32 panorama_width |
+//   u32 feature count | u32 coefficient count | f32 features... | (f32 re, f32 im)... |
+//   u32 FNV-1a checksum of everything before it.
+// Deserialize throws omnicml::Error on a truncated, garbled (checksum, magic, unknown
+// kind or version, inconsistent sizes, trailing bytes) or otherwise malformed buffer.
 std::vector<std::uint8_t> Serialize(const Descriptor& d);
 Descriptor Deserialize(std::span<const std::uint8_t> bytes);
 
@@ -64,12 +69,17 @@ class DescriptorExtractor {
   virtual Descriptor Compute(const cv::Mat& panorama) const = 0;
 
   // Distance E >= 0 between two feature vectors of equal length (0 for equal inputs).
-  // The raw-pointer form serves contiguous storage of many descriptors.
+  // The raw-pointer form serves contiguous storage of many descriptors: it is a tight,
+  // vectorisable loop over plain floats (one virtual call per stored descriptor, none
+  // per element) and does not check its arguments.
   virtual double Distance(const float* a, const float* b, std::size_t n) const = 0;
+  // Checked form: throws omnicml::Error when the kinds differ from kind() or the feature
+  // vectors have different lengths.
   double Distance(const Descriptor& a, const Descriptor& b) const;
 
   // Similarity S in [0, 1]: 1 at E = 0, falling linearly to 0 at E = e_max
-  // (DESIGN.md "Environment model").
+  // (DESIGN.md "Environment model"): S = max(0, 1 - E / e_max). Throws omnicml::Error
+  // unless e_max > 0.
   static double Similarity(double distance, double e_max);
 
   // Whether RelativeHeading can give a rotation (Fourier: yes; histograms: no).
@@ -83,6 +93,18 @@ class DescriptorExtractor {
   // Length of the feature vector this extractor produces.
   virtual std::size_t FeatureSize() const = 0;
 };
+
+// Rolls a panorama by k columns (any integer, negative allowed):
+//   out[c] = in[(c + k) mod W],
+// i.e. the view after a counter-clockwise turn by k * 2 pi / W (omni_unwrapper.h).
+// Any type; throws omnicml::Error on an empty image.
+cv::Mat RollColumns(const cv::Mat& panorama, int k);
+
+// A procedural, seeded colour panorama (CV_8UC3, width x height) with sky, ground and
+// a ring of coloured objects that wraps around in azimuth: a stand-in for a real view in
+// tests, benchmarks and `omnicml describe --make-sample`. Same seed, same pixels.
+// Throws omnicml::Error unless width >= 8 and height >= 4.
+cv::Mat MakeSyntheticPanorama(int width, int height, std::uint32_t seed);
 
 }  // namespace omnicml
 

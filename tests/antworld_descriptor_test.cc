@@ -113,9 +113,10 @@ Figures Evaluate(const FourierOptions& options, const std::vector<View>& grid,
 
 // For every 4th route frame, the Fourier-nearest grid view lies within 0.5 m for at least
 // a measured fraction of frames, and for those frames the relative heading to that
-// (heading-0) grid view matches the pose file's heading with our sign convention:
-// AntWorld's columns run counter-clockwise like ours, so RelativeHeading(route frame,
-// grid view) = +heading (the opposite sign is far off).
+// (heading-0) grid view matches the pose file's heading: in the raw files, the heading
+// and the image columns turn the same way (both clockwise, see antworld.h, whose reader
+// converts both to our counter-clockwise convention), so on raw images
+// RelativeHeading(route frame, grid view) = +heading (the opposite sign is far off).
 TEST(AntWorld, FourierNearestGridViewAndHeading) {
   const fs::path route_csv = kDataDir / "ant1_route1" / "ant1_route1.csv";
   const fs::path grid_csv = kDataDir / "grid_200mm" / "grid_200mm.csv";

@@ -33,7 +33,8 @@ double SquaredMahalanobis(const Pose2& a, const Pose2& b, const Eigen::Matrix3d&
 // Checks that a covariance is finite and SPD. If it is only slightly off (asymmetric by
 // rounding, eigenvalues below min_eigenvalue), returns the repaired matrix: symmetrised,
 // eigenvalues clamped to at least min_eigenvalue. Throws omnicml::Error naming `what`
-// when it has NaN/inf entries or an eigenvalue below -1e-6 * its largest magnitude.
+// when it has NaN/inf entries or an eigenvalue below -1e-6 * its largest magnitude, and
+// also when it is asymmetric beyond rounding (an entry of |C - C^T| above 1e-6 * max |C|).
 Eigen::Matrix3d RepairCovariance(const Eigen::Matrix3d& c, double min_eigenvalue = 1e-12,
                                  const std::string& what = "covariance");
 

@@ -82,7 +82,7 @@ std::string F(double v, int prec = 3) {
 // Everything a run needs, prepared once.
 struct Prepared {
   OccupancyGrid grid;
-  std::vector<ReferenceView> refs;  // visibility areas computed
+  std::vector<MclReference> refs;  // visibility areas computed
   std::vector<MclFrame> test;
   std::shared_ptr<const DescriptorExtractor> extractor;
   MclOptions options;

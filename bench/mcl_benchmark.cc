@@ -21,9 +21,9 @@ void BM_MclStep(benchmark::State& state) {
   DescriptorOptions dopt;
   dopt.kind = DescriptorKind::kInvariantFeatureHistogram;
   std::shared_ptr<const DescriptorExtractor> ex = MakeDescriptorExtractor(dopt);
-  std::vector<ReferenceView> refs;
+  std::vector<MclReference> refs;
   for (int i = 0; i < 100; ++i) {
-    ReferenceView r;
+    MclReference r;
     r.map_T_robot = MakePose(1 + 0.23 * i, 2 + 6.0 * (i % 2), i % 2 ? kPi : 0);
     r.descriptor = ex->Compute(MakeSyntheticPanorama(64, 16, static_cast<std::uint32_t>(i)));
     refs.push_back(std::move(r));

@@ -52,8 +52,8 @@ void MclOptions::Validate() const {
 }
 
 void ComputeVisibilityAreas(const OccupancyGrid& grid, const MclOptions& options,
-                            std::vector<ReferenceView>* references) {
-  for (ReferenceView& r : *references) {
+                            std::vector<MclReference>* references) {
+  for (MclReference& r : *references) {
     r.axis_rad = WrapAngle(r.map_T_robot.z() + options.axis_offset_rad);
     CellIndex lambda;
     r.visibility = VisibilityArea(grid, r.map_T_robot.head<2>(), r.axis_rad, options.visibility,
@@ -66,7 +66,7 @@ void ComputeVisibilityAreas(const OccupancyGrid& grid, const MclOptions& options
 // ----------------------------------------------------------------------------- filter
 
 MonteCarloLocalizer::MonteCarloLocalizer(const MclOptions& options, OccupancyGrid grid,
-                                         std::vector<ReferenceView> references,
+                                         std::vector<MclReference> references,
                                          std::shared_ptr<const DescriptorExtractor> extractor)
     : options_(options),
       grid_(std::move(grid)),
@@ -360,11 +360,11 @@ std::vector<MclFrame> ReadMclFrames(FrameSource& source, const DescriptorExtract
   return out;
 }
 
-std::vector<ReferenceView> MakeReferences(const std::vector<MclFrame>& frames) {
-  std::vector<ReferenceView> refs;
+std::vector<MclReference> MakeReferences(const std::vector<MclFrame>& frames) {
+  std::vector<MclReference> refs;
   for (const MclFrame& f : frames) {
     if (!f.truth) continue;
-    ReferenceView r;
+    MclReference r;
     r.map_T_robot = *f.truth;
     r.descriptor = f.descriptor;
     refs.push_back(std::move(r));

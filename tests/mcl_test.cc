@@ -101,7 +101,7 @@ TEST(Mcl, LowVarianceResamplingKeepsTheDistribution) {
 // covering references (normalisation K_i); outside every area it falls back to the prior.
 TEST(Mcl, LikelihoodNormalisationAndPriorFallback) {
   const OccupancyGrid g = OpenRoom();
-  std::vector<ReferenceView> refs(2);
+  std::vector<MclReference> refs(2);
   refs[0].map_T_robot = MakePose(3, 5, 0);  // looks at the right wall
   refs[0].descriptor = OneNumber(0.2f);
   refs[1].map_T_robot = MakePose(4, 5, 0);
@@ -165,7 +165,7 @@ TEST(Mcl, OptionsValidateNamesTheField) {
 // Global initialisation puts every particle in a free cell; the same seed gives the same set.
 TEST(Mcl, GlobalInitIsFreeAndDeterministic) {
   const OccupancyGrid g = OpenRoom();
-  std::vector<ReferenceView> refs(1);
+  std::vector<MclReference> refs(1);
   refs[0].map_T_robot = MakePose(5, 5, 0);
   refs[0].descriptor = OneNumber(0.5f);
   MclOptions o;
@@ -189,7 +189,7 @@ TEST(Mcl, GlobalInitIsFreeAndDeterministic) {
 // Day 1 (references) and day 2 (queries) of home_store with small panoramas.
 struct SimData {
   OccupancyGrid grid;
-  std::vector<ReferenceView> refs;
+  std::vector<MclReference> refs;
   std::vector<MclFrame> test;
   std::shared_ptr<const DescriptorExtractor> extractor;
 };

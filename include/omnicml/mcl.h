@@ -102,7 +102,7 @@ struct MclOptions {
 };
 
 // A reference image of the map: where it was taken, its descriptor and its visibility area.
-struct ReferenceView {
+struct MclReference {
   Pose2 map_T_robot = Pose2::Zero();
   Descriptor descriptor;
   double axis_rad = 0.0;            // optical axis used for sigma_j, map frame
@@ -112,7 +112,7 @@ struct ReferenceView {
 
 // Computes axis_rad and sigma_j for each reference (views are modified in place).
 void ComputeVisibilityAreas(const OccupancyGrid& grid, const MclOptions& options,
-                            std::vector<ReferenceView>* references);
+                            std::vector<MclReference>* references);
 
 struct Particle {
   Pose2 pose = Pose2::Zero();  // map_T_robot
@@ -133,7 +133,7 @@ class MonteCarloLocalizer {
   // omnicml::Error on invalid options, no free cell, no reference, or references of mixed
   // descriptor kinds.
   MonteCarloLocalizer(const MclOptions& options, OccupancyGrid grid,
-                      std::vector<ReferenceView> references,
+                      std::vector<MclReference> references,
                       std::shared_ptr<const DescriptorExtractor> extractor);
 
   // Global localization: particles uniform over the free cells, uniform heading.
@@ -157,7 +157,7 @@ class MonteCarloLocalizer {
   const std::vector<Particle>& particles() const { return particles_; }
   void set_particles(std::vector<Particle> p) { particles_ = std::move(p); }
   const OccupancyGrid& grid() const { return grid_; }
-  const std::vector<ReferenceView>& references() const { return references_; }
+  const std::vector<MclReference>& references() const { return references_; }
   const MclOptions& options() const { return options_; }
   // Number of references whose visibility area holds a cell (before gating).
   int Coverage(int linear_cell) const {
@@ -169,7 +169,7 @@ class MonteCarloLocalizer {
 
   MclOptions options_;
   OccupancyGrid grid_;
-  std::vector<ReferenceView> references_;
+  std::vector<MclReference> references_;
   std::shared_ptr<const DescriptorExtractor> extractor_;
   std::vector<int> free_cells_;
   // Per cell, the references whose sigma_j contains it (CSR).
@@ -204,7 +204,7 @@ std::vector<MclFrame> ReadMclFrames(FrameSource& source, const DescriptorExtract
                                     const std::vector<int>& sessions, int stride = 1);
 
 // References from frames with ground truth (those without are skipped).
-std::vector<ReferenceView> MakeReferences(const std::vector<MclFrame>& frames);
+std::vector<MclReference> MakeReferences(const std::vector<MclFrame>& frames);
 
 // How one run over a sequence is driven.
 struct MclRunSpec {

@@ -1,0 +1,149 @@
+// End to end: the CML engine on a short simulated multi-day log (built-in world
+// `home_store`, panoramas straight from the simulator), starting from an empty map,
+// against ground truth and against dead-reckoning odometry on the same log.
+#include <cmath>
+#include <cstdio>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "omnicml/cml_engine.h"
+#include "omnicml/common.h"
+#include "omnicml/simulator.h"
+
+namespace omnicml {
+namespace {
+
+struct RunErrors {
+  std::vector<double> engine_m;    // per frame: position error of the estimate
+  std::vector<double> odometry_m;  // per frame: position error of dead reckoning
+  std::vector<int> lap;            // per frame: lap (= day) index
+  int frames_without_estimate = 0;
+  EngineCounters counters;
+};
+
+double Mean(const std::vector<double>& v, const std::vector<int>& lap, int which) {
+  double sum = 0.0;
+  int n = 0;
+  for (std::size_t i = 0; i < v.size(); ++i) {
+    if (which < 0 || lap[i] == which) {
+      sum += v[i];
+      ++n;
+    }
+  }
+  return n > 0 ? sum / n : 0.0;
+}
+
+// The point estimate: the moment-matched mean when unimodal, else the strongest component.
+Pose2 PointEstimate(const Estimate& e) { return e.unimodal ? e.mean.mean : e.strongest.mean; }
+
+// Runs the engine over the simulated log. Dead reckoning: the simulator starts day 1's
+// odometry at the true start pose and continues it over the days (kContinue), so
+// odom_T_robot is the odometry-only estimate in the map frame.
+RunErrors RunEngine(const SimulatorOptions& sim, const CmlEngineOptions& options) {
+  SimulatedFrameSource source(sim);
+  CmlEngine engine(options);
+  RunErrors out;
+  Frame frame;
+  int session = -1;
+  while (source.Next(&frame)) {
+    if (frame.session_index != session) {
+      session = frame.session_index;
+      engine.BeginSession(source.Session(session));
+    }
+    const FrameResult r = engine.ProcessFrame(frame);
+    if (!r.estimate) {
+      ++out.frames_without_estimate;
+      continue;
+    }
+    const Pose2& truth = *frame.map_T_robot_truth;
+    out.engine_m.push_back(PoseDifference(PointEstimate(*r.estimate), truth).head<2>().norm());
+    out.odometry_m.push_back(PoseDifference(frame.odom_T_robot, truth).head<2>().norm());
+    out.lap.push_back(frame.session_index);
+  }
+  engine.Finish();
+  engine.model().CheckInvariants();
+  out.counters = engine.counters();
+  return out;
+}
+
+// From an empty map, over four days of home_store (one lap a day, each day continuing
+// where the last ended, shelves restocked and curtains changed between days, people
+// walking): the estimate beats dead reckoning by a wide margin and its error falls from
+// the first lap (mapping from scratch) to the last (localizing in the learned map).
+TEST(EndToEnd, BeatsOdometryAndImprovesOverLaps) {
+  SimulatorOptions sim;
+  sim.world = "home_store";
+  sim.output = ImageKind::kPanorama;
+  sim.days = 4;
+  sim.step_m = 0.3;
+  sim.later_days_start = SessionStartMode::kContinue;
+  sim.seed = 3;
+  {
+    const World world = LoadBuiltinWorld(sim.world);
+    const RoutePath route(world.route.waypoints_m, world.route.turn_radius_m);
+    sim.frames_per_day = static_cast<int>(std::ceil(route.length_m() / sim.step_m));  // one lap
+  }
+  CmlEngineOptions options;
+  options.panorama_width = 360;
+  options.panorama_height = 60;
+  // The simulator's odometry runs on across kContinue days (one step between them).
+  options.continue_odometry_across_sessions = true;
+
+  const RunErrors e = RunEngine(sim, options);
+  ASSERT_EQ(e.frames_without_estimate, 0);
+  const int last_lap = e.lap.back();
+  const double engine_all = Mean(e.engine_m, e.lap, -1);
+  const double odometry_all = Mean(e.odometry_m, e.lap, -1);
+  const double engine_first = Mean(e.engine_m, e.lap, 0);
+  const double engine_last = Mean(e.engine_m, e.lap, last_lap);
+  std::printf("end-to-end: mean position error engine %.3f m, odometry %.3f m; engine lap 0 %.3f m, lap %d %.3f m\n",
+              engine_all, odometry_all, engine_first, last_lap, engine_last);
+  std::printf("counters: unimodal %lld multimodal %lld reconstructed %lld dropped %lld\n",
+              static_cast<long long>(e.counters.unimodal_frames), static_cast<long long>(e.counters.multimodal_frames),
+              static_cast<long long>(e.counters.reconstructed_frames),
+              static_cast<long long>(e.counters.dropped_pending_frames));
+  // Measured (seed 3): engine 2.12 m, odometry 3.66 m; lap 0 2.01 m, lap 3 1.92 m, while
+  // dead reckoning keeps drifting from lap to lap. The map holds the first lap's drift
+  // (no loop closure corrects it), so later laps localize about as well as the map
+  // allows: the last lap must not be worse than the first.
+  EXPECT_LT(engine_all, 0.65 * odometry_all);
+  EXPECT_LT(engine_last, engine_first);
+}
+
+// Sessions: day 2 starts at a random place on the route with no prior (kGlobal, its
+// odometry restarting at zero); the engine finds the robot from the day-1 map and then
+// tracks it about as well as that map allows.
+TEST(EndToEnd, GlobalStartOnDayTwoFindsRobot) {
+  SimulatorOptions sim;
+  sim.world = "home_store";
+  sim.output = ImageKind::kPanorama;
+  sim.days = 2;
+  sim.step_m = 0.3;
+  sim.frames_per_day = 250;  // day 1: about 1.3 laps
+  sim.later_days_start = SessionStartMode::kGlobal;
+  sim.seed = 3;
+  CmlEngineOptions options;
+  options.panorama_width = 360;
+  options.panorama_height = 60;
+
+  const RunErrors e = RunEngine(sim, options);
+  const double day1 = Mean(e.engine_m, e.lap, 0);
+  const double day2 = Mean(e.engine_m, e.lap, 1);
+  int day2_frames = 0;
+  for (int lap : e.lap) day2_frames += lap == 1 ? 1 : 0;
+  std::printf("global start: day 1 error %.3f m, day 2 error %.3f m over %d frames with an estimate "
+              "(%d without)\n",
+              day1, day2, day2_frames, e.frames_without_estimate);
+  EXPECT_EQ(e.counters.global_seeds, 1);
+  // Found within the first 20 frames of the day, then tracked for the rest.
+  EXPECT_LE(e.frames_without_estimate, 20);
+  EXPECT_GE(day2_frames, sim.frames_per_day - 20);
+  // Measured (seed 3): day 1 1.86 m, day 2 1.92 m; a wrong place would be metres off
+  // (the store is 25 m x 10 m).
+  EXPECT_LT(day2, 1.5 * day1 + 0.5);
+  EXPECT_LT(day2, 2.5);
+}
+
+}  // namespace
+}  // namespace omnicml

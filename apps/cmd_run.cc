@@ -102,10 +102,15 @@ OptionOverrides WithDefaultThreads(OptionOverrides overrides) {
   return overrides;
 }
 
-// Fails early (before a long run) when an output's directory does not exist.
-void CheckOutputParent(const std::string& path, const char* flag) {
+// Fails early (before a long run) when an output's directory does not exist and is not
+// the run directory (which the run creates).
+void CheckOutputParent(const std::string& path, const char* flag, const std::string& run_dir = "") {
   if (path.empty()) return;
   const std::filesystem::path parent = std::filesystem::path(path).parent_path();
+  if (!run_dir.empty() && !parent.empty() &&
+      std::filesystem::weakly_canonical(parent) == std::filesystem::weakly_canonical(run_dir)) {
+    return;
+  }
   if (!parent.empty() && !std::filesystem::is_directory(parent)) {
     throw Error(StrCat(flag, " '", path, "': directory '", parent.string(), "' does not exist"));
   }
@@ -121,8 +126,8 @@ struct RunOnlyFlags {
 
 void Run(const RunFlags& f, const RunOnlyFlags& r) {
   f.input.Validate();
-  CheckOutputParent(r.map_out, "--map-out");
-  CheckOutputParent(r.trajectory_out, "--trajectory-out");
+  CheckOutputParent(r.map_out, "--map-out", f.out_dir);
+  CheckOutputParent(r.trajectory_out, "--trajectory-out", f.out_dir);
   if (f.log_every_frames < 1) throw Error("--log-every must be >= 1");
 
   std::unique_ptr<CmlEngine> engine;

@@ -103,30 +103,6 @@ std::vector<std::string> TableHeader(const std::vector<std::int64_t>& steps) {
   return header;
 }
 
-std::string TextTable(const std::vector<std::string>& header,
-                      const std::vector<std::vector<std::string>>& rows) {
-  std::vector<std::size_t> width(header.size());
-  for (std::size_t i = 0; i < header.size(); ++i) width[i] = header[i].size();
-  for (const auto& row : rows) {
-    for (std::size_t i = 0; i < row.size() && i < width.size(); ++i)
-      width[i] = std::max(width[i], row[i].size());
-  }
-  std::ostringstream os;
-  auto line = [&](const std::vector<std::string>& cells) {
-    for (std::size_t i = 0; i < width.size(); ++i) {
-      const std::string c = i < cells.size() ? cells[i] : "";
-      if (i == 0) {
-        os << c << std::string(width[i] - c.size(), ' ');
-      } else {
-        os << "  " << std::string(width[i] - c.size(), ' ') << c;
-      }
-    }
-    os << "\n";
-  };
-  line(header);
-  for (const auto& row : rows) line(row);
-  return os.str();
-}
 
 // Moving average over `window` frames (NaN ignored; NaN where the window has none).
 std::vector<double> MovingAverage(const std::vector<double>& v, int window) {
@@ -266,7 +242,7 @@ void Compare(const RunSettings& f, const std::string& steps_text) {
       result.final_components = static_cast<int>(engine->model().NumComponents());
       results.push_back(std::move(result));
     }
-    const std::string table_text = TextTable(TableHeader(steps), TableRows(results, steps));
+    const std::string table_text = FormatTextTable(TableHeader(steps), TableRows(results, steps), /*left_align_first=*/true);
     WriteFileAtomic(out_dir / "table.txt", table_text);
     WriteFileAtomic(out_dir / "report.html",
                     RenderCompareReport(f.input.Describe(), results, steps, table_text));

@@ -29,19 +29,6 @@ const std::vector<std::string>& FixedColumns() {
   return kColumns;
 }
 
-// Shortest round-trip representation of a double ("" for NaN).
-std::string D(double v) {
-  if (!std::isfinite(v)) return "";
-  char buf[40];
-  std::snprintf(buf, sizeof buf, "%.17g", v);
-  // Prefer a shorter form when it round-trips.
-  for (int precision = 6; precision < 17; ++precision) {
-    char shorter[40];
-    std::snprintf(shorter, sizeof shorter, "%.*g", precision, v);
-    if (std::strtod(shorter, nullptr) == v) return shorter;
-  }
-  return buf;
-}
 
 std::vector<std::string> SplitCsv(const std::string& line) {
   std::vector<std::string> cells;
@@ -75,24 +62,24 @@ void WriteFramesCsvHeader(std::ostream& os, const std::vector<std::string>& stag
 }
 
 void WriteFramesCsvRow(std::ostream& os, const FrameRecord& r) {
-  os << r.session << ',' << r.frame << ',' << r.global_frame << ',' << D(r.stamp_s) << ',';
+  os << r.session << ',' << r.frame << ',' << r.global_frame << ',' << ShortestDouble(r.stamp_s) << ',';
   if (r.has_estimate) {
-    os << D(r.estimate.x()) << ',' << D(r.estimate.y()) << ',' << D(r.estimate.z()) << ','
-       << D(r.mean_estimate.x()) << ',' << D(r.mean_estimate.y()) << ',' << D(r.mean_estimate.z())
+    os << ShortestDouble(r.estimate.x()) << ',' << ShortestDouble(r.estimate.y()) << ',' << ShortestDouble(r.estimate.z()) << ','
+       << ShortestDouble(r.mean_estimate.x()) << ',' << ShortestDouble(r.mean_estimate.y()) << ',' << ShortestDouble(r.mean_estimate.z())
        << ',';
   } else {
     os << ",,,,,,";
   }
   os << (r.unimodal ? 1 : 0) << ',';
   if (r.has_truth) {
-    os << D(r.truth.x()) << ',' << D(r.truth.y()) << ',' << D(r.truth.z()) << ',';
+    os << ShortestDouble(r.truth.x()) << ',' << ShortestDouble(r.truth.y()) << ',' << ShortestDouble(r.truth.z()) << ',';
   } else {
     os << ",,,";
   }
-  os << D(r.position_error_m) << ',' << D(r.heading_error_rad) << ',' << D(r.odometry_error_m)
+  os << ShortestDouble(r.position_error_m) << ',' << ShortestDouble(r.heading_error_rad) << ',' << ShortestDouble(r.odometry_error_m)
      << ',' << r.views << ',' << r.map_components << ',' << r.hypotheses << ','
      << r.mixture_components;
-  for (double t : r.stage_times_us) os << ',' << D(t);
+  for (double t : r.stage_times_us) os << ',' << ShortestDouble(t);
   os << '\n';
 }
 
@@ -419,8 +406,24 @@ const std::vector<std::string>& DayHeader() {
   return kHeader;
 }
 
-std::string TextTable(const std::vector<std::string>& header,
-                      const std::vector<std::vector<std::string>>& rows) {
+
+}  // namespace
+
+std::string ShortestDouble(double v) {
+  if (!std::isfinite(v)) return "";
+  char buf[40];
+  std::snprintf(buf, sizeof buf, "%.17g", v);
+  // Prefer a shorter form when it round-trips.
+  for (int precision = 6; precision < 17; ++precision) {
+    char shorter[40];
+    std::snprintf(shorter, sizeof shorter, "%.*g", precision, v);
+    if (std::strtod(shorter, nullptr) == v) return shorter;
+  }
+  return buf;
+}
+
+std::string FormatTextTable(const std::vector<std::string>& header,
+                            const std::vector<std::vector<std::string>>& rows, bool left_align_first) {
   std::vector<std::size_t> width(header.size());
   for (std::size_t i = 0; i < header.size(); ++i) width[i] = header[i].size();
   for (const auto& row : rows) {
@@ -431,7 +434,13 @@ std::string TextTable(const std::vector<std::string>& header,
   auto line = [&](const std::vector<std::string>& cells) {
     for (std::size_t i = 0; i < width.size(); ++i) {
       const std::string c = i < cells.size() ? cells[i] : "";
-      os << (i ? "  " : "") << std::string(width[i] - c.size(), ' ') << c;
+      const std::string pad(width[i] - c.size(), ' ');
+      if (i > 0) os << "  ";
+      if (i == 0 && left_align_first) {
+        os << c << pad;
+      } else {
+        os << pad << c;
+      }
     }
     os << "\n";
   };
@@ -439,8 +448,6 @@ std::string TextTable(const std::vector<std::string>& header,
   for (const auto& row : rows) line(row);
   return os.str();
 }
-
-}  // namespace
 
 std::string FormatEvaluation(const EvaluationResult& result, bool with_histogram) {
   std::ostringstream os;
@@ -457,7 +464,7 @@ std::string FormatEvaluation(const EvaluationResult& result, bool with_histogram
     rows.push_back(DayRow(result.days[i], i > 0 ? &result.days[i - 1] : nullptr));
   }
   rows.push_back(DayRow(result.overall, nullptr));
-  os << TextTable(DayHeader(), rows);
+  os << FormatTextTable(DayHeader(), rows);
   if (with_histogram && !result.position_histograms.empty()) {
     os << "\nposition error histogram (frames per bin and day)\n";
     std::vector<std::string> header = {"bin_m"};
@@ -471,7 +478,7 @@ std::string FormatEvaluation(const EvaluationResult& result, bool with_histogram
       for (const auto& h : result.position_histograms) row.push_back(Fixed(h[b], 0));
       hist_rows.push_back(row);
     }
-    os << TextTable(header, hist_rows);
+    os << FormatTextTable(header, hist_rows);
   }
   return os.str();
 }

@@ -15,6 +15,7 @@
 #include "omnicml/binary_io.h"
 #include "omnicml/common.h"
 #include "omnicml/engine_io.h"
+#include "omnicml/evaluation.h"
 #include "omnicml/map_export.h"
 #include "omnicml/run_config.h"
 #include "omnicml/svg_plot.h"
@@ -42,17 +43,6 @@ std::string Fixed(double v, int decimals) {
   return buf;
 }
 
-std::string ShortestDouble(double v) {
-  if (!std::isfinite(v)) return "";
-  char buf[48];
-  std::snprintf(buf, sizeof buf, "%.17g", v);
-  for (int precision = 6; precision < 17; ++precision) {
-    char shorter[48];
-    std::snprintf(shorter, sizeof shorter, "%.*g", precision, v);
-    if (std::strtod(shorter, nullptr) == v) return shorter;
-  }
-  return buf;
-}
 
 std::string CsvText(std::string s) {
   // Event reasons are plain text; keep the CSV simple by quoting when needed.

@@ -136,6 +136,16 @@ DayEvaluation EvaluateDay(const std::vector<FrameRecord>& records, int session,
 // Aligns (a copy of) the records and evaluates every day and the whole run.
 EvaluationResult Evaluate(const FramesTable& table, Alignment alignment, int histogram_bins = 20);
 
+// Shortest decimal text that reads back to exactly v ("%.17g" at most); "" for NaN/inf.
+std::string ShortestDouble(double v);
+
+// A plain-text table: columns padded to their widest cell and separated by two spaces,
+// right-aligned (the first column left-aligned when left_align_first). Rows may be
+// shorter than the header (missing cells are blank).
+std::string FormatTextTable(const std::vector<std::string>& header,
+                            const std::vector<std::vector<std::string>>& rows,
+                            bool left_align_first = false);
+
 // Text table: one line per day (frames, mean/median/p95/max position error, heading
 // error, odometry-only mean, change of the mean from the previous day), then the run,
 // then (with_histogram) the position histogram as counts per bin and day.

@@ -268,6 +268,7 @@ void WriteEngineOptions(BinaryWriter& out, const CmlEngineOptions& o) {
   out.Write<std::int32_t>(o.threads);
   out.Write<bool>(o.reconstruct_multimodal);
   out.Write<std::int32_t>(o.max_pending_multimodal_frames);
+  out.Write<double>(o.anchor_max_sigma_m);
   out.Write<std::int32_t>(o.panorama_width);
   out.Write<std::int32_t>(o.panorama_height);
   WritePose(out, o.initial_pose);
@@ -295,6 +296,7 @@ CmlEngineOptions ReadEngineOptions(BinaryReader& in) {
   o.threads = in.Read<std::int32_t>("threads");
   o.reconstruct_multimodal = in.Read<bool>("reconstruct_multimodal");
   o.max_pending_multimodal_frames = in.Read<std::int32_t>("max_pending_multimodal_frames");
+  o.anchor_max_sigma_m = in.Read<double>("anchor_max_sigma_m");
   o.panorama_width = in.Read<std::int32_t>("panorama_width");
   o.panorama_height = in.Read<std::int32_t>("panorama_height");
   o.initial_pose = ReadPose(in, "initial_pose");
@@ -341,6 +343,8 @@ void EngineStateAccess::Write(BinaryWriter& out, const CmlEngine& e) {
     out.Write<std::int32_t>(p.session);
     WriteDescriptor(out, p.descriptor);
     WriteIncrement(out, p.increment);
+    out.Write<bool>(p.filtered.has_value());
+    if (p.filtered) WriteGaussian(out, *p.filtered);
   }
   out.Write<bool>(e.anchor_.has_value());
   if (e.anchor_) {
@@ -395,13 +399,14 @@ std::unique_ptr<CmlEngine> EngineStateAccess::Read(BinaryReader& in) {
   for (std::size_t i = 0; i < components; ++i) m.push_back(ReadGaussian(in, "tracker.state"));
   e->tracker_.set_state(std::move(m));
 
-  const std::size_t pending = in.ReadCount("pending", 8 + 4 + 8 + 24);
+  const std::size_t pending = in.ReadCount("pending", 8 + 4 + 8 + 24 + 1);
   for (std::size_t i = 0; i < pending; ++i) {
     PendingFrame p;
     p.frame = in.Read<std::int64_t>("pending.frame");
     p.session = in.Read<std::int32_t>("pending.session");
     p.descriptor = ReadDescriptor(in, "pending.descriptor");
     p.increment = ReadIncrement(in, "pending.increment");
+    if (in.Read<bool>("pending.filtered")) p.filtered = ReadGaussian(in, "pending.filtered");
     e->pending_.push_back(std::move(p));
   }
   if (in.Read<bool>("anchor")) {

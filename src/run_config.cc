@@ -401,6 +401,7 @@ void VisitFields(V& v, CmlEngineOptions& o) {
   v("threads", o.threads);
   v("reconstruct_multimodal", o.reconstruct_multimodal);
   v("max_pending_multimodal_frames", o.max_pending_multimodal_frames);
+  v("anchor_max_sigma_m", o.anchor_max_sigma_m);
   v("panorama_width", o.panorama_width);
   v("panorama_height", o.panorama_height);
   v("initial_pose", o.initial_pose);

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdint>
 #include <random>
+#include <set>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -168,6 +169,7 @@ TEST(CmlEngineOptions, ValidateNamesField) {
   expect_named([](CmlEngineOptions& o) { o.panorama_width = 64; }, "panorama_width");
   expect_named([](CmlEngineOptions& o) { o.hypothesis_weight_scale = 0.0; }, "hypothesis_weight_scale");
   expect_named([](CmlEngineOptions& o) { o.appearance_sigma_m = -1.0; }, "appearance_sigma_m");
+  expect_named([](CmlEngineOptions& o) { o.anchor_max_sigma_m = -1.0; }, "anchor_max_sigma_m");
   CmlEngineOptions bad_threads;
   bad_threads.threads = 0;
   EXPECT_THROW(CmlEngine{bad_threads}, Error);
@@ -343,6 +345,60 @@ TEST(CmlEngine, RawRingSessionLocalizes) {
 }
 
 // Per-frame statistics are filled in and consistent with the model.
+// Largest eigenvalue of the xy block of a covariance (m^2).
+double LargestXyVariance(const Eigen::Matrix3d& c) {
+  const double h = 0.5 * (c(0, 0) + c(1, 1)), d = 0.5 * (c(0, 0) - c(1, 1));
+  return h + std::sqrt(d * d + c(0, 1) * c(1, 0));
+}
+
+// Confident anchors: a unimodal estimate that appearance did not fix and whose position
+// is less certain than anchor_max_sigma_m waits like a multimodal frame and reaches the
+// map through the reconstruction at the next anchor; frames that cannot be reconstructed
+// (Finish) still update the map with their filtered estimate. With 0 every unimodal
+// estimate updates the map at once.
+TEST(CmlEngine, UnconfidentUnimodalFramesWaitForTheNextAnchor) {
+  const std::vector<RouteFrame> route = MakeLaps(2, 0.3, 10);
+  for (double anchor_sigma : {0.3, 0.0}) {
+    CmlEngineOptions o = TestOptions();
+    o.anchor_max_sigma_m = anchor_sigma;
+    CmlEngine engine(o);
+    engine.BeginSession(PanoramaSession("d1", SessionStartMode::kKnownPose, route[0].truth));
+    std::set<std::int64_t> waiting;
+    int waited = 0, reconstructed_waiting = 0;
+    for (std::size_t i = 0; i < route.size(); ++i) {
+      const FrameResult r = engine.ProcessFrame(MakeFrame(route[i], 0, static_cast<std::int64_t>(i)));
+      ASSERT_TRUE(r.estimate.has_value());
+      for (const auto& [frame, g] : r.reconstructed) {
+        reconstructed_waiting += waiting.erase(frame) > 0 ? 1 : 0;
+      }
+      const double var = LargestXyVariance(r.estimate->mean.covariance);
+      if (r.estimate->unimodal && !r.map_state) {
+        EXPECT_GT(anchor_sigma, 0.0) << "frame " << i;
+        EXPECT_GT(var, anchor_sigma * anchor_sigma) << "frame " << i;
+        EXPECT_GT(r.stats.pending_multimodal, 0) << "frame " << i;
+        waiting.insert(r.frame);
+        ++waited;
+      }
+      if (r.map_state && anchor_sigma > 0.0) {
+        EXPECT_TRUE(var <= anchor_sigma * anchor_sigma || r.stats.num_matches > 0) << "frame " << i;
+      }
+    }
+    engine.Finish();
+    engine.model().CheckInvariants();
+    const EngineCounters& c = engine.counters();
+    // Every frame updates the map once: at once, reconstructed, or filtered at Finish;
+    // only multimodal frames can be dropped.
+    EXPECT_EQ(c.updates_queued + c.dropped_pending_frames, c.frames);
+    EXPECT_LE(c.dropped_pending_frames, c.multimodal_frames);
+    if (anchor_sigma > 0.0) {
+      EXPECT_GT(waited, 10);
+      EXPECT_GT(reconstructed_waiting, 0);
+    } else {
+      EXPECT_EQ(waited, 0);
+    }
+  }
+}
+
 TEST(CmlEngine, StatisticsAreConsistent) {
   CmlEngine engine(TestOptions());
   const std::vector<RouteFrame> route = MakeLaps(2, 0.3, 9);

@@ -103,12 +103,17 @@ TEST(EndToEnd, BeatsOdometryAndImprovesOverLaps) {
               static_cast<long long>(e.counters.unimodal_frames), static_cast<long long>(e.counters.multimodal_frames),
               static_cast<long long>(e.counters.reconstructed_frames),
               static_cast<long long>(e.counters.dropped_pending_frames));
-  // Measured (seed 3): engine 2.12 m, odometry 3.66 m; lap 0 2.01 m, lap 3 1.92 m, while
-  // dead reckoning keeps drifting from lap to lap. The map holds the first lap's drift
-  // (no loop closure corrects it), so later laps localize about as well as the map
-  // allows: the last lap must not be worse than the first.
-  EXPECT_LT(engine_all, 0.65 * odometry_all);
-  EXPECT_LT(engine_last, engine_first);
+  // Measured (seed 3, default options): engine 1.75 m, odometry 3.66 m; lap 0 2.02 m,
+  // lap 3 1.49 m, while dead reckoning keeps drifting (2.02, 2.69, 4.19, 5.72 m). Lap 0
+  // maps from scratch on dead reckoning; the loop closure at its end anchors the
+  // reconstruction of the stretch since the last confident estimate (anchor_max_sigma_m),
+  // so the map holds corrected poses and later laps localize better. With the weaker
+  // active forgetting used before (d_for 1 m, beta_for 0.1, d_gain 0.2 m): seed 3 laps
+  // 2.01, 1.64, 1.43, 1.34 m; other seeds (all / odometry, last / first lap): 1: 0.14,
+  // 0.58; 2: 0.54, 0.59; 5: 0.20, 0.54. Before confident anchors (every unimodal estimate
+  // straight into the map): engine 2.12 m, laps 2.01 -> 1.92 m.
+  EXPECT_LT(engine_all, 0.55 * odometry_all);
+  EXPECT_LT(engine_last, 0.8 * engine_first);
 }
 
 // Sessions: day 2 starts at a random place on the route with no prior (kGlobal, its
@@ -139,7 +144,7 @@ TEST(EndToEnd, GlobalStartOnDayTwoFindsRobot) {
   // Found within the first 20 frames of the day, then tracked for the rest.
   EXPECT_LE(e.frames_without_estimate, 20);
   EXPECT_GE(day2_frames, sim.frames_per_day - 20);
-  // Measured (seed 3): day 1 1.86 m, day 2 1.92 m; a wrong place would be metres off
+  // Measured (seed 3): day 1 1.84 m, day 2 1.52 m; a wrong place would be metres off
   // (the store is 25 m x 10 m).
   EXPECT_LT(day2, 1.5 * day1 + 0.5);
   EXPECT_LT(day2, 2.5);

@@ -10,9 +10,13 @@
 //   5. barrier: exactly the updates of frames <= t - update_delay_frames are in the map
 //   6. p(x|y) = model.Hypothesis(y_t); p(x|u) = Propagate(p(x_{t-1}), u_t);
 //      p(x_t) = Fuse(p(x|u), {p(x|y)})                          (MixtureTracker::Step)
-//   7. unimodal p(x_t): (y_t, N(mu_t, C_t)) is queued, preceded by the reconstructed
-//      states of the multimodal frames since the previous unimodal anchor
-//      (ReconstructTrajectory); multimodal: y_t waits in the pending list.
+//   7. unimodal p(x_t) that is a confident anchor (fixed by appearance, or position
+//      sigma <= anchor_max_sigma_m): (y_t, N(mu_t, C_t)) is queued, preceded by the
+//      reconstructed states of the frames waiting since the previous anchor
+//      (ReconstructTrajectory); multimodal, or unimodal but dead-reckoned beyond
+//      anchor_max_sigma_m: y_t waits in the pending list. So a loop closure (appearance
+//      pinning the robot down again after a dead-reckoned stretch) corrects the whole
+//      stretch before it reaches the map, instead of the map storing its drift.
 // Queued updates reach the map update_delay_frames frames later (map_updater.h), so the
 // map never feeds back into the estimate it came from.
 //
@@ -28,8 +32,9 @@
 //    map is empty (no view and no queued update) when the session begins, localization
 //    from it is impossible and the engine falls back to N(initial_pose,
 //    initial_covariance) — the configured p(x_0) of an empty map.
-// Multimodal frames still pending when a session begins with kKnownPose or kGlobal, or
-// when Finish is called, cannot be anchored and are dropped (counted in the statistics).
+// Frames still pending when a session begins with kKnownPose or kGlobal, or when Finish
+// is called, cannot be anchored: multimodal ones are dropped (counted in the statistics),
+// unimodal ones update the map with their filtered estimate.
 //
 // Determinism: same options and frames => bit-identical estimates and map, with
 // threads = 1 or 2 and from run to run. Only the timing fields of FrameStats vary.
@@ -90,6 +95,20 @@ struct CmlEngineOptions {
   // At most this many multimodal frames wait for reconstruction; older ones are dropped
   // (and the stretch loses its start anchor). Frames, >= 1.
   int max_pending_multimodal_frames = 300;
+  // Confident anchors (engine-level addition to [G 2.1]/[PK]): a unimodal estimate
+  // anchors the trajectory and updates the map at once only when appearance fixed it
+  // (p(x|y) was non-empty and fused into a unimodal p(x_t)) or the standard deviation of
+  // its position (square root of the largest eigenvalue of the xy block of C_t) is
+  // <= anchor_max_sigma_m. Otherwise (dead reckoning since the last fix) its frame waits
+  // like a multimodal one and reaches the map through the reconstruction between the
+  // previous and the next anchor, so the drift of a stretch without fixes is corrected
+  // when appearance pins the robot down again (a loop closure) instead of being stored
+  // in the map and relearned by every later lap. A waiting unimodal frame that cannot be
+  // reconstructed (session start, Finish, overflow of max_pending_multimodal_frames, where
+  // it becomes the anchor of the rest) updates the map with its own filtered estimate.
+  // Metres, >= 0; 0 disables (every unimodal estimate is an anchor, as in [G]). Only
+  // with reconstruct_multimodal.
+  double anchor_max_sigma_m = 0.5;
   // Panoramas (delivered or unwrapped) are resized to this size when both are > 0
   // (PreparePanorama); 0 keeps the size. Pixels.
   int panorama_width = 0;
@@ -184,6 +203,9 @@ struct PendingFrame {
   int session = 0;
   Descriptor descriptor;
   OdometryIncrement increment;  // from the previous frame to this one (what the tracker used)
+  // Unimodal frames waiting for lack of confidence (anchor_max_sigma_m): the filtered
+  // N(mu_t, C_t), used if the frame cannot be reconstructed. Unset for multimodal frames.
+  std::optional<Gaussian> filtered;
 };
 
 // The state of the engine between frames that SaveEngine writes (besides options and
@@ -216,8 +238,9 @@ class CmlEngine {
   // unchanged except for the frame's map barrier).
   FrameResult ProcessFrame(const Frame& frame);
 
-  // End of the run: applies every queued map update (whatever its due frame) and drops
-  // the multimodal frames still pending (no unimodal anchor follows them). Processing may
+  // End of the run: queues the unimodal frames still pending with their filtered
+  // estimates, drops the multimodal ones (no anchor follows them), and applies every
+  // queued map update (whatever its due frame). Processing may
   // continue afterwards. Returns the number of updates applied.
   int Finish();
 
@@ -250,7 +273,12 @@ class CmlEngine {
   void MakeUnwrapper();
   cv::Mat PreparePanoramaOf(const Frame& frame) const;
   void QueueUnimodal(std::int64_t frame, const Descriptor& y, const Estimate& estimate, FrameResult* result);
-  void DropPending(FrameStats* stats);
+  // Multimodal pending frames are dropped; unimodal ones (waiting for a confident anchor)
+  // are queued with their filtered estimate. `t` is the frame producing the updates.
+  void DropPending(std::int64_t t, FrameStats* stats);
+  bool IsConfidentAnchor(const Estimate& estimate, bool appearance_fix) const;
+  void PushUpdate(std::int64_t t, std::int64_t frame, int session, const Descriptor& d,
+                  const Gaussian& g, bool reconstructed, FrameStats* stats);
   void ShapeHypothesis(double best_similarity, Mixture* p_x_y) const;
 
   CmlEngineOptions options_;

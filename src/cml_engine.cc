@@ -303,7 +303,6 @@ void CmlEngine::ShapeHypothesis(double best_similarity, Mixture* p_x_y) const {
   }
   const double var = options_.appearance_sigma_m * options_.appearance_sigma_m;
   for (Gaussian& g : *p_x_y) {
-    g.weight *= options_.hypothesis_weight_scale;
     if (options_.hypothesis_weight_by_similarity) g.weight *= best_similarity;
     g.covariance(0, 0) += var;
     g.covariance(1, 1) += var;
@@ -373,6 +372,25 @@ FrameResult CmlEngine::ProcessFrame(const Frame& frame) {
       seeding = true;
     }
   } else if (!p_x_y.empty()) {
+    // Prior of each appearance hypothesis: the p(x|u) mass within its gate (2), floored
+    // by hypothesis_weight_scale (a place no current hypothesis covers: kidnapping, loop
+    // closure after long drift). With [G] (8) alone a matched component gains w_b in
+    // full whatever its own weight, so an aliased match (symmetric rooms, heading off by
+    // ~180 deg) that once entered as a new hypothesis won within two or three frames
+    // against a confident p(x|u); with the prior, evidence there grows multiplicatively.
+    const Mixture p_x_u = Propagate(tracker_.state(), current_increment_, options_.tracker.motion);
+    double total_u = 0.0;
+    for (const Gaussian& a : p_x_u) total_u += a.weight;
+    for (Gaussian& b : p_x_y) {
+      double prior = 0.0;
+      for (const Gaussian& a : p_x_u) {
+        if (SquaredMahalanobis(a.mean, b.mean, a.covariance + b.covariance) < options_.tracker.gamma) {
+          prior += a.weight;
+        }
+      }
+      if (total_u > 0.0) prior /= total_u;
+      b.weight *= std::max(prior, options_.hypothesis_weight_scale);
+    }
     sources.push_back(std::move(p_x_y));
   }
   // A unimodal estimate fused with a non-empty p(x|y) was fixed by appearance (a p(x|y)

@@ -125,10 +125,14 @@ struct CmlEngineOptions {
   //  - Its weights are multiplied by the best view's similarity S_max (<= 1), so the
   //    unmatched components it contributes to Fuse (new hypotheses) carry at most S_max.
   bool hypothesis_weight_by_similarity = true;
-  //  - ... and by this factor in (0, 1]: the prior odds that an appearance match far from
+  //  - ... and by its prior: the weight of p(x|u) within its gate (2) (normalised), but at
+  //    least this factor in (0, 1]: the prior odds that an appearance match far from
   //    every current hypothesis is a new place hypothesis (kidnapping, loop closure)
-  //    rather than aliasing. Repeated matches there raise its weight by [G] (8).
-  double hypothesis_weight_scale = 1.0;
+  //    rather than aliasing. Repeated matches there raise its weight by [G] (8), in
+  //    proportion to its prior. Measured on institute (2 days x 1500 frames, seed 1):
+  //    1.0 (no prior) let aliased matches 5 m away with the heading flipped win
+  //    (day 1 mean error 2.9 m, heading 49 deg); 0.1 gives 1.7 m / 15 deg.
+  double hypothesis_weight_scale = 0.1;
   //  - appearance_sigma_m^2 is added to the x and y variances of every component: a view
   //    matches over a neighbourhood of its place, not only at its exact pose. Metres, >= 0.
   double appearance_sigma_m = 0.5;

@@ -3,8 +3,9 @@
 //
 //   omnicml mcl --world home_store --days 2 --frames-per-day 300 --seed 1 --out RUNDIR
 //       references: every --ref-every-th frame of --train-day (with ground truth);
-//       queries: every frame of --test-day; writes RUNDIR/frames.csv, summary.txt,
-//       config.yaml, map.yaml + map.pgm (the occupancy grid used).
+//       queries: every frame of --test-day; writes the run directory described at
+//       WriteRunDirectory (frames.csv in the evaluation.h schema, days.csv, config.yaml,
+//       report.html, summary.txt, map.yaml + map.pgm), atomically.
 //   omnicml mcl LOGDIR --map map.yaml ...   (panorama sessions with ground truth)
 //   omnicml mcl --world home_store --experiment tracking|global|kidnap|noise --runs 20
 //       prints the [W] experiment tables (see README "Baselines").
@@ -22,15 +23,20 @@
 #include <string>
 #include <vector>
 
+#include <unistd.h>
+
 #include <CLI/CLI.hpp>
 
 #include "command_registry.h"
 #include "omnicml/common.h"
 #include "omnicml/descriptor_factory.h"
+#include "omnicml/evaluation.h"
 #include "omnicml/log_format.h"
 #include "omnicml/mcl.h"
 #include "omnicml/occupancy_grid.h"
+#include "omnicml/report.h"
 #include "omnicml/simulator.h"
+#include "omnicml/svg_plot.h"
 #include "omnicml/world.h"
 
 namespace omnicml::app {
@@ -220,6 +226,276 @@ Stats Summarise(std::vector<double> v) {
   return s;
 }
 
+// ------------------------------------------------------------ the run directory
+//
+// RUNDIR holds, like `omnicml run` (run_recorder.h):
+//   frames.csv   evaluation.h schema (readable by `omnicml evaluate RUNDIR`):
+//                  estimate        = the MCL estimate (weighted mean of the best cluster)
+//                  mean_estimate   = the weighted sample mean of all particles
+//                  unimodal        = the best cluster holds >= kUnimodalClusterWeight of
+//                                    the weight
+//                  odometry_error  = dead reckoning anchored at the session's first
+//                                    ground-truth pose vs truth
+//                  views, map_components = number of references (one pose each)
+//                  hypotheses      = references retrieved per query (top_k, all when 0)
+//                  mixture_components = particles of the filter
+//                stages (time_<stage>_us): "correct" = one filter step, prediction +
+//                retrieval + weighting + resampling (RunMcl measures them together), and
+//                "total" = the same (descriptors are computed beforehand, excluded)
+//   days.csv     per-day statistics (EvaluateDay)
+//   config.yaml  the effective MclOptions and inputs
+//   report.html  self-contained: summary, per-day table, error over frames (inline SVG),
+//                error histogram, configuration
+//   summary.txt  the text printed on stdout
+//   map.yaml + map.pgm  the occupancy grid used (map_server format)
+// Everything is written into a temporary sibling directory which is then renamed onto
+// RUNDIR (RUNDIR missing or empty), so a failure leaves no half-written run directory;
+// into an existing non-empty RUNDIR every file is renamed over its old version.
+
+constexpr double kUnimodalClusterWeight = 0.5;
+
+const std::vector<std::string>& MclStageNames() {
+  static const std::vector<std::string> kNames = {"correct", "total"};
+  return kNames;
+}
+
+std::vector<FrameRecord> MakeFrameRecords(const Prepared& p,
+                                          const std::vector<MclStepRecord>& rec) {
+  if (rec.size() != p.test.size()) throw Error("mcl: internal: one record per test frame expected");
+  const int retrieved = p.options.top_k > 0
+                            ? std::min<int>(p.options.top_k, static_cast<int>(p.refs.size()))
+                            : static_cast<int>(p.refs.size());
+  std::vector<FrameRecord> out;
+  out.reserve(rec.size());
+  int session = -1;
+  std::int64_t first_index = 0;
+  bool have_anchor = false;
+  Pose2 anchor_truth = Pose2::Zero(), anchor_odom = Pose2::Zero();
+  for (std::size_t i = 0; i < rec.size(); ++i) {
+    const MclFrame& f = p.test[i];
+    const MclStepRecord& s = rec[i];
+    if (f.session != session) {
+      session = f.session;
+      first_index = f.index;
+      have_anchor = false;
+    }
+    FrameRecord r;
+    r.session = f.session;
+    r.frame = f.index - first_index;
+    r.global_frame = f.index;
+    r.stamp_s = s.stamp_s;
+    r.has_estimate = true;
+    r.estimate = s.estimate.cluster;
+    r.mean_estimate = s.estimate.mean;
+    r.unimodal = s.estimate.cluster_weight >= kUnimodalClusterWeight;
+    if (f.truth) {
+      r.has_truth = true;
+      r.truth = *f.truth;
+      if (!have_anchor) {
+        have_anchor = true;
+        anchor_truth = r.truth;
+        anchor_odom = f.odom_T_robot;
+      }
+      const Pose2 dead_reckoning = Compose(anchor_truth, Between(anchor_odom, f.odom_T_robot));
+      r.odometry_error_m = (dead_reckoning.head<2>() - r.truth.head<2>()).norm();
+      r.position_error_m = (r.estimate.head<2>() - r.truth.head<2>()).norm();
+      r.heading_error_rad = std::abs(WrapAngle(r.estimate.z() - r.truth.z()));
+    }
+    r.views = static_cast<int>(p.refs.size());
+    r.map_components = static_cast<int>(p.refs.size());
+    r.hypotheses = retrieved;
+    r.mixture_components = p.options.num_particles;
+    r.stage_times_us = {s.time_us, s.time_us};
+    out.push_back(std::move(r));
+  }
+  return out;
+}
+
+std::string DaysCsv(const std::vector<FrameRecord>& records) {
+  std::ostringstream os;
+  os << "session,frames,frames_with_truth,unimodal_fraction,position_error_mean_m,"
+        "position_error_median_m,position_error_p95_m,position_error_max_m,heading_error_mean_"
+        "rad,odometry_error_mean_m,views_at_end,map_components_at_end,mean_frame_time_us\n";
+  std::vector<int> sessions;
+  for (const FrameRecord& r : records) {
+    if (sessions.empty() || sessions.back() != r.session) sessions.push_back(r.session);
+  }
+  for (int s : sessions) {
+    const DayEvaluation d = EvaluateDay(records, s, MclStageNames());
+    os << s << ',' << d.frames << ',' << d.frames_with_truth << ','
+       << ShortestDouble(d.unimodal_fraction) << ',' << ShortestDouble(d.position_m.mean) << ','
+       << ShortestDouble(d.position_m.median) << ',' << ShortestDouble(d.position_m.p95) << ','
+       << ShortestDouble(d.position_m.max) << ',' << ShortestDouble(d.heading_rad.mean) << ','
+       << ShortestDouble(d.odometry_m.mean) << ',' << d.views_at_end << ','
+       << d.map_components_at_end << ',' << ShortestDouble(d.mean_frame_time_us) << '\n';
+  }
+  return os.str();
+}
+
+std::string Fx(double v, int prec) { return std::isfinite(v) ? F(v, prec) : std::string("-"); }
+
+std::string ReportHtml(const MclArgs& a, const Prepared& p, const std::vector<FrameRecord>& records,
+                       const std::string& summary_text, const std::string& config_yaml) {
+  FramesTable table;
+  table.stage_names = MclStageNames();
+  table.records = records;
+  const EvaluationResult eval = Evaluate(table, Alignment::kNone);
+  HtmlReport report("omnicml mcl [W]");
+  report.AddHeading("Summary");
+  report.AddKeyValues({
+      {"input", p.input},
+      {"references", StrCat(p.refs.size(), " (day ", a.train_day, ", every ", a.ref_every,
+                            ". frame)")},
+      {"queries", StrCat(records.size(), " (day ", a.test_day, ")")},
+      {"particles", std::to_string(p.options.num_particles)},
+      {"start", a.global ? "global" : "known"},
+      {"descriptor", a.descriptor},
+      {"grid", StrCat(p.grid.width(), " x ", p.grid.height(), " cells of ",
+                      F(p.grid.resolution_m(), 3), " m")},
+      {"position error mean / p95 / max",
+       Fx(eval.overall.position_m.mean, 3) + " / " + Fx(eval.overall.position_m.p95, 3) + " / " +
+           Fx(eval.overall.position_m.max, 3) + " m"},
+      {"odometry-only error mean", Fx(eval.overall.odometry_m.mean, 3) + " m"},
+      {"mean time per step", Fx(eval.overall.mean_frame_time_us / 1000.0, 2) + " ms"},
+      {"preparation", F(p.prepare_s, 1) + " s"},
+  });
+  report.AddPreformatted(summary_text);
+
+  report.AddHeading("Per day");
+  std::vector<std::vector<std::string>> rows;
+  for (const DayEvaluation& d : eval.days) {
+    rows.push_back({std::to_string(d.session + 1), std::to_string(d.frames),
+                    std::to_string(d.frames_with_truth), Fx(d.unimodal_fraction * 100, 1),
+                    Fx(d.position_m.mean, 3), Fx(d.position_m.median, 3), Fx(d.position_m.p95, 3),
+                    Fx(d.position_m.max, 3), Fx(d.heading_rad.mean * 180 / kPi, 2),
+                    Fx(d.odometry_m.mean, 3), std::to_string(d.views_at_end),
+                    Fx(d.mean_frame_time_us / 1000.0, 2)});
+  }
+  report.AddTable({"day", "frames", "with truth", "best cluster >= 50 % of weight, %", "mean m",
+                   "median m", "p95 m", "max m", "heading mean deg", "odometry mean m",
+                   "references", "ms per step"},
+                  rows);
+
+  report.AddHeading("Plots");
+  std::vector<double> x, err, mean_err, odo;
+  for (const FrameRecord& r : records) {
+    x.push_back(static_cast<double>(r.global_frame));
+    err.push_back(r.position_error_m);
+    odo.push_back(r.odometry_error_m);
+    mean_err.push_back(r.has_truth ? (r.mean_estimate.head<2>() - r.truth.head<2>()).norm()
+                                   : kNaN);
+  }
+  SvgPlot err_plot("Position error", "frame", "error [m]", 960, 300);
+  err_plot.AddLine("MCL estimate (best cluster)", x, err);
+  err_plot.AddLine("sample mean", x, mean_err);
+  err_plot.AddLine("odometry only", x, odo);
+  report.AddSvg(err_plot.Render());
+  SvgPlot hist("Position error histogram", "error [m]", "frames");
+  for (std::size_t i = 0; i < eval.days.size(); ++i) {
+    hist.AddHistogram("day " + std::to_string(eval.days[i].session + 1), eval.position_bin_edges_m,
+                      eval.position_histograms[i], eval.days.size() > 1);
+  }
+  report.AddSvg(hist.Render());
+
+  report.AddHeading("Effective configuration");
+  report.AddPreformatted(config_yaml);
+  return report.Render();
+}
+
+// Writes `content` to `path`, throwing omnicml::Error naming the file on failure.
+void WriteWhole(const fs::path& path, const std::string& content) {
+  std::ofstream out(path, std::ios::binary);
+  out << content;
+  out.close();
+  if (!out) throw Error(StrCat(path.string(), ": write failed"));
+}
+
+// Fails early (before the long preparation) when --out cannot become a run directory.
+void CheckRunDir(const std::string& out) {
+  if (out.empty()) return;
+  const fs::path dir = fs::absolute(fs::path(out)).lexically_normal();
+  fs::path parent = dir.parent_path();
+  if (dir.filename().empty()) parent = dir.parent_path().parent_path();
+  if (!parent.empty() && !fs::is_directory(parent)) {
+    throw Error(StrCat("--out '", out, "': directory '", parent.string(), "' does not exist"));
+  }
+  if (fs::exists(dir) && !fs::is_directory(dir)) {
+    throw Error(StrCat("--out '", out, "' exists and is not a directory"));
+  }
+}
+
+// A temporary sibling directory removed on destruction unless released.
+class TempDir {
+ public:
+  explicit TempDir(fs::path path) : path_(std::move(path)) {
+    std::error_code ec;
+    if (!fs::create_directory(path_, ec) || ec) {
+      throw Error(StrCat("cannot create '", path_.string(), "': ",
+                         ec ? ec.message() : std::string("already exists")));
+    }
+  }
+  ~TempDir() {
+    if (path_.empty()) return;
+    std::error_code ec;
+    fs::remove_all(path_, ec);
+  }
+  TempDir(const TempDir&) = delete;
+  TempDir& operator=(const TempDir&) = delete;
+  const fs::path& path() const { return path_; }
+
+ private:
+  fs::path path_;
+};
+
+void WriteRunDirectory(const MclArgs& a, const Prepared& p, const std::vector<MclStepRecord>& rec,
+                       const std::string& summary_text) {
+  CheckRunDir(a.out);
+  fs::path dir = fs::absolute(fs::path(a.out)).lexically_normal();
+  if (dir.filename().empty()) dir = dir.parent_path();
+  const std::vector<FrameRecord> records = MakeFrameRecords(p, rec);
+  const std::string config = ConfigYaml(a, p);
+
+  static int counter = 0;
+  TempDir tmp(dir.parent_path() /
+              StrCat(".", dir.filename().string(), ".tmp-", ::getpid(), "-", counter++));
+  {
+    std::ostringstream csv;
+    WriteFramesCsvHeader(csv, MclStageNames());
+    for (const FrameRecord& r : records) WriteFramesCsvRow(csv, r);
+    WriteWhole(tmp.path() / "frames.csv", csv.str());
+  }
+  WriteWhole(tmp.path() / "days.csv", DaysCsv(records));
+  WriteWhole(tmp.path() / "config.yaml", config);
+  WriteWhole(tmp.path() / "summary.txt", summary_text);
+  WriteWhole(tmp.path() / "report.html", ReportHtml(a, p, records, summary_text, config));
+  SaveOccupancyGrid(p.grid, (tmp.path() / "map.yaml").string());
+
+  std::error_code ec;
+  const bool exists = fs::exists(dir, ec);
+  if (exists && !fs::is_directory(dir)) {
+    throw Error(StrCat("--out '", a.out, "' exists and is not a directory"));
+  }
+  if (!exists || fs::is_empty(dir, ec)) {
+    if (exists) fs::remove(dir, ec);  // an empty directory; rename() may not replace it
+    fs::rename(tmp.path(), dir, ec);
+    if (ec) {
+      throw Error(StrCat("cannot rename '", tmp.path().string(), "' to '", dir.string(), "': ",
+                         ec.message()));
+    }
+  } else {
+    // An existing run directory: replace each file atomically, keep unrelated files.
+    for (const auto& entry : fs::directory_iterator(tmp.path())) {
+      fs::rename(entry.path(), dir / entry.path().filename(), ec);
+      if (ec) {
+        throw Error(StrCat("cannot rename '", entry.path().string(), "' into '", dir.string(),
+                           "': ", ec.message()));
+      }
+    }
+  }
+  std::cout << "wrote " << a.out
+            << "/{frames.csv,days.csv,config.yaml,report.html,summary.txt,map.yaml,map.pgm}\n";
+}
+
 // A single run with a run directory.
 void RunSingle(const MclArgs& a, const Prepared& p) {
   MonteCarloLocalizer mcl(p.options, p.grid, p.refs, p.extractor);
@@ -268,34 +544,7 @@ void RunSingle(const MclArgs& a, const Prepared& p) {
       << "\n";
   std::cout << sum.str();
   if (a.out.empty()) return;
-  fs::create_directories(a.out);
-  const fs::path dir(a.out);
-  {
-    std::ofstream csv(dir / "frames.csv");
-    csv << "step,frame,stamp_s,x_m,y_m,phi_rad,mean_x_m,mean_y_m,mean_phi_rad,cluster_weight,"
-           "truth_x_m,truth_y_m,truth_phi_rad,position_error_m,heading_error_rad,particles,"
-           "kidnapped,time_us\n";
-    csv << std::setprecision(10);
-    for (const auto& r : rec) {
-      csv << r.step << "," << r.frame << "," << r.stamp_s << "," << r.estimate.cluster.x() << ","
-          << r.estimate.cluster.y() << "," << r.estimate.cluster.z() << "," << r.estimate.mean.x()
-          << "," << r.estimate.mean.y() << "," << r.estimate.mean.z() << ","
-          << r.estimate.cluster_weight << ",";
-      if (r.truth) {
-        csv << r.truth->x() << "," << r.truth->y() << "," << r.truth->z() << ","
-            << r.position_error_m << "," << r.heading_error_rad;
-      } else {
-        csv << ",,,,";
-      }
-      csv << "," << p.options.num_particles << "," << (r.kidnapped ? 1 : 0) << "," << r.time_us
-          << "\n";
-    }
-    if (!csv) throw Error(StrCat((dir / "frames.csv").string(), ": write failed"));
-  }
-  std::ofstream(dir / "summary.txt") << sum.str();
-  std::ofstream(dir / "config.yaml") << ConfigYaml(a, p);
-  SaveOccupancyGrid(p.grid, (dir / "map.yaml").string());
-  std::cout << "wrote " << a.out << "/{frames.csv,summary.txt,config.yaml,map.yaml,map.pgm}\n";
+  WriteRunDirectory(a, p, rec, sum.str());
 }
 
 MclOptions RunOptions(const Prepared& p, int run) {
@@ -443,6 +692,7 @@ void ExperimentNoise(const MclArgs& a, const Prepared& p) {
 
 void RunMclCommand(const MclArgs& a) {
   if (a.runs < 1) throw Error("mcl: --runs must be >= 1");
+  if (a.experiment.empty()) CheckRunDir(a.out);
   const Prepared p = Prepare(a);
   int empty = 0;
   double cells = 0;

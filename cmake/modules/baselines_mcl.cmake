@@ -9,4 +9,4 @@ omnicml_add_test(mcl_test
   SOURCES tests/occupancy_grid_test.cc tests/mcl_test.cc
   DEPS omnicml_mcl)
 omnicml_add_benchmark(mcl_benchmark SOURCES bench/mcl_benchmark.cc DEPS omnicml_mcl)
-omnicml_add_command(SOURCES apps/cmd_mcl.cc DEPS omnicml_mcl)
+omnicml_add_command(SOURCES apps/cmd_mcl.cc DEPS omnicml_mcl omnicml_cli_support)

@@ -106,6 +106,7 @@ void WriteDescriptorOptions(BinaryWriter& out, const DescriptorOptions& o) {
   out.Write<std::int32_t>(o.fourier.coefficients);
   out.Write<std::int32_t>(static_cast<std::int32_t>(o.fourier.distance));
   out.Write<bool>(o.fourier.normalize_bands);
+  out.Write<bool>(o.fourier.normalize_columns);
   // Invariant feature histogram.
   out.Write<std::uint64_t>(o.ifh.kernels.size());
   for (const IfhKernel& k : o.ifh.kernels) {
@@ -135,6 +136,7 @@ DescriptorOptions ReadDescriptorOptions(BinaryReader& in) {
   o.fourier.coefficients = in.Read<std::int32_t>("descriptor.fourier.coefficients");
   o.fourier.distance = ReadEnum<FourierDistance>(in, "descriptor.fourier.distance", 0, 1);
   o.fourier.normalize_bands = in.Read<bool>("descriptor.fourier.normalize_bands");
+  o.fourier.normalize_columns = in.Read<bool>("descriptor.fourier.normalize_columns");
   const std::size_t kernels = in.ReadCount("descriptor.ifh.kernels", 8);
   o.ifh.kernels.clear();
   for (std::size_t i = 0; i < kernels; ++i) {

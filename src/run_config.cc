@@ -310,6 +310,7 @@ void VisitFields(V& v, FourierOptions& o) {
          EnumCodec<FourierDistance>{[](FourierDistance d) { return ToString(d); },
                                     FourierDistanceFromString});
   v("normalize_bands", o.normalize_bands);
+  v("normalize_columns", o.normalize_columns);
 }
 
 // IfhOptions::kernels: a list of kernels, each a list of [x, y] pixel offsets.

@@ -98,11 +98,13 @@ TEST(FourierSignature, FftMatchesNaiveDft) {
   for (int r = 0; r < image.rows; ++r)
     for (int c = 0; c < image.cols; ++c)
       image.at<std::uint8_t>(r, c) = static_cast<std::uint8_t>(u(rng));
-  for (bool normalize : {false, true}) {
+  for (int variant = 0; variant < 4; ++variant) {
+    const bool normalize = variant & 1, columns = variant & 2;
     FourierOptions options;
     options.bands = 2;
     options.coefficients = 7;
     options.normalize_bands = normalize;
+    options.normalize_columns = columns;
     const FourierSignature fs(options);
     const cv::Mat signals = fs.BandSignals(image);
     const Descriptor d = fs.Compute(image);
@@ -122,16 +124,20 @@ TEST(FourierSignature, FftMatchesNaiveDft) {
       }
     }
     if (!normalize) {
-      // Without normalisation the band signal is the mean grey of its rows in [0, 1].
-      double mean = 0;
+      // Without band normalisation the band signal is the mean grey of its rows in [0, 1],
+      // divided by the mean grey of the whole column when columns are normalised.
+      double mean = 0, column = 0;
       for (int r = 0; r < 3; ++r) mean += image.at<std::uint8_t>(r, 4);
-      EXPECT_NEAR(signals.at<float>(0, 4), mean / (3 * 255.0), 1e-6);
+      for (int r = 0; r < image.rows; ++r) column += image.at<std::uint8_t>(r, 4);
+      const double expected = columns ? (mean / 3) / (column / image.rows) : mean / (3 * 255.0);
+      EXPECT_NEAR(signals.at<float>(0, 4), expected, 1e-6);
     }
   }
 }
 
 // Per-band normalisation makes the descriptor invariant to a global gain and offset;
-// without it the descriptor changes (so the test can tell the two apart).
+// without it the descriptor changes (so the test can tell the two apart). (Column
+// normalisation is off here: it removes gains, not offsets.)
 TEST(FourierSignature, NormalisationRemovesGainAndOffset) {
   cv::Mat grey;
   cv::cvtColor(MakeSyntheticPanorama(720, 120, 9), grey, cv::COLOR_BGR2GRAY);
@@ -140,7 +146,9 @@ TEST(FourierSignature, NormalisationRemovesGainAndOffset) {
   double max_value = 0;
   cv::minMaxLoc(grey, nullptr, &max_value);
   ASSERT_LE(2 * max_value + 10, 255);
-  const FourierSignature normalized;
+  FourierOptions band_options;
+  band_options.normalize_columns = false;
+  const FourierSignature normalized(band_options);
   const Descriptor a = normalized.Compute(grey), b = normalized.Compute(brighter);
   for (std::size_t i = 0; i < a.features.size(); ++i)
     EXPECT_NEAR(a.features[i], b.features[i], 1e-4);
@@ -150,8 +158,38 @@ TEST(FourierSignature, NormalisationRemovesGainAndOffset) {
 
   FourierOptions raw_options;
   raw_options.normalize_bands = false;
+  raw_options.normalize_columns = false;
   const FourierSignature raw(raw_options);
   EXPECT_GT(raw.Distance(raw.Compute(grey), raw.Compute(brighter)), 0.05);
+}
+
+// Column normalisation (the default) makes the descriptor invariant to a brightness gain
+// that differs between sectors of the panorama, as when the lights of one room go off:
+// here a quarter of the panorama is dimmed to 40 %. Without it the same change moves the
+// descriptor far beyond e_max, and the relative heading stays exact with it.
+TEST(FourierSignature, ColumnNormalisationRemovesASectorGain) {
+  cv::Mat grey;
+  cv::cvtColor(MakeSyntheticPanorama(720, 120, 4), grey, cv::COLOR_BGR2GRAY);
+  // Multiples of 5 (per pixel: OpenCV would fold (grey / 5) * 5 into one scale of 1), so
+  // that 0.4 x value is an exact integer.
+  for (int r = 0; r < grey.rows; ++r)
+    for (int c = 0; c < grey.cols; ++c) grey.at<std::uint8_t>(r, c) = grey.at<std::uint8_t>(r, c) / 5 * 5;
+  cv::Mat dimmed = grey.clone();
+  for (int r = 0; r < dimmed.rows; ++r)
+    for (int c = 200; c < 380; ++c)
+      dimmed.at<std::uint8_t>(r, c) = static_cast<std::uint8_t>(dimmed.at<std::uint8_t>(r, c) * 2 / 5);
+  const FourierSignature fs;  // defaults: normalize_columns and normalize_bands
+  ASSERT_TRUE(fs.options().normalize_columns);
+  const Descriptor a = fs.Compute(grey), b = fs.Compute(dimmed);
+  EXPECT_LT(fs.Distance(a, b), 1e-4);
+  const auto heading = fs.RelativeHeading(a, b);
+  ASSERT_TRUE(heading.has_value());
+  EXPECT_NEAR(*heading, 0.0, 1e-6);
+
+  FourierOptions bands_only;
+  bands_only.normalize_columns = false;
+  const FourierSignature without(bands_only);
+  EXPECT_GT(without.Distance(without.Compute(grey), without.Compute(dimmed)), 0.3);
 }
 
 // L1 and L2 distances agree with their definitions, also for lengths not a multiple of 8.

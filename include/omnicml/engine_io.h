@@ -39,7 +39,7 @@
 namespace omnicml {
 
 // Version of the payload layout written by SaveEngine. Bump on any change.
-inline constexpr std::uint32_t kEngineFormatVersion = 2;
+inline constexpr std::uint32_t kEngineFormatVersion = 3;
 // The 8 magic bytes (including the terminating NUL).
 inline constexpr char kEngineMagic[8] = {'O', 'M', 'N', 'I', 'C', 'M', 'L', '\0'};
 

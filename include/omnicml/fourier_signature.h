@@ -3,9 +3,16 @@
 // The panorama (converted to grey, values in [0, 1]) is split into `bands` horizontal
 // segments of (nearly) equal height (band b holds rows floor(b H / bands) up to
 // floor((b + 1) H / bands) - 1); each band is averaged over its rows into a 1-D
-// signal s_b[c] over azimuth (c = 0..W-1, W the panorama width). Optionally each signal
-// is normalised to zero mean and unit variance, which removes a global gain and offset
-// of the illumination. A real FFT of size W (FFTW3, single precision) gives
+// signal s_b[c] over azimuth (c = 0..W-1, W the panorama width). Optionally (on by
+// default) each s_b[c] is divided by the mean brightness of column c over the whole
+// height: a light zone switched off or a curtain drawn scales a sector of the panorama by
+// a factor that is nearly constant along each column, and this division removes it
+// (omnicml's addition to [G]; measured on the `institute` world, where lights and curtains
+// change every few steps: the Fourier-nearest day-1 view of a day-2 frame lies within 1 m
+// for 85 % of frames with it and 40 % without, and the engine's mean error on two days
+// fell from 1.76 m to 0.46 m with e_max 0.45). Optionally each signal is then normalised
+// to zero mean and unit variance, which removes a global gain and offset of the
+// illumination. A real FFT of size W (FFTW3, single precision) gives
 //   S_b[m] = (1 / W) sum_c s_b[c] exp(-2 pi i m c / W).
 // A column roll multiplies S_b[m] by a phase only, so the magnitudes |S_b[m]| are
 // rotation invariant: they are the feature vector. The complex values are kept for the
@@ -65,6 +72,11 @@ struct FourierOptions {
   // Zero mean, unit variance per band signal before the FFT: invariance to a global
   // gain/offset of brightness. A constant band (variance 0) is left at zero.
   bool normalize_bands = true;
+  // Divide each column's band means by the column's mean brightness (floored at 1e-3 of
+  // full scale) before the band normalisation: invariance to a brightness gain that
+  // varies over azimuth but not along a column (light zones, curtains). A column roll
+  // still permutes the band signals exactly.
+  bool normalize_columns = true;
 
   // Throws omnicml::Error naming the field when a value is out of range.
   void Validate() const;

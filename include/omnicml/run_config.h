@@ -11,7 +11,8 @@
 //   initial_covariance: [[0.01, 0, 0], [0, 0.01, 0], [0, 0, 0.001]]
 //   descriptor:
 //     kind: fourier                               # fourier | ifh | color
-//     fourier: {bands: 4, coefficients: 16, distance: l2, normalize_bands: true}
+//     fourier: {bands: 4, coefficients: 16, distance: l2, normalize_bands: true,
+//               normalize_columns: true}
 //     ifh: {kernels: [[[0, 0], [0, 1]], [[0, 3], [4, 0]]], angles: 8, bins: 16, scales: [1],
 //           color: true, sample_fraction: 1, seed: 42}
 //     color: {bins: 32, filter_width: 5, normalized_rgb: false, distance: jeffrey}

@@ -1,9 +1,12 @@
-// `omnicml describe IMAGE... [--descriptor fourier|ifh|color]
+// `omnicml describe IMAGE... [--descriptor fourier|ifh|color] [--config ENGINE.yaml]
 //                  [--unwrap CALIB.yaml | --auto-calibrate | --panorama] [--json]`:
 // computes the descriptor of each image (panoramas by default; raw ring images are
 // unwrapped first with --unwrap or --auto-calibrate) and prints each image's size and
 // descriptor length, then for every pair (A, B) the distance E and the relative heading
 // heading(B) - heading(A) in degrees ("n/a" for the histograms, which carry no rotation).
+// With --config, the descriptor options (kind and per-kind settings, e.g.
+// descriptor.fourier.normalize_columns) come from an engine configuration file, the same
+// YAML `omnicml run --config` reads; --descriptor overrides its kind.
 //
 // `omnicml describe --make-sample DIR [--seed N]` writes a procedural 720x120 colour
 // panorama and a copy rolled by 90 columns (= the robot turned 45 degrees
@@ -26,6 +29,7 @@
 #include "omnicml/common.h"
 #include "omnicml/descriptor_factory.h"
 #include "omnicml/omni_unwrapper.h"
+#include "omnicml/run_config.h"
 
 namespace omnicml::app {
 namespace {
@@ -36,7 +40,8 @@ constexpr int kSampleRollColumns = 90;  // 90 * 360 / 720 = 45 degrees
 
 struct DescribeArgs {
   std::vector<std::string> images;
-  std::string descriptor = "fourier";
+  std::string descriptor;  // empty: the configuration's kind, else fourier
+  std::string config;
   std::string calibration;
   bool auto_calibrate = false;
   bool panorama = false;
@@ -103,7 +108,8 @@ void RunDescribe(const DescribeArgs& args) {
     throw Error("describe: give at most one of --unwrap CALIB.yaml, --auto-calibrate, --panorama");
   }
   DescriptorOptions options;
-  options.kind = DescriptorKindFromString(args.descriptor);
+  if (!args.config.empty()) options = LoadEngineOptionsYaml(args.config).descriptor;
+  if (!args.descriptor.empty()) options.kind = DescriptorKindFromString(args.descriptor);
   const std::unique_ptr<DescriptorExtractor> extractor = MakeDescriptorExtractor(options);
   std::optional<OmniCalibration> calibration;
   if (!args.calibration.empty()) calibration = OmniCalibration::FromYamlFile(args.calibration);
@@ -192,8 +198,12 @@ const CommandRegistration kRegistration{
           "Describe panoramas: sizes, pairwise descriptor distances and relative headings");
       cmd->add_option("images", args->images,
                       "Image files (panoramas, or raw ring images with --unwrap/--auto-calibrate)");
-      cmd->add_option("--descriptor", args->descriptor, "Descriptor: fourier, ifh or color")
+      cmd->add_option("--descriptor", args->descriptor,
+                      "Descriptor: fourier, ifh or color (default: the --config kind, else fourier)")
           ->check(CLI::IsMember({"fourier", "ifh", "color"}));
+      cmd->add_option("--config", args->config,
+                      "Engine configuration YAML whose descriptor section sets the descriptor options")
+          ->check(CLI::ExistingFile);
       auto* unwrap = cmd->add_option("--unwrap", args->calibration,
                                      "Unwrap raw ring images with this calibration YAML");
       auto* autocal = cmd->add_flag("--auto-calibrate", args->auto_calibrate,

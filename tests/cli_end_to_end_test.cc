@@ -342,6 +342,38 @@ TEST_F(CliEndToEnd, MclWritesARunDirectoryThatEvaluates) {
   EXPECT_TRUE(TemporaryFiles(Dir()).empty());
 }
 
+TEST_F(CliEndToEnd, DescribeTakesDescriptorOptionsFromAnEngineConfig) {
+  // describe --config reads the descriptor section of an engine configuration, so a user
+  // can look at the distances the engine would see; --descriptor overrides the kind.
+  const fs::path day1 = Sessions()[0];
+  std::string images;
+  for (const char* f : {"000000.png", "000001.png"}) images += " " + (day1 / f).string();
+  const fs::path color = Dir() / "color.yaml", columns = Dir() / "columns.yaml",
+                 bad = Dir() / "bad_descriptor.yaml";
+  std::ofstream(color) << "descriptor:\n  kind: color\n";
+  std::ofstream(columns) << "descriptor:\n  fourier: {normalize_columns: false}\n";
+  std::ofstream(bad) << "descriptor:\n  fourier: {bandz: 3}\n";
+  const CommandResult c = RunOmnicml("describe" + images + " --config " + color.string());
+  ASSERT_EQ(c.exit_code, 0) << c.output;
+  EXPECT_NE(c.output.find("descriptor: color"), std::string::npos) << c.output;
+  const CommandResult over =
+      RunOmnicml("describe" + images + " --config " + color.string() + " --descriptor fourier --json");
+  ASSERT_EQ(over.exit_code, 0) << over.output;
+  const auto with_columns = RunOmnicml("describe" + images + " --json");
+  const auto without = RunOmnicml("describe" + images + " --config " + columns.string() + " --json");
+  ASSERT_EQ(with_columns.exit_code, 0) << with_columns.output;
+  ASSERT_EQ(without.exit_code, 0) << without.output;
+  const auto jo = nlohmann::json::parse(over.output), jc = nlohmann::json::parse(with_columns.output),
+             jn = nlohmann::json::parse(without.output);
+  EXPECT_EQ(jo["descriptor"], "fourier");
+  // The default configuration equals the built-in default; normalize_columns changes E.
+  EXPECT_EQ(jo["pairs"][0]["distance"], jc["pairs"][0]["distance"]);
+  EXPECT_NE(jc["pairs"][0]["distance"], jn["pairs"][0]["distance"]);
+  const CommandResult b = RunOmnicml("describe" + images + " --config " + bad.string());
+  EXPECT_EQ(b.exit_code, 2);
+  EXPECT_NE(b.output.find("descriptor.fourier.bandz"), std::string::npos) << b.output;
+}
+
 TEST_F(CliEndToEnd, BadInputExitsWithCodeTwoAndLeavesNothing) {
   // Unknown flags or keys, missing logs and foreign map files: exit code 2, a message
   // naming what and where, and no output files.

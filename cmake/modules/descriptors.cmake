@@ -16,5 +16,6 @@ omnicml_add_benchmark(descriptor_benchmark SOURCES bench/descriptor_benchmark.cc
 
 # The describe command reads and unwraps images through the unwrap module.
 if(TARGET omnicml_unwrap)
-  omnicml_add_command(SOURCES apps/cmd_describe.cc DEPS omnicml_descriptors omnicml_unwrap nlohmann_json::nlohmann_json)
+  omnicml_add_command(SOURCES apps/cmd_describe.cc DEPS omnicml_descriptors omnicml_unwrap omnicml_cli_support
+    nlohmann_json::nlohmann_json)
 endif()

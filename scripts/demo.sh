@@ -5,14 +5,14 @@
 # position error) and the path of the HTML report with map-growth and error plots.
 # By default [G]'s own setting: the institute world (offices whose lights and curtains
 # change every few steps), 3 days x 3000 frames, views counted at steps 2000, 4000, 6000
-# and 8000. About 3.5 minutes after the build on 2 cores.
+# and 8000. About 1.5 minutes after the build on 2 cores (the three modes run in parallel).
 #
 #   scripts/demo.sh
 # Environment: OMNICML_BUILD_DIR (default build), OMNICML_DEMO_OUT (default runs/demo),
 # OMNICML_DEMO_WORLD (default institute), OMNICML_DEMO_FRAMES (frames per day, default
 # 3000), OMNICML_DEMO_STEPS (default 2000,4000,6000,8000). A shorter run on the store:
 # OMNICML_DEMO_WORLD=home_store OMNICML_DEMO_FRAMES=1000 OMNICML_DEMO_STEPS=1000,2000,3000
-# (about 1.2 minutes).
+# (about 35 s).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/setup.sh

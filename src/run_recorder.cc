@@ -353,14 +353,17 @@ RunSummary RunEngineOverSource(std::unique_ptr<CmlEngine>& engine, FrameSource& 
   };
   auto end_session = [&](const FrameResult* last) {
     if (!progress.quiet && last != nullptr) {
-      if (progress.progress_bar) std::cerr << "\r\033[K";
-      std::cerr << prefix << "day " << current_session + 1 << " done: " << session_frames
-                << " frames, " << last->stats.num_views << " views, "
-                << engine->model().NumComponents() << " components";
+      // One write per line, so runs in parallel threads (compare) never split a line.
+      std::ostringstream line;
+      if (progress.progress_bar) line << "\r\033[K";
+      line << prefix << "day " << current_session + 1 << " done: " << session_frames
+           << " frames, " << last->stats.num_views << " views, "
+           << engine->model().NumComponents() << " components";
       if (error_count > 0)
-        std::cerr << ", mean error so far "
-                  << Fixed(error_sum / static_cast<double>(error_count), 3) << " m";
-      std::cerr << "\n";
+        line << ", mean error so far " << Fixed(error_sum / static_cast<double>(error_count), 3)
+             << " m";
+      line << "\n";
+      std::cerr << line.str();
     }
   };
   Frame frame;
@@ -406,7 +409,7 @@ RunSummary RunEngineOverSource(std::unique_ptr<CmlEngine>& engine, FrameSource& 
         std::cerr << "\r\033[K" << prefix << bar << status(last) << std::flush;
       }
     } else if (progress.log_every_frames > 0 && summary.frames % progress.log_every_frames == 0) {
-      std::cerr << prefix << status(last) << "\n";
+      std::cerr << (prefix + status(last) + "\n");
     }
   }
   if (current_session >= 0) end_session(have_last ? &last : nullptr);

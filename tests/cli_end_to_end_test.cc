@@ -7,6 +7,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <map>
 #include <sstream>
 #include <string>
@@ -289,8 +290,23 @@ TEST_F(CliEndToEnd, CompareRunsTheThreeModes) {
   // compare prints views at the steps for passive, active and static, and writes a report.
   const fs::path out = Dir() / "compare";
   const CommandResult r = RunOmnicml("compare " + (Dir() / "log").string() +
-                                     " --quiet --steps 25,50,100,1000 --out " + out.string());
+                                     " --quiet --jobs 3 --steps 25,50,100,1000 --out " + out.string());
   ASSERT_EQ(r.exit_code, 0) << r.output;
+  // The modes ran in three threads; one after the other they give the same frames.
+  const fs::path sequential = Dir() / "compare_sequential";
+  const CommandResult r1 = RunOmnicml("compare " + (Dir() / "log").string() +
+                                      " --quiet --jobs 1 --steps 25,50,100,1000 --out " + sequential.string());
+  ASSERT_EQ(r1.exit_code, 0) << r1.output;
+  for (const char* mode : {"passive", "active", "static"}) {
+    EXPECT_EQ(DeterministicRows(out / mode / "frames.csv"), DeterministicRows(sequential / mode / "frames.csv"))
+        << mode;
+  }
+  auto slurp = [](const fs::path& p) {
+    std::ifstream in(p);
+    return std::string(std::istreambuf_iterator<char>(in), {});
+  };
+  EXPECT_EQ(slurp(out / "table.txt"), slurp(sequential / "table.txt"));
+  EXPECT_FALSE(slurp(out / "table.txt").empty());
   for (const char* mode : {"passive", "active", "static"}) {
     EXPECT_NE(r.output.find(mode), std::string::npos) << r.output;
     EXPECT_TRUE(fs::is_regular_file(out / mode / "frames.csv")) << mode;

@@ -92,9 +92,15 @@ struct CmlEngineOptions {
   // Reconstruct multimodal stretches at the next unimodal estimate and update the map
   // with them; false: multimodal frames never update the map.
   bool reconstruct_multimodal = true;
-  // At most this many multimodal frames wait for reconstruction; older ones are dropped
-  // (and the stretch loses its start anchor). Frames, >= 1.
-  int max_pending_multimodal_frames = 300;
+  // At most this many frames wait for reconstruction; older ones are dropped or, when
+  // unimodal, go to the map with their filtered estimate (and the stretch loses its start
+  // anchor). Frames, >= 1. It bounds the loop a closure can correct, and the damage a
+  // wrong closure does. Measured, mean error over all days (store_large 3 x 1500 frames,
+  // a 300 m first lap of 1500 frames; institute 2 x 1500 frames, seed 3):
+  //   300: 9.24 m, 1.14 m;  600: 7.74 m, 1.06 m;  1000: 7.08 m, 1.29 m;  2000: 6.20 m, 1.63 m
+  // (institute seeds 1 and 2 do not change). Memory about 1 kB per waiting frame; the
+  // reconstruction of 1450 frames took 0.4 s, once, at the closure.
+  int max_pending_multimodal_frames = 1000;
   // Confident anchors (engine-level addition to [G 2.1]/[PK]): a unimodal estimate
   // anchors the trajectory and updates the map at once only when appearance fixed it
   // (p(x|y) was non-empty and fused into a unimodal p(x_t)) or the standard deviation of

@@ -312,6 +312,7 @@ TEST_F(CliEndToEnd, CompareRunsTheThreeModes) {
     EXPECT_TRUE(fs::is_regular_file(out / mode / "frames.csv")) << mode;
   }
   EXPECT_NE(r.output.find("views@25"), std::string::npos);
+  EXPECT_NE(r.output.find("odom_err_m"), std::string::npos);
   EXPECT_TRUE(fs::is_regular_file(out / "report.html"));
   // Static freezes the map after day 1: its view count never changes on day 2.
   const FramesTable st = ReadFramesCsv(out / "static" / "frames.csv");

@@ -89,7 +89,7 @@ struct RunInput {
   std::string world;                    // built-in world name, when log_dirs is empty
   int days = 1;                         // simulated days (world only), >= 1
   int first_day = 0;                    // first simulated day (world only; resume a run), >= 0
-  int frames_per_day = 0;               // simulated frames per day; 0 = the world's default
+  int frames_per_day = 0;               // simulated frames per day; 0 = SimulatorOptions' default (300)
   std::uint64_t seed = 1;               // simulator seed (world only)
   bool skip_unreadable_frames = false;  // logs only: skip (and count) unreadable frames
 

@@ -39,7 +39,7 @@ void AddRunInputFlags(CLI::App* cmd, RunFlags* f, bool with_forgetting) {
                   "First simulated day, 0-based (with --world; resume with --map-in)")
       ->capture_default_str();
   cmd->add_option("--frames-per-day", f->input.frames_per_day,
-                  "Simulated frames per day (0 = the simulator default, 300; one lap is about 285 on home_store, 180 on institute, 1500 on store_large)")
+                  "Simulated frames per day (0 = the simulator default, 300; one lap is about 285 on home_store, 180 on institute, 1425 on store_large)")
       ->capture_default_str();
   cmd->add_option("--seed", f->input.seed, "Simulator seed")->capture_default_str();
   cmd->add_flag("--skip-unreadable-frames", f->input.skip_unreadable_frames,

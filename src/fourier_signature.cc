@@ -98,28 +98,32 @@ cv::Mat FourierSignature::BandSignals(const cv::Mat& panorama) const {
   }
   const int width = grey.cols, height = grey.rows, bands = options_.bands;
   cv::Mat signals(bands, width, CV_32FC1);
-  std::vector<std::uint32_t> sums(static_cast<std::size_t>(width));
-  // Column normalisation: the gain 1 / (mean brightness of column c over the whole
-  // height), from integer sums so that a roll permutes it exactly, the brightness floored
-  // at 1e-3 of full scale so a black column does not blow up.
-  std::vector<double> column_gain(static_cast<std::size_t>(width), 1.0);
-  if (options_.normalize_columns) {
-    std::vector<std::uint32_t> column_sums(static_cast<std::size_t>(width), 0u);
-    for (int r = 0; r < height; ++r) {
-      const std::uint8_t* row = grey.ptr<std::uint8_t>(r);
-      for (int c = 0; c < width; ++c) column_sums[c] += row[c];
-    }
-    const double scale = 1.0 / (255.0 * height);
-    for (int c = 0; c < width; ++c) column_gain[c] = 1.0 / std::max(column_sums[c] * scale, 1e-3);
-  }
+  // Integer row sums per band (bands partition the rows): exact, so a column roll
+  // permutes them exactly.
+  const std::size_t w = static_cast<std::size_t>(width);
+  std::vector<std::uint32_t> band_sums(static_cast<std::size_t>(bands) * w, 0u);
   for (int b = 0; b < bands; ++b) {
-    const int r0 = b * height / bands, r1 = (b + 1) * height / bands;
-    std::fill(sums.begin(), sums.end(), 0u);
-    for (int r = r0; r < r1; ++r) {
+    std::uint32_t* sums = band_sums.data() + static_cast<std::size_t>(b) * w;
+    for (int r = b * height / bands; r < (b + 1) * height / bands; ++r) {
       const std::uint8_t* row = grey.ptr<std::uint8_t>(r);
       for (int c = 0; c < width; ++c) sums[c] += row[c];
     }
-    // Integer sums: exact, so a column roll permutes the signal exactly.
+  }
+  // Column normalisation: the gain 1 / (mean brightness of column c over the whole
+  // height, the sum of its band sums), the brightness floored at 1e-3 of full scale so a
+  // black column does not blow up.
+  std::vector<double> column_gain(w, 1.0);
+  if (options_.normalize_columns) {
+    const double scale = 1.0 / (255.0 * height);
+    for (std::size_t c = 0; c < w; ++c) {
+      std::uint32_t column_sum = 0;
+      for (int b = 0; b < bands; ++b) column_sum += band_sums[static_cast<std::size_t>(b) * w + c];
+      column_gain[c] = 1.0 / std::max(column_sum * scale, 1e-3);
+    }
+  }
+  for (int b = 0; b < bands; ++b) {
+    const int r0 = b * height / bands, r1 = (b + 1) * height / bands;
+    const std::uint32_t* sums = band_sums.data() + static_cast<std::size_t>(b) * w;
     float* s = signals.ptr<float>(b);
     const double scale = 1.0 / (255.0 * (r1 - r0));
     for (int c = 0; c < width; ++c) s[c] = static_cast<float>(sums[c] * scale * column_gain[c]);

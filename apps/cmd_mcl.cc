@@ -390,12 +390,7 @@ std::string ReportHtml(const MclArgs& a, const Prepared& p, const std::vector<Fr
   err_plot.AddLine("sample mean", x, mean_err);
   err_plot.AddLine("odometry only", x, odo);
   report.AddSvg(err_plot.Render());
-  SvgPlot hist("Position error histogram", "error [m]", "frames");
-  for (std::size_t i = 0; i < eval.days.size(); ++i) {
-    hist.AddHistogram("day " + std::to_string(eval.days[i].session + 1), eval.position_bin_edges_m,
-                      eval.position_histograms[i], eval.days.size() > 1);
-  }
-  report.AddSvg(hist.Render());
+  report.AddSvg(RenderPositionHistogramSvg(eval));
 
   report.AddHeading("Effective configuration");
   report.AddPreformatted(config_yaml);

@@ -483,6 +483,19 @@ std::string FormatEvaluation(const EvaluationResult& result, bool with_histogram
   return os.str();
 }
 
+namespace {
+std::string DayName(const DayEvaluation& day) { return "day " + std::to_string(day.session + 1); }
+}  // namespace
+
+std::string RenderPositionHistogramSvg(const EvaluationResult& result, const std::string& title) {
+  SvgPlot plot(title, "error [m]", "frames");
+  for (std::size_t i = 0; i < result.days.size(); ++i) {
+    plot.AddHistogram(DayName(result.days[i]), result.position_bin_edges_m,
+                      result.position_histograms[i], result.days.size() > 1);
+  }
+  return plot.Render();
+}
+
 std::string RenderEvaluationHtml(const EvaluationResult& result, const FramesTable& table,
                                  const std::string& title) {
   HtmlReport report(title);
@@ -499,17 +512,14 @@ std::string RenderEvaluationHtml(const EvaluationResult& result, const FramesTab
   report.AddTable(DayHeader(), rows);
 
   report.AddHeading("Error histograms (cf. [G] Fig. 5 and 6)");
-  SvgPlot pos_plot("Position error", "error [m]", "frames");
   SvgPlot head_plot("Heading error", "error [deg]", "frames");
   std::vector<double> head_edges_deg;
   for (double e : result.heading_bin_edges_rad) head_edges_deg.push_back(e * 180 / kPi);
   for (std::size_t i = 0; i < result.days.size(); ++i) {
-    const std::string name = "day " + std::to_string(result.days[i].session + 1);
-    const bool steps = result.days.size() > 1;
-    pos_plot.AddHistogram(name, result.position_bin_edges_m, result.position_histograms[i], steps);
-    head_plot.AddHistogram(name, head_edges_deg, result.heading_histograms[i], steps);
+    head_plot.AddHistogram(DayName(result.days[i]), head_edges_deg, result.heading_histograms[i],
+                           result.days.size() > 1);
   }
-  report.AddSvg(pos_plot.Render());
+  report.AddSvg(RenderPositionHistogramSvg(result, "Position error"));
   report.AddSvg(head_plot.Render());
 
   // Error over the run, estimate versus dead reckoning (re-aligned the same way).

@@ -151,12 +151,7 @@ std::string RenderRunReport(const std::string& title, const std::string& input,
   map_plot.AddLine("reference views", x, views);
   map_plot.AddLine("components", x, comps);
   report.AddSvg(map_plot.Render());
-  SvgPlot hist("Position error histogram", "error [m]", "frames");
-  for (std::size_t i = 0; i < eval.days.size(); ++i) {
-    hist.AddHistogram("day " + std::to_string(eval.days[i].session + 1), eval.position_bin_edges_m,
-                      eval.position_histograms[i], eval.days.size() > 1);
-  }
-  report.AddSvg(hist.Render());
+  report.AddSvg(RenderPositionHistogramSvg(eval));
 
   report.AddHeading("Time per stage (mean over frames)");
   std::vector<std::vector<std::string>> stage_rows;

@@ -151,6 +151,11 @@ std::string FormatTextTable(const std::vector<std::string>& header,
 // then (with_histogram) the position histogram as counts per bin and day.
 std::string FormatEvaluation(const EvaluationResult& result, bool with_histogram = true);
 
+// Inline SVG of the position-error histogram, one series per day (steps when there are
+// several days), on the result's common bins.
+std::string RenderPositionHistogramSvg(const EvaluationResult& result,
+                                       const std::string& title = "Position error histogram");
+
 // Self-contained HTML page (tables and inline SVG histograms and error-over-time plot).
 std::string RenderEvaluationHtml(const EvaluationResult& result, const FramesTable& table,
                                  const std::string& title);

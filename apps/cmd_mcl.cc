@@ -311,27 +311,6 @@ std::vector<FrameRecord> MakeFrameRecords(const Prepared& p,
   return out;
 }
 
-std::string DaysCsv(const std::vector<FrameRecord>& records) {
-  std::ostringstream os;
-  os << "session,frames,frames_with_truth,unimodal_fraction,position_error_mean_m,"
-        "position_error_median_m,position_error_p95_m,position_error_max_m,heading_error_mean_"
-        "rad,odometry_error_mean_m,views_at_end,map_components_at_end,mean_frame_time_us\n";
-  std::vector<int> sessions;
-  for (const FrameRecord& r : records) {
-    if (sessions.empty() || sessions.back() != r.session) sessions.push_back(r.session);
-  }
-  for (int s : sessions) {
-    const DayEvaluation d = EvaluateDay(records, s, MclStageNames());
-    os << s << ',' << d.frames << ',' << d.frames_with_truth << ','
-       << ShortestDouble(d.unimodal_fraction) << ',' << ShortestDouble(d.position_m.mean) << ','
-       << ShortestDouble(d.position_m.median) << ',' << ShortestDouble(d.position_m.p95) << ','
-       << ShortestDouble(d.position_m.max) << ',' << ShortestDouble(d.heading_rad.mean) << ','
-       << ShortestDouble(d.odometry_m.mean) << ',' << d.views_at_end << ','
-       << d.map_components_at_end << ',' << ShortestDouble(d.mean_frame_time_us) << '\n';
-  }
-  return os.str();
-}
-
 std::string Fx(double v, int prec) { return std::isfinite(v) ? F(v, prec) : std::string("-"); }
 
 std::string ReportHtml(const MclArgs& a, const Prepared& p, const std::vector<FrameRecord>& records,
@@ -459,7 +438,11 @@ void WriteRunDirectory(const MclArgs& a, const Prepared& p, const std::vector<Mc
     for (const FrameRecord& r : records) WriteFramesCsvRow(csv, r);
     WriteWhole(tmp.path() / "frames.csv", csv.str());
   }
-  WriteWhole(tmp.path() / "days.csv", DaysCsv(records));
+  {
+    std::ostringstream days;
+    WriteDaysCsv(days, records, MclStageNames());
+    WriteWhole(tmp.path() / "days.csv", days.str());
+  }
   WriteWhole(tmp.path() / "config.yaml", config);
   WriteWhole(tmp.path() / "summary.txt", summary_text);
   WriteWhole(tmp.path() / "report.html", ReportHtml(a, p, records, summary_text, config));

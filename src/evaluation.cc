@@ -483,6 +483,36 @@ std::string FormatEvaluation(const EvaluationResult& result, bool with_histogram
   return os.str();
 }
 
+void WriteDaysCsv(std::ostream& os, const std::vector<FrameRecord>& records,
+                  const std::vector<std::string>& stage_names,
+                  const std::vector<std::string>& extra_columns,
+                  const std::function<std::vector<std::string>(int session)>& extra_values) {
+  os << "session,frames,frames_with_truth,unimodal_fraction,position_error_mean_m,"
+        "position_error_median_m,position_error_p95_m,position_error_max_m,heading_error_mean_"
+        "rad,odometry_error_mean_m,views_at_end,map_components_at_end,";
+  for (const std::string& c : extra_columns) os << c << ',';
+  os << "mean_frame_time_us\n";
+  std::vector<int> sessions;
+  for (const FrameRecord& r : records) {
+    if (sessions.empty() || sessions.back() != r.session) sessions.push_back(r.session);
+  }
+  for (int s : sessions) {
+    const DayEvaluation d = EvaluateDay(records, s, stage_names);
+    os << s << ',' << d.frames << ',' << d.frames_with_truth << ','
+       << ShortestDouble(d.unimodal_fraction) << ',' << ShortestDouble(d.position_m.mean) << ','
+       << ShortestDouble(d.position_m.median) << ',' << ShortestDouble(d.position_m.p95) << ','
+       << ShortestDouble(d.position_m.max) << ',' << ShortestDouble(d.heading_rad.mean) << ','
+       << ShortestDouble(d.odometry_m.mean) << ',' << d.views_at_end << ','
+       << d.map_components_at_end << ',';
+    if (!extra_columns.empty()) {
+      const std::vector<std::string> values = extra_values(s);
+      OMNICML_CHECK(values.size() == extra_columns.size()) << "WriteDaysCsv: extra values";
+      for (const std::string& v : values) os << v << ',';
+    }
+    os << ShortestDouble(d.mean_frame_time_us) << '\n';
+  }
+}
+
 namespace {
 std::string DayName(const DayEvaluation& day) { return "day " + std::to_string(day.session + 1); }
 }  // namespace

@@ -264,32 +264,15 @@ void RunRecorder::Commit(const CmlEngine& engine,
     files.push_back(std::move(config));
 
     auto days = std::make_unique<AtomicFile>(options_.run_dir / "days.csv");
-    days->stream()
-        << "session,frames,frames_with_truth,unimodal_fraction,position_error_mean_m,"
-           "position_error_median_m,position_error_p95_m,position_error_max_m,heading_error_mean_"
-           "rad,"
-           "odometry_error_mean_m,views_at_end,map_components_at_end,views_inserted,views_removed,"
-           "components_removed,mean_frame_time_us\n";
-    std::vector<int> sessions;
-    for (const FrameRecord& r : records_) {
-      if (sessions.empty() || sessions.back() != r.session) sessions.push_back(r.session);
-    }
     const auto events = EventsBySession(engine.model());
-    for (int s : sessions) {
-      const DayEvaluation d = EvaluateDay(records_, s, StageNames());
-      const auto it = events.find(s);
-      const SessionEvents ev = it == events.end() ? SessionEvents{} : it->second;
-      days->stream() << s << ',' << d.frames << ',' << d.frames_with_truth << ','
-                     << ShortestDouble(d.unimodal_fraction) << ','
-                     << ShortestDouble(d.position_m.mean) << ','
-                     << ShortestDouble(d.position_m.median) << ','
-                     << ShortestDouble(d.position_m.p95) << ',' << ShortestDouble(d.position_m.max)
-                     << ',' << ShortestDouble(d.heading_rad.mean) << ','
-                     << ShortestDouble(d.odometry_m.mean) << ',' << d.views_at_end << ','
-                     << d.map_components_at_end << ',' << ev.views_inserted << ','
-                     << ev.views_removed << ',' << ev.components_removed << ','
-                     << ShortestDouble(d.mean_frame_time_us) << '\n';
-    }
+    WriteDaysCsv(days->stream(), records_, StageNames(),
+                 {"views_inserted", "views_removed", "components_removed"}, [&](int session) {
+                   const auto it = events.find(session);
+                   const SessionEvents ev = it == events.end() ? SessionEvents{} : it->second;
+                   return std::vector<std::string>{std::to_string(ev.views_inserted),
+                                                   std::to_string(ev.views_removed),
+                                                   std::to_string(ev.components_removed)};
+                 });
     files.push_back(std::move(days));
 
     auto ev = std::make_unique<AtomicFile>(options_.run_dir / "events.csv");

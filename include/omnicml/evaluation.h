@@ -21,6 +21,7 @@
 
 #include <cstdint>
 #include <filesystem>
+#include <functional>
 #include <limits>
 #include <ostream>
 #include <string>
@@ -132,6 +133,16 @@ struct EvaluationResult {
 // Per-day statistics of already aligned records.
 DayEvaluation EvaluateDay(const std::vector<FrameRecord>& records, int session,
                           const std::vector<std::string>& stage_names);
+
+// days.csv of a run directory: a header, then one row per session of `records` in order
+// of appearance (EvaluateDay with stage_names): session, frames, frames_with_truth,
+// unimodal_fraction, position_error_{mean,median,p95,max}_m, heading_error_mean_rad,
+// odometry_error_mean_m, views_at_end, map_components_at_end, then `extra_columns`
+// (values from extra_values(session), as many as columns), then mean_frame_time_us.
+void WriteDaysCsv(std::ostream& os, const std::vector<FrameRecord>& records,
+                  const std::vector<std::string>& stage_names,
+                  const std::vector<std::string>& extra_columns = {},
+                  const std::function<std::vector<std::string>(int session)>& extra_values = {});
 
 // Aligns (a copy of) the records and evaluates every day and the whole run.
 EvaluationResult Evaluate(const FramesTable& table, Alignment alignment, int histogram_bins = 20);

@@ -23,12 +23,12 @@
 #include <CLI/CLI.hpp>
 
 #include "command_registry.h"
-#include "omnicml/common.h"
-#include "omnicml/evaluation.h"
-#include "omnicml/report.h"
-#include "omnicml/run_config.h"
-#include "omnicml/run_recorder.h"
-#include "omnicml/svg_plot.h"
+#include "omnicml/common/common.h"
+#include "omnicml/evaluation/evaluation.h"
+#include "omnicml/report/report.h"
+#include "omnicml/experiments/run_config.h"
+#include "omnicml/experiments/run_recorder.h"
+#include "omnicml/report/svg_plot.h"
 
 namespace omnicml::app {
 

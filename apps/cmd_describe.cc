@@ -26,10 +26,10 @@
 #include <nlohmann/json.hpp>
 
 #include "command_registry.h"
-#include "omnicml/common.h"
-#include "omnicml/descriptor_factory.h"
-#include "omnicml/omni_unwrapper.h"
-#include "omnicml/run_config.h"
+#include "omnicml/common/common.h"
+#include "omnicml/descriptors/descriptor_factory.h"
+#include "omnicml/unwrap/omni_unwrapper.h"
+#include "omnicml/experiments/run_config.h"
 
 namespace omnicml::app {
 namespace {

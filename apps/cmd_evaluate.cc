@@ -9,9 +9,9 @@
 #include <CLI/CLI.hpp>
 
 #include "command_registry.h"
-#include "omnicml/common.h"
-#include "omnicml/evaluation.h"
-#include "omnicml/report.h"
+#include "omnicml/common/common.h"
+#include "omnicml/evaluation/evaluation.h"
+#include "omnicml/report/report.h"
 
 namespace omnicml::app {
 namespace {

@@ -12,10 +12,10 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include "command_registry.h"
-#include "omnicml/common.h"
-#include "omnicml/engine_io.h"
-#include "omnicml/map_export.h"
-#include "omnicml/report.h"
+#include "omnicml/common/common.h"
+#include "omnicml/engine/engine_io.h"
+#include "omnicml/report/map_export.h"
+#include "omnicml/report/report.h"
 
 namespace omnicml::app {
 

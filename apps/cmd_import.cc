@@ -10,8 +10,8 @@
 #include <CLI/CLI.hpp>
 
 #include "command_registry.h"
-#include "omnicml/antworld.h"
-#include "omnicml/log_format.h"
+#include "omnicml/logs/antworld.h"
+#include "omnicml/logs/log_format.h"
 
 namespace omnicml::app {
 namespace {

@@ -7,8 +7,8 @@
 #include <CLI/CLI.hpp>
 
 #include "command_registry.h"
-#include "omnicml/common.h"
-#include "omnicml/map_export.h"
+#include "omnicml/common/common.h"
+#include "omnicml/report/map_export.h"
 
 namespace omnicml::app {
 

@@ -28,16 +28,16 @@
 #include <CLI/CLI.hpp>
 
 #include "command_registry.h"
-#include "omnicml/common.h"
-#include "omnicml/descriptor_factory.h"
-#include "omnicml/evaluation.h"
-#include "omnicml/log_format.h"
-#include "omnicml/mcl.h"
-#include "omnicml/occupancy_grid.h"
-#include "omnicml/report.h"
-#include "omnicml/simulator.h"
-#include "omnicml/svg_plot.h"
-#include "omnicml/world.h"
+#include "omnicml/common/common.h"
+#include "omnicml/descriptors/descriptor_factory.h"
+#include "omnicml/evaluation/evaluation.h"
+#include "omnicml/logs/log_format.h"
+#include "omnicml/baselines/mcl/mcl.h"
+#include "omnicml/baselines/mcl/occupancy_grid.h"
+#include "omnicml/report/report.h"
+#include "omnicml/sim/simulator.h"
+#include "omnicml/report/svg_plot.h"
+#include "omnicml/sim/world.h"
 
 namespace omnicml::app {
 namespace {

@@ -16,11 +16,11 @@
 #include <CLI/CLI.hpp>
 
 #include "command_registry.h"
-#include "omnicml/common.h"
-#include "omnicml/engine_io.h"
-#include "omnicml/evaluation.h"
-#include "omnicml/run_config.h"
-#include "omnicml/run_recorder.h"
+#include "omnicml/common/common.h"
+#include "omnicml/engine/engine_io.h"
+#include "omnicml/evaluation/evaluation.h"
+#include "omnicml/experiments/run_config.h"
+#include "omnicml/experiments/run_recorder.h"
 
 namespace omnicml::app {
 

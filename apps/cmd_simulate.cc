@@ -16,12 +16,12 @@
 #include <opencv2/imgproc.hpp>
 
 #include "command_registry.h"
-#include "omnicml/common.h"
-#include "omnicml/log_format.h"
-#include "omnicml/omni_unwrapper.h"
-#include "omnicml/renderer.h"
-#include "omnicml/simulator.h"
-#include "omnicml/world.h"
+#include "omnicml/common/common.h"
+#include "omnicml/logs/log_format.h"
+#include "omnicml/unwrap/omni_unwrapper.h"
+#include "omnicml/sim/renderer.h"
+#include "omnicml/sim/simulator.h"
+#include "omnicml/sim/world.h"
 
 namespace omnicml::app {
 namespace {

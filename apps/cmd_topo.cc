@@ -23,11 +23,11 @@
 #include <CLI/CLI.hpp>
 
 #include "command_registry.h"
-#include "omnicml/common.h"
-#include "omnicml/log_format.h"
-#include "omnicml/simulator.h"
-#include "omnicml/topological.h"
-#include "omnicml/world.h"
+#include "omnicml/common/common.h"
+#include "omnicml/logs/log_format.h"
+#include "omnicml/sim/simulator.h"
+#include "omnicml/baselines/topo/topological.h"
+#include "omnicml/sim/world.h"
 
 namespace omnicml::app {
 namespace {

@@ -11,8 +11,8 @@
 #include <CLI/CLI.hpp>
 
 #include "command_registry.h"
-#include "omnicml/common.h"
-#include "omnicml/omni_unwrapper.h"
+#include "omnicml/common/common.h"
+#include "omnicml/unwrap/omni_unwrapper.h"
 
 namespace omnicml::app {
 namespace {

@@ -7,7 +7,7 @@
 #include <CLI/CLI.hpp>
 
 #include "command_registry.h"
-#include "omnicml/common.h"
+#include "omnicml/common/common.h"
 
 namespace omnicml::app {
 std::vector<RegisteredCommand>& CommandRegistry() {

@@ -6,9 +6,9 @@
 #include <random>
 #include <vector>
 
-#include "omnicml/color_histogram.h"
-#include "omnicml/fourier_signature.h"
-#include "omnicml/invariant_feature_histogram.h"
+#include "omnicml/descriptors/color_histogram.h"
+#include "omnicml/descriptors/fourier_signature.h"
+#include "omnicml/descriptors/invariant_feature_histogram.h"
 
 namespace omnicml {
 namespace {

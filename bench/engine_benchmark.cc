@@ -17,9 +17,9 @@
 #include <random>
 #include <vector>
 
-#include "omnicml/binary_io.h"
-#include "omnicml/cml_engine.h"
-#include "omnicml/common.h"
+#include "omnicml/common/binary_io.h"
+#include "omnicml/engine/cml_engine.h"
+#include "omnicml/common/common.h"
 
 namespace omnicml {
 namespace {

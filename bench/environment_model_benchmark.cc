@@ -16,11 +16,9 @@
 #include <benchmark/benchmark.h>
 #include <Eigen/Core>
 
-#include "omnicml/environment_model.h"
+#include "omnicml/mapping/environment_model.h"
 
-#ifdef OMNICML_ENVMODEL_HAVE_DESCRIPTORS
-#include "omnicml/descriptor_factory.h"
-#endif
+#include "omnicml/descriptors/descriptor_factory.h"
 
 namespace omnicml {
 namespace {
@@ -55,7 +53,6 @@ struct Fixture {
 // Second benchmark argument: 0 = the L2 extractor above, 1 = the real FourierSignature
 // (4 bands x 16 coefficients = 64 features, L2, heading from the coefficients).
 std::shared_ptr<const DescriptorExtractor> MakeExtractor(std::int64_t which) {
-#ifdef OMNICML_ENVMODEL_HAVE_DESCRIPTORS
   if (which == 1) {
     DescriptorOptions options;
     options.kind = DescriptorKind::kFourier;
@@ -63,7 +60,6 @@ std::shared_ptr<const DescriptorExtractor> MakeExtractor(std::int64_t which) {
     options.fourier.coefficients = 16;
     return MakeDescriptorExtractor(options);
   }
-#endif
   (void)which;
   return std::make_shared<L2Extractor>();
 }
@@ -183,9 +179,6 @@ void BM_UpdateNovel(benchmark::State& state) {
 // Arguments: {views, extractor (0 = L2 fake, 1 = FourierSignature)}.
 void Sizes(benchmark::internal::Benchmark* b) {
   for (const std::int64_t which : {0, 1}) {
-#ifndef OMNICML_ENVMODEL_HAVE_DESCRIPTORS
-    if (which == 1) continue;
-#endif
     for (const std::int64_t n : {1000, 10000, 100000}) b->Args({n, which});
   }
   b->ArgNames({"views", "fourier"});

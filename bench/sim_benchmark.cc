@@ -5,9 +5,9 @@
 
 #include <benchmark/benchmark.h>
 
-#include "omnicml/renderer.h"
-#include "omnicml/simulator.h"
-#include "omnicml/world.h"
+#include "omnicml/sim/renderer.h"
+#include "omnicml/sim/simulator.h"
+#include "omnicml/sim/world.h"
 
 namespace {
 

@@ -11,8 +11,8 @@
 #include <benchmark/benchmark.h>
 #include <Eigen/Core>
 
-#include "omnicml/common.h"
-#include "omnicml/tracker.h"
+#include "omnicml/common/common.h"
+#include "omnicml/tracking/tracker.h"
 
 namespace omnicml {
 namespace {

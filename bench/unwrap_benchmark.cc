@@ -6,7 +6,7 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include "omnicml/omni_unwrapper.h"
+#include "omnicml/unwrap/omni_unwrapper.h"
 
 namespace omnicml {
 namespace {

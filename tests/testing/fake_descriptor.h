@@ -16,8 +16,8 @@
 #include <optional>
 #include <vector>
 
-#include "omnicml/common.h"
-#include "omnicml/descriptor.h"
+#include "omnicml/common/common.h"
+#include "omnicml/descriptors/descriptor.h"
 
 namespace omnicml::testing {
 

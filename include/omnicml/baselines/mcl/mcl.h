@@ -1,0 +1,249 @@
+// Monte Carlo localization with an image retrieval system and visibility areas [W]
+// (Wolf, Burgard, Burkhardt), the first baseline of docs/design.md "Baselines from the seeds".
+//
+// The map is a set of reference views (pose, descriptor, visibility area sigma_j) over an
+// occupancy grid. One filter step, for odometry increment u_t and query descriptor y_t:
+//   1. Prediction: every particle moves by u_t perturbed with the a1..a4 odometry model
+//      (SampleOdometryIncrement, docs/design.md "Motion model").
+//   2. Retrieval: E_j = Distance(y_t, y_j) for every reference; xi_j = 1 - E_j / max_l E_l
+//      for the top_k most similar references (our reading of [W]'s retrieval score: the
+//      system returns the k best images with a similarity in [0, 1]; normalising by the
+//      worst distance of the frame makes it independent of the descriptor's scale), 0 for
+//      the others.
+//   3. Weights, [W] eqs. (7)-(8): for particle x_i with cell c_i,
+//        K_i = sum_{j : c_i in sigma_j} d(psi_ij),
+//        p(y_t | x_i) = (1 / K_i) sum_{j : c_i in sigma_j} xi_j d(psi_ij)   if K_i > 0  (7)
+//        p(y_t | x_i) = prior                                               if K_i = 0  (8)
+//      with psi_ij = phi_i - phi_j (the angle between the particle's and the reference's
+//      viewing direction) and the angular step function d(psi) = 1 for |psi| <=
+//      heading_gate_half_width_rad, else 0 (d = 1 everywhere with heading_independent, the
+//      default for omni views, whose appearance hardly depends on the heading with a
+//      rotation-invariant descriptor). prior = prior_fraction * mean of the non-zero xi_j.
+//      A particle in a non-free cell gets weight 0; every weight is at least
+//      min_likelihood (so the set never degenerates to all zeros).
+//   4. Estimate (from the weighted set): the sample mean (circular mean for phi) and the
+//      best cluster (see MclEstimate).
+//   5. Low-variance resampling (Thrun et al., Probabilistic Robotics, Table 4.4) to
+//      num_particles - random_samples_per_step particles, plus random_samples_per_step
+//      samples drawn uniformly over the free cells with uniform heading ([W]'s random
+//      sample injection, which lets the filter recover from kidnapping).
+//
+// Visibility areas (occupancy_grid.h VisibilityArea): [W]'s camera had one optical axis;
+// an omni view has none. We use the reference's heading plus axis_offset_rad as its
+// axis (configurable), and, for omni views, keep only the part of the area within
+// visibility.max_distance_from_reference_m of the reference position.
+//
+// Determinism: every random draw comes from one std::mt19937_64 seeded with
+// MclOptions::seed; the same inputs give the same particles bit for bit.
+// Thread-compatible: one thread drives a localizer.
+#ifndef OMNICML_MCL_H_
+#define OMNICML_MCL_H_
+
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "omnicml/common/common.h"
+#include "omnicml/descriptors/descriptor.h"
+#include "omnicml/descriptors/descriptor_factory.h"
+#include "omnicml/unwrap/frame.h"
+#include "omnicml/baselines/mcl/occupancy_grid.h"
+#include "omnicml/geometry/pose.h"
+#include "omnicml/tracking/tracker.h"
+
+namespace omnicml {
+
+struct MclOptions {
+  // Number of particles (>= 10). [W] used 5000.
+  int num_particles = 5000;
+  // Random samples injected per step, uniform over the free cells ([W]: 50); in
+  // [0, num_particles / 2].
+  int random_samples_per_step = 50;
+  // The filter's odometry error model (a1: rad^2/rad^2, a2: rad^2/m^2, a3: m^2/m^2, a4:
+  // m^2/rad^2), a little wider than the simulated worlds' noise.
+  MotionNoise motion{.a1 = 0.02, .a2 = 0.005, .a3 = 0.01, .a4 = 0.002};
+  // Angular step function d(psi): half width, radians (> 0). [W]: 5 degrees.
+  double heading_gate_half_width_rad = 5.0 * kPi / 180.0;
+  // With true, d(psi) = 1 for every heading (omni views).
+  bool heading_independent = true;
+  // Retrieval: the k most similar references get xi_j > 0 (0 = all references).
+  int top_k = 10;
+  // [W] eq. (8): a particle outside every (gated) visibility area is weighted by
+  // prior_fraction times the mean similarity of the retrieved references. In [0, 1].
+  double prior_fraction = 0.2;
+  // Lower bound of every particle weight (> 0, dimensionless, relative to xi in [0, 1]).
+  double min_likelihood = 1e-3;
+  // Optical axis of a reference view: its heading plus this offset, radians.
+  double axis_offset_rad = 0.0;
+  // Visibility areas of the references. The ray and distance limits are generous: in an
+  // aisle the wall on an omni view's axis may be 20 m away, and the area is kept near
+  // the reference by max_distance_from_reference_m instead.
+  VisibilityOptions visibility{.max_ray_range_m = 50.0,
+                               .max_distance_m = 50.0,
+                               .max_view_angle_rad = kPi / 4,
+                               .max_distance_from_reference_m = 2.5};
+  // Best cluster: particles are binned on a grid of this cell size (metres, > 0); the
+  // 3 x 3 window of bins with the largest weight is the cluster seed.
+  double cluster_cell_m = 0.5;
+  // The cluster is every particle within this distance of the seed window's weighted
+  // mean, metres (> 0).
+  double cluster_radius_m = 1.0;
+  // Initial spread of InitializeAt, standard deviations (m, m, rad; >= 0).
+  double init_sigma_xy_m = 0.2;
+  double init_sigma_phi_rad = 0.1;
+  // Seed of the filter's generator (std::mt19937_64).
+  std::uint64_t seed = 1;
+
+  // Throws omnicml::Error "mcl: <field>: what" for the first invalid field.
+  void Validate() const;
+};
+
+// A reference image of the map: where it was taken, its descriptor and its visibility area.
+struct MclReference {
+  Pose2 map_T_robot = Pose2::Zero();
+  Descriptor descriptor;
+  double axis_rad = 0.0;            // optical axis used for sigma_j, map frame
+  std::vector<int> visibility;      // sigma_j: linear cell indices, ascending
+  std::optional<CellIndex> lambda;  // lambda_j, the wall point on the axis
+};
+
+// Computes axis_rad and sigma_j for each reference (views are modified in place).
+void ComputeVisibilityAreas(const OccupancyGrid& grid, const MclOptions& options,
+                            std::vector<MclReference>* references);
+
+struct Particle {
+  Pose2 pose = Pose2::Zero();  // map_T_robot
+  double weight = 0.0;         // normalised after a correction
+};
+
+struct MclEstimate {
+  Pose2 mean = Pose2::Zero();         // weighted sample mean, circular mean for phi
+  Pose2 cluster = Pose2::Zero();      // weighted mean of the best cluster
+  double cluster_weight = 0.0;        // fraction of the total weight in that cluster
+  Eigen::Vector2d spread_m = Eigen::Vector2d::Zero();  // weighted std. dev. of x and y
+};
+
+class MonteCarloLocalizer {
+ public:
+  // Takes the grid and the references (visibility areas must already be computed, see
+  // ComputeVisibilityAreas) and the extractor that made their descriptors. Throws
+  // omnicml::Error on invalid options, no free cell, no reference, or references of mixed
+  // descriptor kinds.
+  MonteCarloLocalizer(const MclOptions& options, OccupancyGrid grid,
+                      std::vector<MclReference> references,
+                      std::shared_ptr<const DescriptorExtractor> extractor);
+
+  // Global localization: particles uniform over the free cells, uniform heading.
+  void InitializeGlobal();
+  // Tracking: particles Gaussian around `pose` (init_sigma_* of the options).
+  void InitializeAt(const Pose2& map_T_robot);
+
+  // Step 1: prediction with the odometry increment.
+  void Predict(const OdometryIncrement& u);
+  // Steps 2-5 for a query descriptor (of the extractor's kind). Returns the estimate of
+  // the weighted set. Throws omnicml::Error when the descriptor does not match.
+  MclEstimate Correct(const Descriptor& query);
+
+  // [W] eqs. (7)-(8) for one pose, given xi_j for every reference (size = references).
+  double Likelihood(const Pose2& map_T_robot, const std::vector<double>& xi) const;
+  // Retrieval similarities xi_j of a query (step 2).
+  std::vector<double> Similarities(const Descriptor& query) const;
+  // Estimate of a weighted particle set (weights need not be normalised).
+  MclEstimate Estimate(const std::vector<Particle>& particles) const;
+
+  const std::vector<Particle>& particles() const { return particles_; }
+  void set_particles(std::vector<Particle> p) { particles_ = std::move(p); }
+  const OccupancyGrid& grid() const { return grid_; }
+  const std::vector<MclReference>& references() const { return references_; }
+  const MclOptions& options() const { return options_; }
+  // Number of references whose visibility area holds a cell (before gating).
+  int Coverage(int linear_cell) const {
+    return cell_start_[linear_cell + 1] - cell_start_[linear_cell];
+  }
+
+ private:
+  Pose2 RandomFreePose();
+
+  MclOptions options_;
+  OccupancyGrid grid_;
+  std::vector<MclReference> references_;
+  std::shared_ptr<const DescriptorExtractor> extractor_;
+  std::vector<int> free_cells_;
+  // Per cell, the references whose sigma_j contains it (CSR).
+  std::vector<int> cell_start_;
+  std::vector<int> cell_refs_;
+  std::vector<Particle> particles_;
+  std::mt19937_64 rng_;
+};
+
+// Low-variance (systematic) resampling: n particles drawn from `particles` in proportion
+// to their weights with one random offset; the result has weights 1 / n. Throws
+// omnicml::Error when the weights are not positive-summing.
+std::vector<Particle> LowVarianceResample(const std::vector<Particle>& particles, int n,
+                                          std::mt19937_64& rng);
+
+// ------------------------------------------------------------------- sequences and runs
+
+// One frame reduced to what the filter needs.
+struct MclFrame {
+  std::int64_t index = 0;  // global frame index in the source
+  int session = 0;
+  double stamp_s = 0.0;
+  Pose2 odom_T_robot = Pose2::Zero();
+  std::optional<Pose2> truth;
+  Descriptor descriptor;
+};
+
+// Reads every stride-th frame of the given sessions (0-based; empty = all) from a source
+// and computes their descriptors. Only panorama sessions are supported (ImageKind::
+// kPanorama): throws omnicml::Error naming the session for a raw ring session.
+std::vector<MclFrame> ReadMclFrames(FrameSource& source, const DescriptorExtractor& extractor,
+                                    const std::vector<int>& sessions, int stride = 1);
+
+// References from frames with ground truth (those without are skipped).
+std::vector<MclReference> MakeReferences(const std::vector<MclFrame>& frames);
+
+// How one run over a sequence is driven.
+struct MclRunSpec {
+  // true: InitializeAt(truth of the first frame); false: InitializeGlobal().
+  bool known_start = true;
+  // Kidnapping: after processing step kidnap_step (>= 1), the robot is carried to frame
+  // kidnap_to_frame of the sequence without odometry (the next increment is zero); the
+  // run then continues from there. -1: no kidnapping.
+  int kidnap_step = -1;
+  int kidnap_to_frame = 0;
+  // Extra odometry noise applied to the increments the filter receives: the a1..a4
+  // model with these parameters (all zero: the odometry as logged).
+  MotionNoise extra_odometry_noise{.a1 = 0, .a2 = 0, .a3 = 0, .a4 = 0};
+  std::uint64_t noise_seed = 7;
+  // At most this many steps (0 = the whole sequence).
+  int max_steps = 0;
+};
+
+struct MclStepRecord {
+  int step = 0;
+  std::int64_t frame = 0;  // MclFrame::index
+  double stamp_s = 0.0;
+  MclEstimate estimate;
+  std::optional<Pose2> truth;
+  double position_error_m = -1;  // of the cluster estimate; -1 without truth
+  double heading_error_rad = -1;
+  double time_us = 0.0;  // Predict + Correct
+  bool kidnapped = false;  // the step right after a kidnapping
+};
+
+// Runs a localizer over a sequence (the localizer is initialised by the spec).
+std::vector<MclStepRecord> RunMcl(MonteCarloLocalizer& mcl, const std::vector<MclFrame>& frames,
+                                  const MclRunSpec& spec);
+
+// The first step from which the error stays below (error_m, heading_rad) for `hold`
+// consecutive steps, counted from step `from`; -1 if never.
+int StepsToConverge(const std::vector<MclStepRecord>& records, int from, double error_m,
+                    double heading_rad, int hold = 3);
+
+}  // namespace omnicml
+
+#endif  // OMNICML_MCL_H_

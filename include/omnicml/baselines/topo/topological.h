@@ -1,0 +1,254 @@
+// Topological localization by colour-histogram place recognition, the baseline of
+// Ulrich & Nourbakhsh [UN] (docs/design.md "Baselines from the seeds").
+//
+// The environment is an adjacency map of places (a graph: each place knows its
+// neighbours). Every place holds reference images taken from a labelled log (frames whose
+// ground-truth position lies in the place). An input image is described by six 1-D
+// colour histograms (ColorHistogram: H, L, S, then R, G, B or r, g, b; see
+// color_histogram.h). Then, [UN] section 4:
+//   1. Candidates: the reference images of the believed place and of its neighbours
+//      (all places while nothing is believed yet).
+//   2. Per band b: the nearest neighbour (NN) among the candidates under the histogram
+//      distance (Jeffrey divergence by default); the band votes for the NN's place.
+//   3. Per band confidence C_b = 1 - d_nn / d_other, where d_other is the smallest
+//      distance to a candidate image of any other place (C_b = 1 when the candidates hold
+//      no other place). A band takes part only if C_b >= band_threshold[b].
+//   4. Unanimous voting: no band takes part -> kUncertain; the taking-part bands name
+//      different places -> kConfused; they all name place p -> the overall confidence is
+//      the sum of their C_b, and the image is classified as p (kConfident) only if it
+//      reaches the action threshold (0.1 in [UN]); below it the result is kUncertain.
+//   5. The belief moves to p on kConfident and otherwise stays at the last confident
+//      place.
+// [UN] does not spell out how the band confidences combine before the action threshold;
+// summing those of the agreeing bands is our reading (documented, configurable through
+// the thresholds). Everything is deterministic: ties go to the lower reference index.
+//
+// Places come from an adjacency-map YAML file (LoadAdjacencyMap) or are derived from a
+// simulated world's route (PlacesFromRoute). A place's region is one of
+//   polygon_m: [[x, y], ...]      the floor area inside the polygon
+//   route_interval_m: [s0, s1]    route arc lengths s0 <= s < s1 (needs the route)
+//   center_m: [x, y]              the Voronoi cell of the centre among all centre places
+// A position is labelled by the first polygon containing it, else the first route interval
+// containing its projection onto the route, else the nearest centre, else -1 (no place).
+//
+// Thread-safety: AdjacencyMap is an immutable value; TopologicalLocalizer is not
+// thread-safe (Localize changes the belief); const methods may run concurrently.
+#ifndef OMNICML_TOPOLOGICAL_H_
+#define OMNICML_TOPOLOGICAL_H_
+
+#include <array>
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "omnicml/descriptors/color_histogram.h"
+#include "omnicml/descriptors/descriptor.h"
+#include "omnicml/unwrap/frame.h"
+#include "omnicml/geometry/pose.h"
+#include "omnicml/sim/simulator.h"
+
+namespace omnicml {
+
+enum class PlaceRegionKind { kPolygon, kRouteInterval, kCenter };
+
+struct Place {
+  std::string name;  // unique, non-empty
+  PlaceRegionKind region = PlaceRegionKind::kCenter;
+  std::vector<Eigen::Vector2d> polygon_m;  // kPolygon: at least 3 vertices, map frame
+  double route_from_m = 0.0;               // kRouteInterval: [from, to) of the route arc length
+  double route_to_m = 0.0;
+  Eigen::Vector2d center_m = Eigen::Vector2d::Zero();  // kCenter
+  std::vector<int> neighbours;  // indices into AdjacencyMap::places(); symmetric, no self
+};
+
+// The graph of places. A plain value type.
+class AdjacencyMap {
+ public:
+  AdjacencyMap() = default;
+  // Validates names (unique, non-empty), regions and neighbour indices, and makes the
+  // neighbour relation symmetric (sorted, without duplicates). Throws omnicml::Error.
+  explicit AdjacencyMap(std::vector<Place> places);
+
+  const std::vector<Place>& places() const { return places_; }
+  int size() const { return static_cast<int>(places_.size()); }
+  // Index of the place with this name, or -1.
+  int Find(const std::string& name) const;
+  bool AreNeighbours(int a, int b) const;
+  // True if some place is a route interval (PlaceAt then needs the route).
+  bool NeedsRoute() const;
+
+  // The place containing the floor position p_m (see the file comment), or -1. `route`
+  // is needed for route-interval places (omnicml::Error if one exists and route is null).
+  int PlaceAt(const Eigen::Vector2d& p_m, const RoutePath* route = nullptr) const;
+
+ private:
+  std::vector<Place> places_;
+};
+
+// Parses an adjacency map from YAML text:
+//   places:
+//     - name: aisle_1
+//       center_m: [3.0, 1.2]            (or polygon_m / route_interval_m; exactly one)
+//       neighbours: [dock, aisle_2]     names of other places
+// Neighbours need to be listed on one side only. Throws omnicml::Error
+// "<source>:<line>: <key>: what" on a syntax error, an unknown or missing key, a bad value
+// or an unknown neighbour name.
+AdjacencyMap ParseAdjacencyMap(const std::string& yaml_text, const std::string& source);
+// Reads an adjacency-map file. Throws omnicml::Error naming the file.
+AdjacencyMap LoadAdjacencyMap(const std::string& path);
+// The YAML text of a map (ParseAdjacencyMap reads it back to an equal map).
+std::string AdjacencyMapYaml(const AdjacencyMap& map);
+
+// Places derived from a route: centres placed greedily along the loop (sampled every
+// 0.05 m): a point farther than place_length_m from every centre so far becomes a new
+// centre, so stretches driven twice (there and back along a corridor) share places.
+// Regions are the Voronoi cells of the centres (kCenter); two places are neighbours
+// when the route passes directly from one cell into the other. Names "P00", "P01", ...
+// Throws omnicml::Error if place_length_m <= 0.
+AdjacencyMap PlacesFromRoute(const RoutePath& route, double place_length_m);
+
+enum class PlaceState { kConfident, kUncertain, kConfused };
+std::string ToString(PlaceState state);  // confident|uncertain|confused
+
+struct TopologicalOptions {
+  // The six histograms and their distance ([UN]: Jeffrey divergence, low-pass filtered).
+  ColorHistogramOptions histogram;
+  // Per band (H, L, S, R|r, G|g, B|b), the smallest confidence C_b, in [0, 1], with which
+  // the band's vote counts.
+  std::array<double, ColorHistogram::kBands> band_threshold = {0.05, 0.05, 0.05, 0.05, 0.05, 0.05};
+  // The smallest overall confidence (sum of the agreeing bands' C_b) for a confident
+  // classification. [UN]: 0.1. >= 0.
+  double action_threshold = 0.1;
+  // Compare only with the believed place and its neighbours ([UN]); false: all places.
+  bool restrict_to_neighbours = true;
+  // After this many consecutive non-confident frames compare with all places until the
+  // next confident one (a recovery [UN] does not have). 0 = never.
+  int global_search_after_frames = 0;
+
+  // Throws omnicml::Error naming the field when a value is out of range.
+  void Validate() const;
+};
+
+// One band's nearest-neighbour result.
+struct BandVote {
+  int place = -1;               // place of the nearest reference image, -1 if none
+  int reference = -1;           // index of that image (TopologicalLocalizer numbering)
+  double distance_nn = 0.0;     // distance to it
+  double distance_other = 0.0;  // nearest image of another candidate place (inf if none)
+  double confidence = 0.0;      // C_b = 1 - distance_nn / distance_other, in [0, 1]
+};
+using BandVotes = std::array<BandVote, ColorHistogram::kBands>;
+
+struct PlaceDecision {
+  PlaceState state = PlaceState::kUncertain;
+  int place = -1;           // the unanimous place (also when kUncertain by the action threshold)
+  double confidence = 0.0;  // sum of C_b of the bands that took part (0 if kConfused)
+  int voting_bands = 0;     // bands with C_b >= their threshold
+  BandVotes bands;
+};
+
+// Steps 3-4 of the file comment on given band votes (pure; no state).
+PlaceDecision Vote(const BandVotes& bands, const TopologicalOptions& options);
+
+// The localizer: reference images per place, the belief, and Localize per input image.
+// Lifecycle: construct, AddReference for the training images, Reset (optionally with a
+// known start place), then Localize frame by frame.
+class TopologicalLocalizer {
+ public:
+  // Throws omnicml::Error on invalid options or an empty map.
+  TopologicalLocalizer(AdjacencyMap map, const TopologicalOptions& options = {});
+
+  // The six histograms of a panorama (CV_8UC3 BGR or CV_8UC1). Throws omnicml::Error on a
+  // bad image.
+  Descriptor Describe(const cv::Mat& panorama) const;
+
+  // Adds a reference image (its Describe() result) to `place`. Throws omnicml::Error on a
+  // bad place index or descriptor size.
+  void AddReference(int place, const Descriptor& descriptor);
+  int NumReferences() const { return static_cast<int>(reference_place_.size()); }
+  int NumReferences(int place) const;
+
+  // Forgets the belief; with start_place >= 0 the robot starts believed there.
+  void Reset(int start_place = -1);
+  int believed_place() const { return believed_place_; }
+
+  // The places compared with now (sorted): the believed place and its neighbours, or all.
+  std::vector<int> CandidatePlaces() const;
+
+  // Step 2-3 of the file comment against the reference images of `candidates`.
+  BandVotes ClassifyBands(const Descriptor& descriptor, const std::vector<int>& candidates) const;
+
+  // Classifies one input image against CandidatePlaces() and updates the belief.
+  PlaceDecision Localize(const Descriptor& descriptor);
+
+  const AdjacencyMap& map() const { return map_; }
+  const TopologicalOptions& options() const { return options_; }
+
+ private:
+  AdjacencyMap map_;
+  TopologicalOptions options_;
+  ColorHistogram histogram_;
+  int bins_ = 0;
+  std::vector<float> references_;     // NumReferences() x (6 * bins), row-major
+  std::vector<int> reference_place_;  // place of each reference image
+  int believed_place_ = -1;
+  int non_confident_run_ = 0;
+};
+
+// [UN] Table 1 counts over classified frames (frames whose true place is known).
+struct TopologicalCounts {
+  std::int64_t frames = 0;             // test frames with a true place
+  std::int64_t confident_correct = 0;  // kConfident, voted place == true place
+  std::int64_t confident_wrong = 0;
+  std::int64_t uncertain = 0;
+  std::int64_t confused = 0;
+  std::int64_t belief_correct = 0;  // believed place (after the frame) == true place
+};
+
+// One test frame's outcome.
+struct TopologicalFrameResult {
+  double stamp_s = 0.0;
+  std::int64_t index_in_session = 0;
+  Pose2 map_T_robot_truth = Pose2::Zero();
+  int true_place = -1;
+  int believed_place = -1;
+  PlaceDecision decision;
+};
+
+struct CrossSequenceOptions {
+  int train_session = 0;  // 0-based session index of the reference images
+  int test_session = 1;   // 0-based session index of the test images
+  // Every k-th labelled training frame becomes a reference image (>= 1).
+  int reference_stride_frames = 1;
+  // Start the test believed at the true place of its first frame (the robot leaves a
+  // known dock, as in [UN]); false: start with no belief (all places compared).
+  bool known_start = true;
+  void Validate() const;  // throws omnicml::Error
+};
+
+struct CrossSequenceResult {
+  std::vector<TopologicalFrameResult> frames;
+  TopologicalCounts counts;
+  int references = 0;  // reference images taken from the training session
+  int places_with_references = 0;
+};
+
+// The cross-sequence experiment of [UN]: reads `source` once; frames of
+// options.train_session with ground truth become reference images of the place they lie
+// in; frames of options.test_session are then localized in order. Raw ring images are
+// unwrapped with the session's calibration. `route` labels route-interval places.
+// Throws omnicml::Error if a session index is out of range, a needed frame has no
+// ground truth, or no reference image was found.
+CrossSequenceResult RunCrossSequence(FrameSource* source, TopologicalLocalizer* localizer,
+                                     const CrossSequenceOptions& options,
+                                     const RoutePath* route = nullptr);
+
+// The summary table (markdown) of counts like [UN] Table 1.
+std::string TopologicalSummaryTable(const TopologicalCounts& counts, const std::string& title);
+
+}  // namespace omnicml
+
+#endif  // OMNICML_TOPOLOGICAL_H_

@@ -1,0 +1,93 @@
+// Colour histograms of a panorama [UN] (docs/design.md "Descriptors"), used by the
+// topological place-recognition baseline.
+//
+// Six 1-D histograms ("bands" in [UN]'s sense: colour bands, not image rows) of `bins`
+// bins each, in this order: hue, luminance, saturation (OpenCV HLS of the 8-bit image),
+// then either R, G, B or the normalised r = R/(R+G+B), g, b (a black pixel counts as
+// 1/3 each). Each histogram is normalised to sum 1, then low-pass filtered by a moving
+// average of `filter_width` bins (cyclic for hue; at the other histograms' ends the
+// average is over the bins that exist) [UN] section 3, and renormalised to sum 1. The
+// six are joined (6 * bins floats). The raw-pointer distances treat the vector as one
+// histogram: for per-band figures call them on each `bins`-long slice.
+//
+// Distances between feature vectors h, k (m_i = (h_i + k_i) / 2; terms with
+// h_i = k_i = 0 are zero):
+//   Jeffrey divergence [UN] eq. (1): sum_i h_i log(h_i / m_i) + k_i log(k_i / m_i)
+//   chi-square [UN] eq. (2):          sum_i (h_i - m_i)^2 / m_i
+//   L1, L2 (Minkowski), intersection: 1 - sum_i min(h_i, k_i) / max(sum h, sum k).
+// All are symmetric, >= 0 and zero only for h = k (for non-negative inputs).
+//
+// Thread-safety: immutable after construction; Compute may run on any number of threads.
+#ifndef OMNICML_COLOR_HISTOGRAM_H_
+#define OMNICML_COLOR_HISTOGRAM_H_
+
+#include <cstddef>
+#include <optional>
+#include <string>
+
+#include "omnicml/descriptors/descriptor.h"
+
+namespace omnicml {
+
+enum class HistogramDistance { kJeffrey, kChiSquare, kL1, kL2, kIntersection };
+// "jeffrey", "chi_square", "l1", "l2", "intersection".
+std::string ToString(HistogramDistance d);
+HistogramDistance HistogramDistanceFromString(const std::string& s);  // throws omnicml::Error
+
+struct ColorHistogramOptions {
+  // Bins per colour band. 2..256.
+  int bins = 32;
+  // Width in bins of the moving-average low-pass filter; odd, 1 (off) .. bins. [UN]: 5.
+  int filter_width = 5;
+  // The last three bands: normalised rgb (true) or plain RGB (false).
+  bool normalized_rgb = false;
+  // E between two descriptors; [UN] found the Jeffrey divergence best.
+  HistogramDistance distance = HistogramDistance::kJeffrey;
+
+  // Throws omnicml::Error naming the field when a value is out of range.
+  void Validate() const;
+};
+
+class ColorHistogram final : public DescriptorExtractor {
+ public:
+  static constexpr int kBands = 6;  // H, L, S, R|r, G|g, B|b
+
+  // Throws omnicml::Error if the options are invalid.
+  explicit ColorHistogram(const ColorHistogramOptions& options = {});
+
+  DescriptorKind kind() const override { return DescriptorKind::kColorHistogram; }
+
+  // Image: CV_8UC3 (BGR) or CV_8UC1 (treated as grey BGR), at least 2 x 2 pixels.
+  // Throws omnicml::Error otherwise.
+  Descriptor Compute(const cv::Mat& panorama) const override;
+
+  // options().distance between two histograms of n bins.
+  double Distance(const float* a, const float* b, std::size_t n) const override;
+  using DescriptorExtractor::Distance;
+
+  // The individual distances (see the file comment), for any non-negative vectors.
+  static double JeffreyDivergence(const float* a, const float* b, std::size_t n);
+  static double ChiSquare(const float* a, const float* b, std::size_t n);
+  static double L1(const float* a, const float* b, std::size_t n);
+  static double L2(const float* a, const float* b, std::size_t n);
+  static double IntersectionDistance(const float* a, const float* b, std::size_t n);
+
+  // Histograms carry no rotation information.
+  bool ProvidesHeading() const override { return false; }
+  std::optional<double> RelativeHeading(const Descriptor&, const Descriptor&) const override {
+    return std::nullopt;
+  }
+
+  std::size_t FeatureSize() const override {
+    return static_cast<std::size_t>(kBands) * options_.bins;
+  }
+
+  const ColorHistogramOptions& options() const { return options_; }
+
+ private:
+  ColorHistogramOptions options_;
+};
+
+}  // namespace omnicml
+
+#endif  // OMNICML_COLOR_HISTOGRAM_H_

@@ -1,0 +1,311 @@
+// The omniview-based CML engine [G]: one call per frame runs the whole pipeline of
+// docs/design.md "Data flow" — unwrap, describe, p(x|u), p(x|y), fuse, estimate, and the
+// delayed, concurrent map update with reconstruction of multimodal stretches.
+//
+// Per frame t (ProcessFrame):
+//   1. u_t = ComputeIncrement(odom_{t-1}, odom_t)              (zero on a session's first frame)
+//   2. the map updater starts applying the updates due at t    (background worker, threads >= 2)
+//   3. panorama = Unwrap(raw) with the session camera's calibration, or PreparePanorama
+//   4. y_t = descriptor of the panorama
+//   5. barrier: exactly the updates of frames <= t - update_delay_frames are in the map
+//   6. p(x|y) = model.Hypothesis(y_t); p(x|u) = Propagate(p(x_{t-1}), u_t);
+//      p(x_t) = Fuse(p(x|u), {p(x|y)})                          (MixtureTracker::Step)
+//   7. unimodal p(x_t) that is a confident anchor (fixed by appearance, or position
+//      sigma <= anchor_max_sigma_m): (y_t, N(mu_t, C_t)) is queued, preceded by the
+//      reconstructed states of the frames waiting since the previous anchor
+//      (ReconstructTrajectory); multimodal, or unimodal but dead-reckoned beyond
+//      anchor_max_sigma_m: y_t waits in the pending list. So a loop closure (appearance
+//      pinning the robot down again after a dead-reckoned stretch) corrects the whole
+//      stretch before it reaches the map, instead of the map storing its drift.
+// Queued updates reach the map update_delay_frames frames later (map_updater.h), so the
+// map never feeds back into the estimate it came from.
+//
+// Sessions (docs/design.md "Sessions"): BeginSession starts each day.
+//  - kKnownPose: p(x) := N(start pose, start covariance).
+//  - kContinue:  p(x) and the map go on. Odometry is assumed to be restarted by the log
+//    between sessions, so the first frame of the new session has a zero increment, unless
+//    CmlEngineOptions::continue_odometry_across_sessions is set, in which case the
+//    increment from the previous session's last odometry pose is applied.
+//  - kGlobal:    p(x) is unknown; the first p(x|y) whose best view has similarity >=
+//    global_seed_min_similarity seeds the mixture. Until then ProcessFrame returns no
+//    estimate and the frames neither update the map nor wait for reconstruction. If the
+//    map is empty (no view and no queued update) when the session begins, localization
+//    from it is impossible and the engine falls back to N(initial_pose,
+//    initial_covariance) — the configured p(x_0) of an empty map.
+// Frames still pending when a session begins with kKnownPose or kGlobal, or when Finish
+// is called, cannot be anchored: multimodal ones are dropped (counted in the statistics),
+// unimodal ones update the map with their filtered estimate.
+//
+// Determinism: same options and frames => bit-identical estimates and map, with
+// threads = 1 or 2 and from run to run. Only the timing fields of FrameStats vary.
+//
+// Thread-safety: thread-compatible (one thread calls the engine). With threads >= 2 the
+// engine owns one worker thread that applies map updates during ProcessFrame; between
+// calls the worker is idle, so model() and SaveEngine may read the state.
+#ifndef OMNICML_CML_ENGINE_H_
+#define OMNICML_CML_ENGINE_H_
+
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "omnicml/descriptors/descriptor.h"
+#include "omnicml/descriptors/descriptor_factory.h"
+#include "omnicml/mapping/environment_model.h"
+#include "omnicml/unwrap/frame.h"
+#include "omnicml/geometry/gaussian_mixture.h"
+#include "omnicml/engine/map_updater.h"
+#include "omnicml/unwrap/omni_unwrapper.h"
+#include "omnicml/geometry/pose.h"
+#include "omnicml/tracking/tracker.h"
+#include "omnicml/engine/trajectory_reconstruction.h"
+
+namespace omnicml {
+
+struct CmlEngineOptions {
+  // Which descriptor and its parameters (descriptor_factory.h).
+  DescriptorOptions descriptor;
+  // The multi-hypothesis tracker; tracker.motion is also the motion noise of the
+  // reconstruction's odometry factors.
+  TrackerOptions tracker;
+  // The adaptive appearance map. e_max is in the descriptor's distance units: the
+  // default suits the default Fourier signature (4 bands x 16 harmonics, L2, normalised
+  // bands) on the simulator's panoramas.
+  EnvironmentModelOptions model = DefaultModelOptions();
+  // Reconstruction of multimodal stretches; its `motion` field is ignored (tracker.motion
+  // is used).
+  ReconstructionOptions reconstruction;
+  // An update of frame t becomes visible to the map at frame t + update_delay_frames.
+  // Frames, >= 1. It should span more than the distance over which one place's
+  // descriptors stay within e_max (else fresh views drag the estimate back); the default
+  // suits frames 0.2-0.3 m apart.
+  int update_delay_frames = 8;
+  // 1: map updates are applied on the calling thread at the barrier; >= 2: one
+  // background worker applies them while the next frame is unwrapped and described.
+  // Results are identical either way. Must be >= 1.
+  int threads = 1;
+  // Reconstruct multimodal stretches at the next unimodal estimate and update the map
+  // with them; false: multimodal frames never update the map.
+  bool reconstruct_multimodal = true;
+  // At most this many frames wait for reconstruction; older ones are dropped or, when
+  // unimodal, go to the map with their filtered estimate (and the stretch loses its start
+  // anchor). Frames, >= 1. It bounds the loop a closure can correct, and the damage a
+  // wrong closure does. Measured, mean error over all days (store_large 3 x 1500 frames,
+  // a 300 m first lap of 1500 frames; institute 2 x 1500 frames, seed 3):
+  //   300: 9.24 m, 1.14 m;  600: 7.74 m, 1.06 m;  1000: 7.08 m, 1.29 m;  2000: 6.20 m, 1.63 m
+  // (institute seeds 1 and 2 do not change). Memory about 1 kB per waiting frame; the
+  // reconstruction of 1450 frames took 0.4 s, once, at the closure.
+  int max_pending_multimodal_frames = 1000;
+  // Confident anchors (engine-level addition to [G 2.1]/[PK]): a unimodal estimate
+  // anchors the trajectory and updates the map at once only when appearance fixed it
+  // (p(x|y) was non-empty and fused into a unimodal p(x_t)) or the standard deviation of
+  // its position (square root of the largest eigenvalue of the xy block of C_t) is
+  // <= anchor_max_sigma_m. Otherwise (dead reckoning since the last fix) its frame waits
+  // like a multimodal one and reaches the map through the reconstruction between the
+  // previous and the next anchor, so the drift of a stretch without fixes is corrected
+  // when appearance pins the robot down again (a loop closure) instead of being stored
+  // in the map and relearned by every later lap. A waiting unimodal frame that cannot be
+  // reconstructed (session start, Finish, overflow of max_pending_multimodal_frames, where
+  // it becomes the anchor of the rest) updates the map with its own filtered estimate.
+  // Metres, >= 0; 0 disables (every unimodal estimate is an anchor, as in [G]). Only
+  // with reconstruct_multimodal.
+  double anchor_max_sigma_m = 0.5;
+  // Panoramas (delivered or unwrapped) are resized to this size when both are > 0
+  // (PreparePanorama); 0 keeps the size. Pixels.
+  int panorama_width = 0;
+  int panorama_height = 0;
+  // p(x_0) when a global session starts on an empty map (map frame: m, m, rad; m^2, rad^2).
+  Pose2 initial_pose = Pose2::Zero();
+  Eigen::Matrix3d initial_covariance = Eigen::Vector3d(0.01, 0.01, 0.001).asDiagonal();
+  // Shaping of p(x|y) before fusion (engine-level additions to [G], documented in
+  // README/DESIGN notes of the engine): the model's p(x|y) is normalised to weight 1 even
+  // for a single weak match, which would let one faint, possibly false, match create a
+  // competing hypothesis as heavy as the whole odometry prior.
+  //  - p(x|y) is ignored when its best view's similarity is below this. [0, 1].
+  double hypothesis_min_similarity = 0.2;
+  //  - Its weights are multiplied by the best view's similarity S_max (<= 1), so the
+  //    unmatched components it contributes to Fuse (new hypotheses) carry at most S_max.
+  bool hypothesis_weight_by_similarity = true;
+  //  - ... and by its prior: the weight of p(x|u) within its gate (2) (normalised), but at
+  //    least this factor in (0, 1]: the prior odds that an appearance match far from
+  //    every current hypothesis is a new place hypothesis (kidnapping, loop closure)
+  //    rather than aliasing. Repeated matches there raise its weight by [G] (8), in
+  //    proportion to its prior. Measured on institute (2 days x 1500 frames, seed 1):
+  //    1.0 (no prior) let aliased matches 5 m away with the heading flipped win
+  //    (day 1 mean error 2.9 m, heading 49 deg); 0.1 gives 1.7 m / 15 deg.
+  double hypothesis_weight_scale = 0.1;
+  //  - appearance_sigma_m^2 is added to the x and y variances of every component: a view
+  //    matches over a neighbourhood of its place, not only at its exact pose. Metres, >= 0.
+  double appearance_sigma_m = 0.5;
+  // Global start: the smallest similarity S of the best matching view for p(x|y) to seed
+  // the mixture. Dimensionless, in [0, 1].
+  double global_seed_min_similarity = 0.3;
+  // kContinue sessions: apply the odometry increment from the previous session's last
+  // frame to the new session's first frame (the log's odometry runs on across sessions).
+  bool continue_odometry_across_sessions = false;
+
+  // Engine-level defaults of the environment model (tuned on simulated logs).
+  static EnvironmentModelOptions DefaultModelOptions();
+  // Throws omnicml::Error naming the first invalid field (including nested options,
+  // prefixed "descriptor.", "tracker.", "model.", "reconstruction.").
+  void Validate() const;
+};
+
+// Timing (microseconds, wall clock) and sizes of one ProcessFrame call.
+struct FrameStats {
+  double unwrap_us = 0.0;       // unwrapping / panorama preparation
+  double describe_us = 0.0;     // descriptor computation
+  double update_us = 0.0;       // time blocked at the map barrier (includes synchronous application)
+  double apply_us = 0.0;        // time the map updates took to apply (either thread)
+  double match_us = 0.0;        // FindMatches + Hypothesis
+  double fuse_us = 0.0;         // propagation, fusion, summary
+  double reconstruct_us = 0.0;  // pose-graph reconstruction (0 when none)
+  double total_us = 0.0;        // the whole call
+  std::size_t num_views = 0;            // views in the map when it was queried
+  std::size_t num_map_components = 0;   // components in the map when it was queried
+  int num_matches = 0;                  // views with E < e_max (after top_k)
+  double best_similarity = 0.0;         // S of the best matching view, 0 without match
+  int hypothesis_components = 0;        // components of p(x|y)
+  int mixture_components = 0;           // components of p(x_t)
+  int updates_applied = 0;              // map updates applied before this frame's query
+  int updates_queued = 0;               // updates pushed by this frame (incl. reconstructed)
+  int pending_multimodal = 0;           // multimodal frames waiting after this frame
+  int dropped_pending = 0;              // pending frames dropped during this call
+};
+
+// The result of one frame.
+struct FrameResult {
+  std::int64_t frame = 0;  // engine frame index (0-based over all sessions)
+  int session = 0;         // engine session index (0-based, counts BeginSession calls)
+  // p(x_t) summary; std::nullopt while the state is unknown (global start not yet seeded).
+  std::optional<Estimate> estimate;
+  // States of earlier multimodal frames reconstructed at this (unimodal) frame:
+  // (engine frame index, N(mu, C)).
+  std::vector<std::pair<std::int64_t, Gaussian>> reconstructed;
+  // Unimodal frames: N(mu_t, C_t) queued for the map (the moment-matched merge of
+  // p(x_t), weight 1). Unset otherwise.
+  std::optional<Gaussian> map_state;
+  FrameStats stats;
+};
+
+// Counters over the engine's life (persisted).
+struct EngineCounters {
+  std::int64_t frames = 0;
+  std::int64_t unimodal_frames = 0;
+  std::int64_t multimodal_frames = 0;
+  std::int64_t unknown_frames = 0;         // no estimate (global start not yet seeded)
+  std::int64_t reconstructed_frames = 0;
+  std::int64_t dropped_pending_frames = 0;
+  std::int64_t updates_queued = 0;
+  std::int64_t global_seeds = 0;           // global sessions that found the robot
+  std::int64_t global_fallbacks = 0;       // global sessions on an empty map
+  bool operator==(const EngineCounters&) const = default;
+};
+
+// A multimodal frame waiting for its reconstruction.
+struct PendingFrame {
+  std::int64_t frame = 0;
+  int session = 0;
+  Descriptor descriptor;
+  OdometryIncrement increment;  // from the previous frame to this one (what the tracker used)
+  // Unimodal frames waiting for lack of confidence (anchor_max_sigma_m): the filtered
+  // N(mu_t, C_t), used if the frame cannot be reconstructed. Unset for multimodal frames.
+  std::optional<Gaussian> filtered;
+};
+
+// The state of the engine between frames that SaveEngine writes (besides options and
+// the model); exposed for persistence and tests.
+struct EngineSessionState {
+  int session = -1;                 // index of the current session, -1 before the first
+  bool in_session = false;
+  CameraModel camera;               // current session's camera
+  SessionStartMode start_mode = SessionStartMode::kKnownPose;
+  bool has_prev_odom = false;
+  Pose2 prev_odom = Pose2::Zero();  // odom_T_robot of the previous frame
+  bool awaiting_global_seed = false;
+};
+
+class CmlEngine {
+ public:
+  // Validates options (throws omnicml::Error), builds the extractor and an empty map.
+  explicit CmlEngine(const CmlEngineOptions& options);
+  ~CmlEngine();
+  CmlEngine(const CmlEngine&) = delete;
+  CmlEngine& operator=(const CmlEngine&) = delete;
+
+  // Starts a session (see the file comment). Throws omnicml::Error on an invalid camera
+  // (bad calibration for raw ring images) or a non-SPD start covariance.
+  void BeginSession(const SessionInfo& info);
+
+  // Processes one frame of the current session. Preconditions: BeginSession was called;
+  // the image matches the session camera (raw ring of its size, or a panorama); the
+  // odometry is finite. Throws omnicml::Error otherwise (the engine state is then
+  // unchanged except for the frame's map barrier).
+  FrameResult ProcessFrame(const Frame& frame);
+
+  // End of the run: queues the unimodal frames still pending with their filtered
+  // estimates, drops the multimodal ones (no anchor follows them), and applies every
+  // queued map update (whatever its due frame). Processing may
+  // continue afterwards. Returns the number of updates applied.
+  int Finish();
+
+  // Read-only access; valid between calls.
+  const EnvironmentModel& model() const { return *model_; }
+  const CmlEngineOptions& options() const { return options_; }
+  const MixtureTracker& tracker() const { return tracker_; }
+  const EngineCounters& counters() const { return counters_; }
+  const EngineSessionState& session_state() const { return session_; }
+  const std::vector<PendingFrame>& pending_frames() const { return pending_; }
+  // The last unimodal estimate the pending frames hang from: (frame, N(mu, C)).
+  const std::optional<std::pair<std::int64_t, Gaussian>>& anchor() const { return anchor_; }
+  // Map updates queued and not yet applied, in order.
+  const std::deque<MapUpdate>& queued_updates() const { return updater_->queued(); }
+  // The engine index the next frame will get.
+  std::int64_t next_frame() const { return next_frame_; }
+  const DescriptorExtractor& extractor() const { return *extractor_; }
+  const std::shared_ptr<const DescriptorExtractor>& extractor_ptr() const { return extractor_; }
+
+  // Replaces the map, e.g. with one built offline or loaded for a benchmark. The model
+  // must use this engine's extractor (extractor_ptr()) and the engine's model options
+  // are NOT changed by it. Queued updates are kept (they apply to the new map).
+  // Throws omnicml::Error if the model's extractor is a different object.
+  void ReplaceModel(EnvironmentModel model);
+
+ private:
+  friend class EngineStateAccess;  // engine_io.cc restores the state
+
+  void MakeUpdater();
+  void MakeUnwrapper();
+  cv::Mat PreparePanoramaOf(const Frame& frame) const;
+  void QueueUnimodal(std::int64_t frame, const Descriptor& y, const Estimate& estimate, FrameResult* result);
+  // Multimodal pending frames are dropped; unimodal ones (waiting for a confident anchor)
+  // are queued with their filtered estimate. `t` is the frame producing the updates.
+  void DropPending(std::int64_t t, FrameStats* stats);
+  bool IsConfidentAnchor(const Estimate& estimate, bool appearance_fix) const;
+  void PushUpdate(std::int64_t t, std::int64_t frame, int session, const Descriptor& d,
+                  const Gaussian& g, bool reconstructed, FrameStats* stats);
+  void ShapeHypothesis(double best_similarity, Mixture* p_x_y) const;
+
+  CmlEngineOptions options_;
+  std::shared_ptr<const DescriptorExtractor> extractor_;
+  std::unique_ptr<EnvironmentModel> model_;
+  MixtureTracker tracker_;
+  std::unique_ptr<MapUpdater> updater_;
+  std::unique_ptr<OmniUnwrapper> unwrapper_;  // for kRawRing session cameras
+
+  EngineSessionState session_;
+  std::int64_t next_frame_ = 0;
+  EngineCounters counters_;
+  std::vector<PendingFrame> pending_;
+  std::optional<std::pair<std::int64_t, Gaussian>> anchor_;
+  OdometryIncrement current_increment_;  // u_t of the frame being processed
+};
+
+}  // namespace omnicml
+
+#endif  // OMNICML_CML_ENGINE_H_

@@ -1,0 +1,124 @@
+// Configuration of a CML run: the engine options from a YAML file (every field of
+// CmlEngineOptions and its nested options structs), the dump of the effective
+// configuration, command-line overrides, and the run's input (logs or a simulated world).
+//
+// YAML layout: keys equal member names; nested options structs are nested maps. Every
+// key is optional (absent keys keep their default). Example:
+//
+//   update_delay_frames: 3
+//   threads: 2
+//   initial_pose: [0, 0, 0]                       # x_m, y_m, phi_rad
+//   initial_covariance: [[0.01, 0, 0], [0, 0.01, 0], [0, 0, 0.001]]
+//   descriptor:
+//     kind: fourier                               # fourier | ifh | color
+//     fourier: {bands: 4, coefficients: 16, distance: l2, normalize_bands: true,
+//               normalize_columns: true}
+//     ifh: {kernels: [[[0, 0], [0, 1]], [[0, 3], [4, 0]]], angles: 8, bins: 16, scales: [1],
+//           color: true, sample_fraction: 1, seed: 42}
+//     color: {bins: 32, filter_width: 5, normalized_rgb: false, distance: jeffrey}
+//   tracker: {gamma: 11.34, w_min: 0.001, delta: 1, max_components: 50, unimodal_min_weight: 0.05,
+//             min_covariance_eigenvalue: 1e-10, motion: {a1: 0.05, a2: 0.01, a3: 0.05, a4: 0.01}}
+//   model: {e_max: ..., top_k: 0, beta: 0.1, d_max: 3, d_for_m: 2, beta_for: 0.1, d_gain_m: 0.2,
+//           w_min: 0.01, merge_delta: 1, heading_sigma_no_rotation_rad: 3.14159,
+//           forgetting: active, spatial_cell_m: 1, log_component_events: false}
+//   reconstruction: {min_translation_variance_m2: 1e-6, min_rotation_variance_rad2: 1e-6,
+//                    max_iterations: 100, function_tolerance: 1e-12, compute_covariances: true}
+//
+// reconstruction.motion is not a key: the engine always uses tracker.motion for it.
+// An unknown key, a value of the wrong type or an invalid value is an omnicml::Error
+// "<file>:<line>: ..." naming the key with its section path ("tracker.gama").
+//
+// The dump (EngineOptionsToYaml) writes every key with doubles in their shortest
+// round-trip form, so ParseEngineOptionsYaml(EngineOptionsToYaml(o)) == o bit for bit.
+//
+// Pure functions; thread-safe.
+#ifndef OMNICML_RUN_CONFIG_H_
+#define OMNICML_RUN_CONFIG_H_
+
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "omnicml/engine/cml_engine.h"
+#include "omnicml/unwrap/frame.h"
+
+namespace omnicml {
+
+// Reads options from YAML text on top of `base`; `source` names the text in errors
+// (normally the file path). Validates the result (CmlEngineOptions::Validate, the
+// message prefixed with the source). Throws omnicml::Error.
+CmlEngineOptions ParseEngineOptionsYaml(const std::string& yaml_text, const std::string& source,
+                                        const CmlEngineOptions& base);
+// The same on top of the defaults.
+CmlEngineOptions ParseEngineOptionsYaml(const std::string& yaml_text, const std::string& source);
+
+// Reads the YAML file at `path` on top of the defaults (ParseEngineOptionsYaml). Throws
+// omnicml::Error naming the path when it cannot be read.
+CmlEngineOptions LoadEngineOptionsYaml(const std::string& path);
+
+// Every option as YAML (the format above), ending in a newline.
+std::string EngineOptionsToYaml(const CmlEngineOptions& options);
+
+// Whether two option sets are equal field by field (exact doubles).
+bool SameEngineOptions(const CmlEngineOptions& a, const CmlEngineOptions& b);
+
+// The most used options as command-line flags, applied on top of the configuration file.
+struct OptionOverrides {
+  std::string config_path;                 // --config FILE.yaml ("" = defaults)
+  std::optional<std::string> forgetting;   // --forgetting active|passive|static
+  std::optional<double> e_max;             // --e-max (descriptor distance units)
+  std::optional<int> update_delay_frames;  // --update-delay (frames)
+  std::optional<std::string> descriptor;   // --descriptor fourier|ifh|color
+  std::optional<int> threads;              // --threads (1 = no worker)
+
+  // True when only threads and forgetting are set (what may change on a loaded engine).
+  bool OnlyThreadsAndForgetting() const {
+    return config_path.empty() && !e_max && !update_delay_frames && !descriptor;
+  }
+};
+
+// Defaults <- config file <- flags; validated. Throws omnicml::Error naming the flag or key.
+CmlEngineOptions ResolveEngineOptions(const OptionOverrides& overrides);
+
+// Where the frames of a run come from: logs on disk (the sessions of every LOGDIR in
+// order) or a built-in simulated world rendered in-process.
+struct RunInput {
+  std::vector<std::string> log_dirs;    // multi-day logs or single sessions, in order
+  std::string world;                    // built-in world name, when log_dirs is empty
+  int days = 1;                         // simulated days (world only), >= 1
+  int first_day = 0;                    // first simulated day (world only; resume a run), >= 0
+  int frames_per_day = 0;               // simulated frames per day; 0 = SimulatorOptions' default (300)
+  std::uint64_t seed = 1;               // simulator seed (world only)
+  bool skip_unreadable_frames = false;  // logs only: skip (and count) unreadable frames
+
+  // Exactly one of log_dirs / world; days >= 1; frames_per_day >= 0. Throws
+  // omnicml::Error naming the flag; a missing log directory is named too.
+  void Validate() const;
+  // One line for reports ("logs a, b" or "world home_store, days 1-3, 400 frames/day, seed 1").
+  std::string Describe() const;
+};
+
+// Opens the input. For logs the constructor of LogReader validates every session.yaml
+// and frames.csv header; for worlds the simulator is built. Throws omnicml::Error.
+std::unique_ptr<FrameSource> OpenFrameSource(const RunInput& input);
+
+// Frames the source will deliver (counted from the frames.csv files or days x frames
+// per day), or std::nullopt when unknown; for progress and ETA only.
+std::optional<std::int64_t> CountFrames(const RunInput& input, const FrameSource& source);
+
+// What `omnicml run` and `omnicml compare` share: input, option overrides, output
+// directory and progress settings (filled from command-line flags).
+struct RunSettings {
+  RunInput input;
+  OptionOverrides overrides;
+  std::string out_dir;                  // run directory ("" = a dated default)
+  bool quiet = false;                   // no progress output
+  bool no_progress_bar = false;         // plain log lines even on a terminal
+  std::int64_t log_every_frames = 500;  // frames between plain progress lines
+};
+
+}  // namespace omnicml
+
+#endif  // OMNICML_RUN_CONFIG_H_

@@ -1,0 +1,131 @@
+// Recording of a CML run into a run directory, and the loop that drives the engine over
+// a frame source with progress output.
+//
+// RUNDIR layout (all files written atomically: temporary name, renamed on Commit()):
+//   config.yaml      the effective engine configuration (run_config.h format; loadable
+//                    with --config) preceded by comment lines naming the input
+//   frames.csv       one row per frame (schema in evaluation.h)
+//   days.csv         one row per session: frames, unimodal fraction, position error
+//                    mean/median/p95/max, heading error mean, odometry-only mean, views
+//                    and components at the end of the day, map events of the day
+//   events.csv       the map's event log (environment_model.h MapEvent): type, frame,
+//                    session, view_id, component_id, x_m, y_m, phi_rad, weight, reason
+//   report.html      self-contained report: summary, per-day table, plots of error and
+//                    map growth, stage timings, a drawing of the map over the trajectory
+// and, when asked, a trajectory in TUM format (stamp x y z qx qy qz qw; z = 0; the
+// strongest estimate; frames without estimate are left out).
+//
+// If the recorder is destroyed without Commit() (an error unwound the stack), every
+// temporary file is removed and a run directory it created is removed when empty, so no
+// partial output remains.
+//
+// Thread-compatible: one thread drives the recorder.
+#ifndef OMNICML_RUN_RECORDER_H_
+#define OMNICML_RUN_RECORDER_H_
+
+#include <cstdint>
+#include <filesystem>
+#include <functional>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "omnicml/engine/cml_engine.h"
+#include "omnicml/evaluation/evaluation.h"
+#include "omnicml/unwrap/frame.h"
+#include "omnicml/report/report.h"
+
+namespace omnicml {
+
+// Names of the per-frame stage timings (FrameStats fields without "_us"), in the order
+// of the time_<stage>_us columns of frames.csv.
+const std::vector<std::string>& StageNames();
+// The FrameStats timings in StageNames() order.
+std::vector<double> StageTimes(const FrameStats& stats);
+
+struct RunRecorderOptions {
+  std::filesystem::path run_dir;          // "" = no run directory
+  std::filesystem::path trajectory_path;  // "" = no TUM file
+  std::string title = "omnicml run";      // report title
+  std::string input_description;          // RunInput::Describe(), for config.yaml and the report
+  bool write_report = true;               // report.html in run_dir
+};
+
+class RunRecorder {
+ public:
+  // Creates run_dir (and parents) when missing and opens the temporary files. Throws
+  // omnicml::Error naming the path when it cannot.
+  explicit RunRecorder(RunRecorderOptions options);
+  ~RunRecorder();
+  RunRecorder(const RunRecorder&) = delete;
+  RunRecorder& operator=(const RunRecorder&) = delete;
+
+  // Records one processed frame (the frame as delivered and the engine's result).
+  void Record(const Frame& frame, const FrameResult& result);
+
+  // Writes the remaining files from the engine's final state (configuration, events,
+  // map drawing) and renames everything into place. `notes` are extra lines for the
+  // report's summary. Throws omnicml::Error on I/O failure (temporaries then removed).
+  void Commit(const CmlEngine& engine,
+              const std::vector<std::pair<std::string, std::string>>& notes = {});
+
+  const std::vector<FrameRecord>& records() const { return records_; }
+  const RunRecorderOptions& options() const { return options_; }
+
+ private:
+  RunRecorderOptions options_;
+  bool created_dir_ = false;
+  bool committed_ = false;
+  std::unique_ptr<AtomicFile> frames_csv_;
+  std::unique_ptr<AtomicFile> trajectory_;
+  std::vector<FrameRecord> records_;
+  // Dead-reckoning baseline per engine session: anchor (truth, odometry) of its first
+  // frame with ground truth.
+  int anchor_session_ = -1;
+  bool have_anchor_ = false;
+  Pose2 anchor_truth_ = Pose2::Zero();
+  Pose2 anchor_odom_ = Pose2::Zero();
+};
+
+// Progress output of RunEngineOverSource.
+struct ProgressOptions {
+  // Progress bar on stderr, redrawn in place (frames/s, views, ETA); when false, a plain
+  // log line every log_every_frames frames and at the end of each session.
+  bool progress_bar = false;
+  std::int64_t log_every_frames = 500;
+  std::string label;                         // prefix of every line, e.g. "active"
+  std::optional<std::int64_t> total_frames;  // for the ETA
+  bool quiet = false;                        // no output at all
+};
+// True when stderr is a terminal (isatty).
+bool StderrIsTerminal();
+
+struct RunSummary {
+  std::int64_t frames = 0;
+  int sessions = 0;
+  double wall_s = 0.0;
+};
+
+// Drives `engine` over every frame of `source`: BeginSession at each new session,
+// ProcessFrame, recorder->Record (when not null), progress; engine.Finish() at the end.
+// `on_session_end(engine, session_index)` (optional) runs after the last frame of each
+// session, before the next BeginSession — it may return a replacement engine (e.g. with
+// other options), or nullptr to keep the current one. Throws what the engine, the
+// source or the recorder throw.
+using SessionEndHook =
+    std::function<std::unique_ptr<CmlEngine>(const CmlEngine&, int session_index)>;
+RunSummary RunEngineOverSource(std::unique_ptr<CmlEngine>& engine, FrameSource& source,
+                               RunRecorder* recorder, const ProgressOptions& progress,
+                               const SessionEndHook& on_session_end = {});
+
+// A copy of `engine` (bit-identical state: map, tracker, queues, counters) with other
+// options. Only options that do not change the meaning of the stored state may differ:
+// threads and model.forgetting (throws omnicml::Error if anything else differs). Used to
+// resume a saved map with --threads or to freeze it (--forgetting static).
+std::unique_ptr<CmlEngine> RebuildEngineWithOptions(const CmlEngine& engine,
+                                                    const CmlEngineOptions& options);
+
+}  // namespace omnicml
+
+#endif  // OMNICML_RUN_RECORDER_H_

@@ -1,0 +1,57 @@
+// Gaussians and mixtures over planar poses, with angle-aware arithmetic.
+//
+// A component is (mean, covariance, weight) with mean = (x_m, y_m, phi_rad) and a 3x3
+// symmetric positive definite covariance in (m^2, m^2, rad^2). Angle differences are
+// wrapped wherever they enter a distance, a mean or a merge (docs/design.md "State and
+// Gaussians"): two components either side of +-pi merge to a mean near pi, not 0.
+// Plain value types; no shared state; thread-compatible.
+#ifndef OMNICML_GAUSSIAN_MIXTURE_H_
+#define OMNICML_GAUSSIAN_MIXTURE_H_
+
+#include <span>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "omnicml/geometry/pose.h"
+
+namespace omnicml {
+
+struct Gaussian {
+  Pose2 mean = Pose2::Zero();
+  Eigen::Matrix3d covariance = Eigen::Matrix3d::Identity();
+  double weight = 1.0;
+};
+
+using Mixture = std::vector<Gaussian>;
+
+// Squared Mahalanobis distance (a - b)^T S^-1 (a - b) with the angle difference wrapped.
+// S must be SPD; throws omnicml::Error if it is not.
+double SquaredMahalanobis(const Pose2& a, const Pose2& b, const Eigen::Matrix3d& s);
+
+// Checks that a covariance is finite and SPD. If it is only slightly off (asymmetric by
+// rounding, eigenvalues below min_eigenvalue), returns the repaired matrix: symmetrised,
+// eigenvalues clamped to at least min_eigenvalue. Throws omnicml::Error naming `what`
+// when it has NaN/inf entries or an eigenvalue below -1e-6 * its largest magnitude, and
+// also when it is asymmetric beyond rounding (an entry of |C - C^T| above 1e-6 * max |C|).
+Eigen::Matrix3d RepairCovariance(const Eigen::Matrix3d& c, double min_eigenvalue = 1e-12,
+                                 const std::string& what = "covariance");
+
+// Moment-matched single Gaussian of weighted components (weights need not sum to one,
+// must have a positive sum). The angle mean is the circular mean; spread terms use
+// wrapped differences to that mean. [G] eqs. (13)-(14) for a pair.
+Gaussian MomentMatch(std::span<const Gaussian> components);
+
+// Sum of weights.
+double TotalWeight(const Mixture& m);
+
+// Divides all weights by their sum (no-op on an empty mixture or zero sum).
+void NormalizeWeights(Mixture* m);
+
+// Index of the component with the largest weight; -1 when empty.
+int StrongestComponent(const Mixture& m);
+
+}  // namespace omnicml
+
+#endif  // OMNICML_GAUSSIAN_MIXTURE_H_

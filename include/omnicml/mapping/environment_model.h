@@ -1,0 +1,315 @@
+// The adaptive appearance map of [G 2.2, 2.3] (docs/design.md "Environment model").
+//
+// The model is a set of reference views U = {(y_i, X_i)}: a descriptor y_i and a mixture
+// X_i = {(w_ij, eta_ij, mu_ij, C_ij)} of the poses at which y_i was seen. The weights of X_i
+// need not sum to one; their sum is the importance of view i. The xy part of mu_ij is in
+// the map frame (metres); its angle phi is stored relative to view i's own panorama
+// orientation: a robot at heading phi_t seeing y_t stores phi_t - RelativeHeading(y_t, y_i),
+// and a later query y rotates it back by + RelativeHeading(y, y_i).
+//
+// Localization: Hypothesis(y) = p(x|y), the union over the views with E(y, y_i) < e_max of
+// their components, weight w_ij * S_i, heading rotated by the relative heading, normalised
+// ("distributed coding").
+//
+// Map building: Update(y_t, N(mu_t, C_t)) runs the three phases of [G 2.3]: insertion of
+// y_t as a new view when no view is within e_max, addition (and merging) of a component
+// to every matching view, and the weight rules (16)-(19) followed by removal of weak
+// components and of empty views. Forgetting modes select the rules (kActive: all;
+// kPassive: (16)-(17) as in [PK]; kStatic: the map never changes).
+//
+// Nearest-view search keeps all feature vectors in one contiguous float array (a row per
+// view, same order as views()) and calls the extractor's raw-pointer Distance; the
+// active-forgetting rule (18)-(19) visits only components near mu_t through a uniform
+// grid over component xy positions (spatial_index.h), so its cost does not grow with the
+// map.
+//
+// Determinism: the same sequence of calls gives the same model and the same bytes from
+// Serialize. Ties between equal distances are broken by view id.
+//
+// Thread-safety: thread-compatible. Any number of const calls may run at once; Update,
+// ClearEvents, SetForgettingMode and assignment need exclusive access (the engine's
+// delayed-update scheme orders them).
+#ifndef OMNICML_ENVIRONMENT_MODEL_H_
+#define OMNICML_ENVIRONMENT_MODEL_H_
+
+#include <cstddef>
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+#include <unordered_map>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "omnicml/common/binary_io.h"
+#include "omnicml/common/common.h"
+#include "omnicml/descriptors/descriptor.h"
+#include "omnicml/geometry/gaussian_mixture.h"
+#include "omnicml/geometry/pose.h"
+#include "omnicml/mapping/spatial_index.h"
+
+namespace omnicml {
+
+// Which weight rules of [G 2.3] phase 3 run (docs/design.md "Modes").
+enum class ForgettingMode : std::uint8_t {
+  kActive = 0,   // insertion, mixture update, (16), (17) and active forgetting (18)-(19)
+  kPassive = 1,  // insertion, mixture update, (16) and (17) only, as in [PK]
+  kStatic = 2,   // Update never changes the model (baseline: a map that does not adapt)
+};
+// "active", "passive", "static".
+std::string ToString(ForgettingMode mode);
+// Throws omnicml::Error on any other name.
+ForgettingMode ForgettingModeFromString(const std::string& name);
+
+struct EnvironmentModelOptions {
+  // Descriptor distance at which the similarity S reaches 0 (S = max(0, 1 - E / e_max));
+  // views with E < e_max match, and y_t becomes a new view iff E >= e_max for every view.
+  // In units of the extractor's Distance: tune it per descriptor. Must be > 0.
+  double e_max = 1.0;
+  // Hypothesis uses at most the top_k most similar matching views; 0 = all of them.
+  // Update always uses every matching view. Must be >= 0.
+  int top_k = 0;
+  // [G] (16)-(17) learning rate beta, dimensionless, in (0, 1].
+  double beta = 0.1;
+  // [G] (15): a component is confirmed (rule 16) iff its Mahalanobis distance d to mu_t
+  // under C_t + C_ij is <= d_max, otherwise it decays (rule 17). d is the square root of
+  // the quadratic form (NOT squared), dimensionless. Must be > 0.
+  double d_max = 3.0;
+  // [G] (18)-(19): active forgetting acts on components of non-matching views whose xy
+  // position is closer than d_for_m to mu_t (Euclidean, metres). Must be > 0.
+  double d_for_m = 2.0;
+  // [G] (19) gain beta_for, dimensionless, >= 0.
+  double beta_for = 0.1;
+  // [G] (19) d_gain in metres: b = beta_for * max(1 - d_xy / d_for, 0) * d_gain /
+  // (sigma_x + sigma_y) with sigma_x, sigma_y the standard deviations (m) of C_t, so the
+  // fraction is dimensionless; b is clamped to [0, 1]. A confident estimate (small sigma)
+  // forgets faster than an uncertain one. Must be >= 0.
+  double d_gain_m = 0.2;
+  // Components whose weight falls below w_min after phase 3 are removed, and views left
+  // without components are removed. Dimensionless, in [0, 1).
+  //
+  // A component added by the current Update starts at w = 0 and (16) raises it to
+  // beta * S_i; it is exempt from this removal during the Update that created it, so a
+  // weak first match (beta * S_i < w_min) is not deleted on sight. Removal is checked in
+  // the views an Update touches (matching views, and in kActive the views with a
+  // component within d_for_m of mu_t); weights change nowhere else, so such a weak
+  // component is removed by the next Update that touches its view and leaves it below.
+  double w_min = 0.01;
+  // [G] (12): two components of one view merge when their squared Mahalanobis distance
+  // under C_n + C_m is below merge_delta (squared, dimensionless, as TrackerOptions::delta).
+  // Must be >= 0 (0 disables merging). Components are compared in the view's own frame
+  // with their stored covariances (no heading inflation, see below). A merge sums eta and
+  // w (w capped at 1) and takes the eta-weighted mean and covariance (13)-(14).
+  double merge_delta = 1.0;
+  // Descriptors without heading information (histograms; RelativeHeading = nullopt):
+  // stored headings are used as they are, and wherever a component is compared with or
+  // returned for a query, heading_sigma_no_rotation_rad^2 is added to its heading variance
+  // so that the heading of such a hypothesis carries little weight. Radians, > 0.
+  double heading_sigma_no_rotation_rad = kPi;
+  // Which weight rules run.
+  ForgettingMode forgetting = ForgettingMode::kActive;
+  // Cell size of the spatial grid over component positions, metres, > 0. About d_for_m / 2
+  // to d_for_m is a good choice.
+  double spatial_cell_m = 1.0;
+  // Also log kComponentAdded and kComponentMerged events (one or more per matching view
+  // per Update: large logs). View insertions/removals and component removals are always
+  // logged.
+  bool log_component_events = false;
+
+  // Throws omnicml::Error naming the first invalid field.
+  void Validate() const;
+};
+
+// One Gaussian of a view's mixture X_i.
+struct ViewComponent {
+  std::uint64_t id = 0;        // unique in the model, never reused
+  double weight = 0.0;         // w_ij, dimensionless, in [0, 1]
+  double eta = 0.0;            // eta_ij, accumulated (11) share, dimensionless (> 0)
+  Pose2 mean = Pose2::Zero();  // (x_m, y_m) map frame; phi_rad relative to the view's panorama
+  Eigen::Matrix3d covariance = Eigen::Matrix3d::Identity();  // SPD, (m^2, m^2, rad^2)
+
+  bool operator==(const ViewComponent&) const = default;
+};
+
+// Per-view counters (frames and sessions as given in UpdateContext).
+struct ViewStats {
+  std::int64_t created_frame = 0;
+  int created_session = 0;
+  // Number of Updates in which the view matched (E < e_max), including its creation.
+  std::int64_t observations = 0;
+  std::int64_t last_seen_frame = 0;
+  int last_seen_session = 0;
+
+  bool operator==(const ViewStats&) const = default;
+};
+
+struct ReferenceView {
+  std::uint64_t id = 0;  // unique in the model, never reused, increasing with creation
+  Descriptor descriptor;
+  std::vector<ViewComponent> components;  // never empty in a model
+  ViewStats stats;
+
+  // Sum of the component weights: the importance of the view.
+  double TotalWeight() const;
+  bool operator==(const ReferenceView&) const = default;
+};
+
+enum class MapEventType : std::uint8_t {
+  kViewInserted = 0,
+  kViewRemoved = 1,
+  kComponentAdded = 2,   // only with options.log_component_events
+  kComponentMerged = 3,  // only with options.log_component_events
+  kComponentRemoved = 4,
+};
+// "view_inserted", "view_removed", "component_added", "component_merged", "component_removed".
+std::string ToString(MapEventType type);
+
+// One change of the map, so a user can tell a changed place (components forgotten at a
+// place, then a new view inserted there) from a newly visited one (insertion only).
+struct MapEvent {
+  MapEventType type = MapEventType::kViewInserted;
+  std::int64_t frame = 0;  // UpdateContext of the Update that caused it
+  int session = 0;
+  std::uint64_t view_id = 0;
+  std::uint64_t component_id = 0;  // 0 for view events
+  // Where: for view insertion mu_t; for component events the component's mean (phi in
+  // view orientation); for view removal the mean of its last component.
+  Pose2 position = Pose2::Zero();
+  // Weight of the component when removed/merged/added; view total weight otherwise.
+  double weight = 0.0;
+  // "no view within e_max" (inserted by Update), "added" (AddView), "passive forgetting
+  // (17)", "active forgetting (18)-(19)" (the rule that last lowered the removed
+  // component's weight), "weight below w_min" (raised by (16) but still below w_min),
+  // "view empty", "observation" (component added), "merge (12)-(14)".
+  std::string reason;
+
+  bool operator==(const MapEvent&) const = default;
+};
+
+// A view whose distance to the query is below e_max.
+struct ViewMatch {
+  std::size_t view_index = 0;  // into views(); valid until the next Update/Deserialize
+  std::uint64_t view_id = 0;
+  double distance = 0.0;    // E(y, y_i), extractor units
+  double similarity = 0.0;  // S_i in (0, 1]
+  // RelativeHeading(y, y_i), radians in (-pi, pi]; nullopt for descriptors without heading.
+  std::optional<double> relative_heading_rad;
+};
+
+// Where in the log an Update comes from (for counters and events).
+struct UpdateContext {
+  std::int64_t frame = 0;
+  int session = 0;
+};
+
+// What one Update did (for per-frame statistics).
+struct UpdateStats {
+  bool view_inserted = false;
+  int matching_views = 0;                // views with E < e_max before insertion
+  int components_added = 0;              // new components kept separate
+  int components_merged = 0;             // new components merged into an existing one
+  int components_increased = 0;          // rule (16) applications
+  int components_passive_forgotten = 0;  // rule (17) applications
+  int components_active_forgotten = 0;   // rule (18)-(19) applications (b > 0)
+  int components_removed = 0;
+  int views_removed = 0;
+};
+
+class EnvironmentModel {
+ public:
+  // Validates options (throws omnicml::Error). `extractor` must not be null; it defines
+  // the descriptor kind and feature length the model accepts.
+  EnvironmentModel(const EnvironmentModelOptions& options,
+                   std::shared_ptr<const DescriptorExtractor> extractor);
+
+  // Views with E(y, y_i) < e_max, sorted by distance (ties by view id), limited to
+  // options.top_k when > 0. Throws omnicml::Error if y's kind or feature length differs
+  // from the extractor's.
+  std::vector<ViewMatch> FindMatches(const Descriptor& y) const;
+  // The same without the top_k limit (what Update uses).
+  std::vector<ViewMatch> FindAllMatches(const Descriptor& y) const;
+
+  // p(x|y) (docs/design.md "Environment model"): for each match, each component j of the
+  // view gives mean (x, y, wrap(phi_ij + relative heading)), covariance C_ij (heading
+  // variance raised by heading_sigma_no_rotation_rad^2 when there is no relative heading)
+  // and weight w_ij * S_i; weights normalised to sum 1. Empty when nothing matches.
+  // Order: by match order, then component order (deterministic).
+  Mixture Hypothesis(const Descriptor& y) const;
+  // The same from matches obtained from this model (FindMatches) since the last Update.
+  Mixture Hypothesis(const std::vector<ViewMatch>& matches) const;
+
+  // [G 2.3] with the unimodal estimate N(estimate.mean, estimate.covariance) of the pose
+  // where y was seen (estimate.weight is ignored). Does nothing in kStatic mode. Throws
+  // omnicml::Error on a descriptor of the wrong kind/length or a covariance that is not
+  // finite and SPD; the model is unchanged then.
+  UpdateStats Update(const Descriptor& y, const Gaussian& estimate, const UpdateContext& context);
+
+  // Adds a view as it is, without matching or weight rules (importing a map, building
+  // synthetic maps for benchmarks and tests). Component ids are assigned by the model
+  // (the given ones are ignored); a kViewInserted event with reason "added" is logged.
+  // Throws omnicml::Error on a descriptor of the wrong kind/length, no components, a
+  // weight outside [0, 1], eta <= 0, or a covariance that is not finite and SPD.
+  // Returns the new view's id.
+  std::uint64_t AddView(const Descriptor& y, std::vector<ViewComponent> components,
+                        const ViewStats& stats);
+
+  std::size_t NumViews() const { return views_.size(); }
+  std::size_t NumComponents() const { return num_components_; }
+  // In storage order (the order of the feature rows; changes when views are removed).
+  const std::vector<ReferenceView>& views() const { return views_; }
+  // Index into views() of the view with this id, or nullopt.
+  std::optional<std::size_t> FindView(std::uint64_t view_id) const;
+  // The id the next inserted view / component will get.
+  std::uint64_t next_view_id() const { return next_view_id_; }
+  std::uint64_t next_component_id() const { return next_component_id_; }
+
+  // All events since construction or the last ClearEvents, in order.
+  const std::vector<MapEvent>& events() const { return events_; }
+  void ClearEvents() { events_.clear(); }
+
+  // Approximate heap bytes of the model (views, features, components, index, events).
+  std::size_t MemoryBytes() const;
+
+  const EnvironmentModelOptions& options() const { return options_; }
+  const DescriptorExtractor& extractor() const { return *extractor_; }
+  const std::shared_ptr<const DescriptorExtractor>& extractor_ptr() const { return extractor_; }
+  // Switches the weight rules (e.g. build on day 1 in kActive, then freeze with kStatic).
+  void SetForgettingMode(ForgettingMode mode) { options_.forgetting = mode; }
+
+  // Appends the model's state to `out`: views (descriptors, components, counters) in
+  // storage order, next ids, the event log. Options are NOT written (the caller stores
+  // them). Same model => same bytes.
+  void Serialize(BinaryWriter& out) const;
+  // Reads what Serialize wrote. Throws omnicml::Error on truncated or malformed bytes, or
+  // when the stored descriptor kind / feature length differ from `extractor`'s.
+  static EnvironmentModel Deserialize(BinaryReader& in, const EnvironmentModelOptions& options,
+                                      std::shared_ptr<const DescriptorExtractor> extractor);
+
+  // Checks internal invariants (feature rows equal descriptors, index consistent, no
+  // empty view, weights in [0, 1], ids unique); throws omnicml::InternalError. For tests.
+  void CheckInvariants() const;
+
+ private:
+  void CheckDescriptor(const Descriptor& y, const char* where) const;
+  std::vector<ViewMatch> Search(const Descriptor& y, int top_k) const;
+  std::size_t InsertView(const Descriptor& y, const UpdateContext& context, const Pose2& where);
+  void RemoveViewAt(std::size_t index);
+  void RebuildDerived();
+
+  EnvironmentModelOptions options_;
+  std::shared_ptr<const DescriptorExtractor> extractor_;
+  std::size_t feature_size_ = 0;
+  std::vector<ReferenceView> views_;
+  std::vector<float> features_;  // views_.size() rows of feature_size_ floats
+  std::unordered_map<std::uint64_t, std::size_t> index_of_id_;
+  SpatialIndex spatial_;
+  std::size_t num_components_ = 0;
+  std::uint64_t next_view_id_ = 1;
+  std::uint64_t next_component_id_ = 1;
+  std::vector<MapEvent> events_;
+};
+
+}  // namespace omnicml
+
+#endif  // OMNICML_ENVIRONMENT_MODEL_H_

@@ -1,0 +1,125 @@
+// Export and inspection of a learned appearance map (the EnvironmentModel inside a
+// saved engine file): JSON, CSV, SVG and PNG pictures, and a health summary by area.
+//
+// JSON schema (documented with an example in datasets/map_schema.md; schema version 1):
+//   {
+//     "schema": "omnicml.map", "schema_version": 1,
+//     "engine": {"frames": N, "sessions": S, "counters": {...}},
+//     "model": {"views": V, "components": C, "memory_bytes": B, "next_view_id": ...,
+//               "next_component_id": ..., "options": {e_max, top_k, beta, d_max, d_for_m,
+//               beta_for, d_gain_m, w_min, merge_delta, forgetting, spatial_cell_m}},
+//     "descriptor": {"kind": "fourier", "feature_size": F},
+//     "views": [ { "id", "total_weight",
+//                  "stats": {created_frame, created_session, observations, last_seen_frame,
+//                            last_seen_session},
+//                  "descriptor": {kind, length, panorama_width, norm, min, max, mean,
+//                                 "features": [...] (only with include_features)},
+//                  "components": [ { "id", "weight", "eta",
+//                                    "mean": [x_m, y_m, phi_rad] (phi relative to the view),
+//                                    "covariance": [[..3..],[..3..],[..3..]] (m^2, rad^2),
+//                                    "ellipse": {major_m, minor_m, angle_rad} (1 sigma, xy) } ] }
+//                                    ],
+//     "events": [ {type, frame, session, view_id, component_id, position: [x, y, phi],
+//                  weight, reason} ]   (only with include_events)
+//   }
+// CSV: one row per component with its view's columns repeated (header line first).
+// Pictures: component covariance ellipses (2 sigma) in the map's xy plane, opacity =
+// weight, view centres as dots, over the trajectory (TUM file) when given; x to the
+// right, y up, a metre scale bar.
+//
+// Pure functions of their inputs; thread-safe.
+#ifndef OMNICML_MAP_EXPORT_H_
+#define OMNICML_MAP_EXPORT_H_
+
+#include <cstdint>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
+
+#include "omnicml/engine/cml_engine.h"
+#include "omnicml/mapping/environment_model.h"
+#include "omnicml/geometry/pose.h"
+
+namespace omnicml {
+
+inline constexpr int kMapSchemaVersion = 1;
+
+// A TUM trajectory: stamp and planar pose (yaw from the quaternion).
+struct TimedPose {
+  double stamp_s = 0.0;
+  Pose2 pose = Pose2::Zero();
+};
+// Reads "stamp x y z qx qy qz qw" lines ('#' comments and blank lines skipped). Throws
+// omnicml::Error "<file>:<line>: ..." on a malformed line.
+std::vector<TimedPose> ReadTumTrajectory(const std::filesystem::path& path);
+// One TUM line for a planar pose (z = 0, rotation about z), full precision, no newline.
+std::string TumLine(double stamp_s, const Pose2& pose);
+
+// The xy covariance ellipse at 1 sigma: semi-axes (m) and the major axis angle (rad).
+struct Ellipse2 {
+  double major_m = 0.0;
+  double minor_m = 0.0;
+  double angle_rad = 0.0;
+};
+Ellipse2 CovarianceEllipse(const Eigen::Matrix3d& covariance);
+
+struct MapExportOptions {
+  bool include_features = false;  // full descriptor vectors in JSON
+  bool include_events = true;     // the event log in JSON
+};
+
+nlohmann::ordered_json MapToJson(const CmlEngine& engine, const MapExportOptions& options = {});
+std::string MapToCsv(const EnvironmentModel& model);
+
+struct MapPictureOptions {
+  int width_px = 900;          // picture width; height follows the map's aspect ratio
+  double ellipse_sigma = 2.0;  // ellipses drawn at this many standard deviations
+  std::string title;           // drawn at the top when not empty
+};
+// SVG element of the map over the trajectory (trajectory may be empty).
+std::string MapToSvg(const EnvironmentModel& model, const std::vector<Pose2>& trajectory,
+                     const MapPictureOptions& options = {});
+// The same picture as a BGR image (for PNG).
+cv::Mat MapToImage(const EnvironmentModel& model, const std::vector<Pose2>& trajectory,
+                   const MapPictureOptions& options = {});
+
+// Map health by area (grid cells over component positions).
+struct MapHealthOptions {
+  double cell_m = 2.0;     // grid cell size, metres, > 0
+  int stale_sessions = 1;  // a cell is stale if none of its views was seen in the last N sessions
+};
+enum class CellHealth { kOk, kStale, kChanged, kNew };
+std::string ToString(CellHealth health);  // ok|stale|changed|new
+struct MapCell {
+  int ix = 0, iy = 0;  // cell indices; the cell covers [ix, ix+1) * cell_m in x, same in y
+  int views = 0;       // views with at least one component in the cell
+  int components = 0;
+  double total_weight = 0.0;
+  int last_seen_session = -1;  // latest last_seen_session of its views
+  int insertions_recent = 0;   // view insertions in the cell during the latest session
+  int removals_recent = 0;     // component/view removals in the cell during the latest session
+  CellHealth health = CellHealth::kOk;
+};
+struct MapHealth {
+  int latest_session = -1;     // the latest session the map knows (engine session index)
+  int first_session = -1;      // earliest created_session of a view
+  std::vector<MapCell> cells;  // sorted by (iy, ix)
+  int stale = 0, changed = 0, fresh = 0, ok = 0;
+};
+// `latest_session`: the engine's current session (session_state().session).
+// Definitions: new = every view in the cell was created in the latest session;
+// changed (otherwise) = view insertions or removals there in the latest session;
+// stale (otherwise) = no view seen in the last stale_sessions sessions; ok otherwise.
+MapHealth ComputeMapHealth(const EnvironmentModel& model, int latest_session,
+                           const MapHealthOptions& options = {});
+
+// A text summary for `omnicml inspect`: views, components, memory, sessions covered,
+// per-session view creations and events, the health table and an ASCII map of cells.
+std::string InspectText(const CmlEngine& engine, const MapHealthOptions& options = {});
+
+}  // namespace omnicml
+
+#endif  // OMNICML_MAP_EXPORT_H_

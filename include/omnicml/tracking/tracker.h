@@ -1,0 +1,123 @@
+// Mixture-of-Gaussians multi-hypothesis tracker [G 2.1]: propagation of a state mixture
+// by odometry, fusion of p(x|u) with p(x|y) and further sources by covariance
+// intersection, normalisation, pruning, merging, capping; the unimodality test and the
+// estimate summary.
+//
+// All functions are pure (inputs -> outputs); MixtureTracker keeps the current p(x_t)
+// and is thread-compatible (one thread at a time).
+#ifndef OMNICML_TRACKER_H_
+#define OMNICML_TRACKER_H_
+
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "omnicml/geometry/gaussian_mixture.h"
+#include "omnicml/geometry/pose.h"
+
+namespace omnicml {
+
+// Odometry error model a1..a4 (docs/design.md "Motion model", Thrun et al.):
+// M = diag(a1 rot1^2 + a2 trans^2, a3 trans^2 + a4 (rot1^2 + rot2^2), a1 rot2^2 + a2 trans^2).
+struct MotionNoise {
+  double a1 = 0.05;  // rad^2 of rotation noise per rad^2 of rotation
+  double a2 = 0.01;  // rad^2 of rotation noise per m^2 of translation
+  double a3 = 0.05;  // m^2 of translation noise per m^2 of translation
+  double a4 = 0.01;  // m^2 of translation noise per rad^2 of rotation
+  void Validate() const;  // throws omnicml::Error naming the field if negative/non-finite
+};
+
+struct TrackerOptions {
+  // Gate (2): a and b are fused iff their squared Mahalanobis distance under C_a + C_b
+  // is below gamma. Dimensionless (chi-square, 3 DOF; 11.34 is the 99 % quantile).
+  double gamma = 11.34;
+  // Components with normalised weight below w_min are dropped. Dimensionless.
+  double w_min = 1e-3;
+  // Components closer than delta (squared Mahalanobis under the sum of covariances,
+  // [G] (12)) are merged by moment matching. Dimensionless.
+  double delta = 1.0;
+  // At most this many components are kept, by weight.
+  int max_components = 50;
+  // Unimodality: every component with normalised weight >= unimodal_min_weight must lie
+  // within gamma (squared Mahalanobis) of the strongest one.
+  double unimodal_min_weight = 0.05;
+  // Smallest eigenvalue a covariance may have after repair (m^2 / rad^2).
+  double min_covariance_eigenvalue = 1e-10;
+  MotionNoise motion;
+  void Validate() const;  // throws omnicml::Error naming the field
+};
+
+// Jacobians of g(mu, u) = ApplyIncrement(mu, u): G = dg/dmu (3x3), V = dg/du (3x3, u =
+// (rot1, trans, rot2)).
+Eigen::Matrix3d MotionJacobianState(const Pose2& mu, const OdometryIncrement& u);
+Eigen::Matrix3d MotionJacobianControl(const Pose2& mu, const OdometryIncrement& u);
+
+// The control noise M of the model above for increment u.
+Eigen::Matrix3d MotionNoiseCovariance(const OdometryIncrement& u, const MotionNoise& noise);
+
+// p(x|u): mu' = g(mu, u); C' = G C G^T + V M V^T; weights unchanged.
+Mixture Propagate(const Mixture& prior, const OdometryIncrement& u, const MotionNoise& noise);
+
+// Weighted covariance intersection of a and b with alpha as in (5):
+// alpha = w_b det(C_a) / (w_b det(C_a) + w_a det(C_b)); C = ((1-alpha) C_a^-1 + alpha C_b^-1)^-1 (3);
+// mu = C ((1-alpha) C_a^-1 mu_a + alpha C_b^-1 mu_b) (4) with mu_b's angle unwrapped next
+// to mu_a's. The returned weight is 0 (set by Fuse from (8)).
+double CovarianceIntersectionAlpha(const Gaussian& a, const Gaussian& b);
+Gaussian CovarianceIntersection(const Gaussian& a, const Gaussian& b, double alpha);
+
+// Fusion of p(x|u) with one or more other sources [G 2.1, (2)-(8)] followed by
+// normalisation, pruning, merging and capping. Sources are fused one after the other,
+// the result of one fusion being the `a` side of the next, before the final
+// normalisation. Unmatched components of every side are copied. If every source is
+// empty the result is the (normalised, pruned, merged) p(x|u).
+Mixture Fuse(const Mixture& p_x_u, const std::vector<Mixture>& sources, const TrackerOptions& options);
+
+// One fusion step without the final clean-up (exposed for tests of (6)-(8)).
+Mixture FuseOnce(const Mixture& a_side, const Mixture& b_side, const TrackerOptions& options);
+
+// Normalise; drop below w_min; merge closer than delta; cap at max_components; normalise.
+Mixture Simplify(const Mixture& m, const TrackerOptions& options);
+
+// The tracker's output for one frame.
+struct Estimate {
+  Gaussian strongest;  // the component of largest weight
+  Gaussian mean;       // moment-matched summary of the whole mixture (mu_t, C_t)
+  bool unimodal = false;
+  int num_components = 0;
+};
+
+bool IsUnimodal(const Mixture& m, const TrackerOptions& options);
+// Throws omnicml::Error on an empty mixture.
+Estimate Summarize(const Mixture& m, const TrackerOptions& options);
+
+// Keeps p(x_t) between frames.
+class MixtureTracker {
+ public:
+  explicit MixtureTracker(const TrackerOptions& options);
+
+  // Sets p(x) to a single Gaussian (known start pose).
+  void Reset(const Gaussian& start);
+  // Clears p(x): the next Step seeds the mixture from its first non-empty source
+  // (global localization); until then the state is unknown.
+  void ResetUnknown();
+  bool HasState() const { return !state_.empty(); }
+
+  // One frame: p(x|u) = Propagate(p(x_{t-1}), u); p(x_t) = Fuse(p(x|u), sources).
+  // With no state yet, p(x_t) = Simplify(first non-empty source). Returns the summary,
+  // or std::nullopt while the state is still unknown.
+  std::optional<Estimate> Step(const OdometryIncrement& u, const std::vector<Mixture>& sources);
+
+  const Mixture& state() const { return state_; }
+  void set_state(Mixture m) { state_ = std::move(m); }
+  const TrackerOptions& options() const { return options_; }
+
+ private:
+  TrackerOptions options_;
+  Mixture state_;
+};
+
+}  // namespace omnicml
+
+#endif  // OMNICML_TRACKER_H_

@@ -1,0 +1,471 @@
+#include "omnicml/engine/cml_engine.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <utility>
+
+#include <Eigen/LU>
+
+#include "omnicml/common/common.h"
+
+namespace omnicml {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double MicrosSince(Clock::time_point t0) {
+  return std::chrono::duration<double, std::micro>(Clock::now() - t0).count();
+}
+
+bool IsFinitePose(const Pose2& p) { return p.allFinite(); }
+
+}  // namespace
+
+EnvironmentModelOptions CmlEngineOptions::DefaultModelOptions() {
+  EnvironmentModelOptions m;
+  // Tuned on simulated logs with the default Fourier signature (tests/end_to_end_test.cc).
+  // Fourier signature (4 bands x 16, L2, normalised bands) on 360 x 60 panoramas of
+  // home_store: the same place on another day (people, restocked shelves) gives E ~ 0.1,
+  // 0.3 m away ~ 0.25, 3 m away ~ 0.67 (medians). With normalised columns (the default
+  // since format version 3) the same place under other lights on `institute` still gives
+  // E ~ 0.5, so e_max 0.45 (was 0.3): institute, 2 days x 1500 frames, seed 1, mean error
+  // 0.46 m and 450 views (0.3: 1.31 m, 1657 views; 0.5: 0.68 m; 0.6: 1.37 m); home_store,
+  // 3 days x 1000 frames, seed 1: 0.241 m and 277 views (0.3: 0.303 m, 597 views).
+  m.e_max = 0.45;
+  m.top_k = 8;
+  m.beta = 0.2;
+  m.d_max = 3.0;
+  // Active forgetting (18)-(19) acts on views within d_for of mu_t that do not match y_t.
+  // d_for = 0.5 m keeps it off the neighbouring views of the same lap (views are ~0.3 m
+  // apart and stop matching beyond that); beta_for and d_gain_m make a place that
+  // changed for good fade after a few passes. Measured on home_store (3 days x 1000
+  // frames, seed 1): 427 views in active mode against 737 in passive, active map no
+  // longer growing on day 3, mean error 0.226 m against 0.234 m. With beta_for 0.1,
+  // d_gain_m 0.2, d_for 1 m no view was ever removed; with d_for 1 m and the values
+  // below, the robot's own fresh neighbours were forgotten and the error rose.
+  m.d_for_m = 0.5;
+  m.beta_for = 0.5;
+  m.d_gain_m = 1.0;
+  m.w_min = 0.01;
+  m.merge_delta = 1.0;
+  m.spatial_cell_m = 1.0;
+  return m;
+}
+
+void CmlEngineOptions::Validate() const {
+  auto nested = [](const char* prefix, auto&& validate) {
+    try {
+      validate();
+    } catch (const Error& e) {
+      throw Error(StrCat("CmlEngineOptions.", prefix, ": ", e.what()));
+    }
+  };
+  nested("descriptor", [&] { descriptor.Validate(); });
+  nested("tracker", [&] { tracker.Validate(); });
+  nested("model", [&] { model.Validate(); });
+  nested("reconstruction", [&] { reconstruction.Validate(); });
+  if (update_delay_frames < 1) {
+    throw Error(StrCat("CmlEngineOptions.update_delay_frames must be >= 1, got ", update_delay_frames));
+  }
+  if (threads < 1) throw Error(StrCat("CmlEngineOptions.threads must be >= 1, got ", threads));
+  if (max_pending_multimodal_frames < 1) {
+    throw Error(StrCat("CmlEngineOptions.max_pending_multimodal_frames must be >= 1, got ",
+                       max_pending_multimodal_frames));
+  }
+  if (!(anchor_max_sigma_m >= 0.0) || !std::isfinite(anchor_max_sigma_m)) {
+    throw Error(StrCat("CmlEngineOptions.anchor_max_sigma_m must be finite and >= 0, got ",
+                       anchor_max_sigma_m));
+  }
+  if (panorama_width < 0 || panorama_height < 0 || ((panorama_width > 0) != (panorama_height > 0))) {
+    throw Error(StrCat("CmlEngineOptions.panorama_width/panorama_height must both be 0 or both > 0, got ",
+                       panorama_width, " x ", panorama_height));
+  }
+  if (!IsFinitePose(initial_pose)) throw Error("CmlEngineOptions.initial_pose must be finite");
+  try {
+    RepairCovariance(initial_covariance, 1e-12, "CmlEngineOptions.initial_covariance");
+  } catch (const Error& e) {
+    throw Error(StrCat("CmlEngineOptions.initial_covariance: ", e.what()));
+  }
+  if (initial_covariance.determinant() <= 0.0) {
+    throw Error("CmlEngineOptions.initial_covariance must be positive definite");
+  }
+  if (!(hypothesis_min_similarity >= 0.0 && hypothesis_min_similarity <= 1.0)) {
+    throw Error(StrCat("CmlEngineOptions.hypothesis_min_similarity must be in [0, 1], got ",
+                       hypothesis_min_similarity));
+  }
+  if (!(hypothesis_weight_scale > 0.0 && hypothesis_weight_scale <= 1.0)) {
+    throw Error(StrCat("CmlEngineOptions.hypothesis_weight_scale must be in (0, 1], got ", hypothesis_weight_scale));
+  }
+  if (!(appearance_sigma_m >= 0.0) || !std::isfinite(appearance_sigma_m)) {
+    throw Error(StrCat("CmlEngineOptions.appearance_sigma_m must be finite and >= 0, got ", appearance_sigma_m));
+  }
+  if (!(global_seed_min_similarity >= 0.0 && global_seed_min_similarity <= 1.0)) {
+    throw Error(StrCat("CmlEngineOptions.global_seed_min_similarity must be in [0, 1], got ",
+                       global_seed_min_similarity));
+  }
+}
+
+CmlEngine::CmlEngine(const CmlEngineOptions& options) : options_(options), tracker_(options.tracker) {
+  options_.Validate();
+  options_.reconstruction.motion = options_.tracker.motion;
+  extractor_ = MakeDescriptorExtractor(options_.descriptor);
+  model_ = std::make_unique<EnvironmentModel>(options_.model, extractor_);
+  MakeUpdater();
+}
+
+CmlEngine::~CmlEngine() = default;
+
+void CmlEngine::MakeUpdater() {
+  // The worker only ever touches model_ through this function, between Schedule and the
+  // barrier of a frame (see map_updater.h).
+  updater_ = std::make_unique<MapUpdater>(
+      [this](const MapUpdate& u) {
+        model_->Update(u.descriptor, u.state, UpdateContext{u.frame, u.session_index});
+      },
+      options_.update_delay_frames, options_.threads >= 2);
+}
+
+void CmlEngine::MakeUnwrapper() {
+  unwrapper_.reset();
+  if (session_.camera.kind == ImageKind::kRawRing) {
+    unwrapper_ = std::make_unique<OmniUnwrapper>(session_.camera.calibration, session_.camera.image_width,
+                                                 session_.camera.image_height);
+  }
+}
+
+void CmlEngine::PushUpdate(std::int64_t t, std::int64_t frame, int session, const Descriptor& d,
+                           const Gaussian& g, bool reconstructed, FrameStats* stats) {
+  MapUpdate u;
+  u.frame = frame;
+  u.session_index = session;
+  u.descriptor = d;
+  u.state = g;
+  u.reconstructed = reconstructed;
+  updater_->Push(std::move(u), t);
+  if (stats != nullptr) stats->updates_queued += 1;
+  counters_.updates_queued += 1;
+}
+
+void CmlEngine::DropPending(std::int64_t t, FrameStats* stats) {
+  int dropped = 0;
+  for (const PendingFrame& p : pending_) {
+    if (p.filtered) {
+      PushUpdate(t, p.frame, p.session, p.descriptor, *p.filtered, false, stats);
+    } else {
+      ++dropped;
+    }
+  }
+  counters_.dropped_pending_frames += dropped;
+  if (stats != nullptr) stats->dropped_pending += dropped;
+  pending_.clear();
+}
+
+bool CmlEngine::IsConfidentAnchor(const Estimate& estimate, bool appearance_fix) const {
+  if (appearance_fix || !(options_.anchor_max_sigma_m > 0.0) || !options_.reconstruct_multimodal) {
+    return true;
+  }
+  const Eigen::Matrix2d c = estimate.mean.covariance.topLeftCorner<2, 2>();
+  // Largest eigenvalue of the symmetric 2x2 block, in closed form (deterministic).
+  const double half_trace = 0.5 * (c(0, 0) + c(1, 1));
+  const double half_diff = 0.5 * (c(0, 0) - c(1, 1));
+  const double largest = half_trace + std::sqrt(half_diff * half_diff + c(0, 1) * c(1, 0));
+  return largest <= options_.anchor_max_sigma_m * options_.anchor_max_sigma_m;
+}
+
+void CmlEngine::BeginSession(const SessionInfo& info) {
+  const Eigen::Matrix3d start_cov =
+      info.start.mode == SessionStartMode::kKnownPose
+          ? RepairCovariance(info.start.covariance, options_.tracker.min_covariance_eigenvalue,
+                             StrCat("session '", info.name, "' start covariance"))
+          : Eigen::Matrix3d::Identity();
+  if (info.start.mode == SessionStartMode::kKnownPose && !IsFinitePose(info.start.map_T_robot)) {
+    throw Error(StrCat("session '", info.name, "': start pose is not finite"));
+  }
+  // Build the unwrapper first: a bad calibration must leave the engine unchanged.
+  std::unique_ptr<OmniUnwrapper> unwrapper;
+  if (info.camera.kind == ImageKind::kRawRing) {
+    unwrapper = std::make_unique<OmniUnwrapper>(info.camera.calibration, info.camera.image_width,
+                                                info.camera.image_height);
+  }
+  // Bring the model up to date with what the next frame's query would see anyway, so the
+  // emptiness test below reads a settled model (same result with or without worker).
+  updater_->WaitUntilApplied(next_frame_);
+
+  const bool first = !session_.in_session;
+  session_.session += 1;
+  session_.in_session = true;
+  session_.camera = info.camera;
+  session_.start_mode = info.start.mode;
+  session_.awaiting_global_seed = false;
+  unwrapper_ = std::move(unwrapper);
+
+  switch (info.start.mode) {
+    case SessionStartMode::kKnownPose: {
+      Gaussian g;
+      g.mean = MakePose(info.start.map_T_robot[0], info.start.map_T_robot[1], info.start.map_T_robot[2]);
+      g.covariance = start_cov;
+      g.weight = 1.0;
+      tracker_.Reset(g);
+      DropPending(next_frame_ - 1, nullptr);
+      anchor_.reset();
+      session_.has_prev_odom = false;
+      break;
+    }
+    case SessionStartMode::kContinue: {
+      if (!first && !tracker_.HasState()) {
+        // The previous (global) session never found the robot: keep looking.
+        session_.awaiting_global_seed = true;
+        session_.has_prev_odom = false;
+      } else if (first) {
+        // Nothing to continue from: the configured p(x_0).
+        Gaussian g;
+        g.mean = options_.initial_pose;
+        g.covariance = options_.initial_covariance;
+        tracker_.Reset(g);
+        DropPending(next_frame_ - 1, nullptr);
+        anchor_.reset();
+        session_.has_prev_odom = false;
+      } else if (!options_.continue_odometry_across_sessions) {
+        session_.has_prev_odom = false;  // first frame: zero increment
+      }
+      break;
+    }
+    case SessionStartMode::kGlobal: {
+      DropPending(next_frame_ - 1, nullptr);
+      anchor_.reset();
+      session_.has_prev_odom = false;
+      if (model_->NumViews() == 0 && updater_->queued().empty()) {
+        // [G 2.1]: with an empty map p(x_0) is the configured initial pose.
+        Gaussian g;
+        g.mean = options_.initial_pose;
+        g.covariance = options_.initial_covariance;
+        tracker_.Reset(g);
+        counters_.global_fallbacks += 1;
+      } else {
+        tracker_.ResetUnknown();
+        session_.awaiting_global_seed = true;
+      }
+      break;
+    }
+  }
+}
+
+cv::Mat CmlEngine::PreparePanoramaOf(const Frame& frame) const {
+  if (session_.camera.kind == ImageKind::kRawRing) {
+    OMNICML_CHECK(unwrapper_ != nullptr) << "raw ring session without unwrapper";
+    return PreparePanorama(unwrapper_->Unwrap(frame.image), options_.panorama_width, options_.panorama_height);
+  }
+  return PreparePanorama(frame.image, options_.panorama_width, options_.panorama_height);
+}
+
+void CmlEngine::QueueUnimodal(std::int64_t t, const Descriptor& y, const Estimate& estimate, FrameResult* result) {
+  // (mu_t, C_t): the moment-matched merge of the unimodal p(x_t).
+  Gaussian state = estimate.mean;
+  state.weight = 1.0;
+  result->map_state = state;
+  const auto push = [&](std::int64_t frame, int session, const Descriptor& d, const Gaussian& g, bool rec) {
+    PushUpdate(t, frame, session, d, g, rec, &result->stats);
+  };
+
+  // Reconstruction of the multimodal stretch since the previous unimodal anchor
+  // ([G 2.1, PK]; docs/design.md "Unimodality, reconstruction, delayed update").
+  if (!pending_.empty()) {
+    const auto t0 = Clock::now();
+    // Chain: [anchor ->] pending_0 -> ... -> pending_{k-1} -> t.
+    std::vector<OdometryIncrement> increments;
+    std::optional<Gaussian> start;
+    std::size_t first_increment = 1;
+    if (anchor_) {
+      start = anchor_->second;
+      first_increment = 0;
+    }
+    for (std::size_t i = first_increment; i < pending_.size(); ++i) increments.push_back(pending_[i].increment);
+    // The current frame's increment is the one the tracker just used.
+    increments.push_back(current_increment_);
+    const ReconstructionResult rec =
+        ReconstructTrajectory(start, increments, state, options_.reconstruction);
+    const std::size_t offset = anchor_ ? 1 : 0;
+    for (std::size_t i = 0; i < pending_.size(); ++i) {
+      const Gaussian& g = rec.nodes[i + offset];
+      push(pending_[i].frame, pending_[i].session, pending_[i].descriptor, g, true);
+      result->reconstructed.emplace_back(pending_[i].frame, g);
+    }
+    counters_.reconstructed_frames += static_cast<std::int64_t>(pending_.size());
+    pending_.clear();
+    result->stats.reconstruct_us = MicrosSince(t0);
+  }
+  push(t, session_.session, y, state, false);
+  anchor_ = std::make_pair(t, state);
+}
+
+void CmlEngine::ShapeHypothesis(double best_similarity, Mixture* p_x_y) const {
+  if (p_x_y->empty()) return;
+  if (best_similarity < options_.hypothesis_min_similarity) {
+    p_x_y->clear();
+    return;
+  }
+  const double var = options_.appearance_sigma_m * options_.appearance_sigma_m;
+  for (Gaussian& g : *p_x_y) {
+    if (options_.hypothesis_weight_by_similarity) g.weight *= best_similarity;
+    g.covariance(0, 0) += var;
+    g.covariance(1, 1) += var;
+  }
+}
+
+FrameResult CmlEngine::ProcessFrame(const Frame& frame) {
+  const auto t_start = Clock::now();
+  if (!session_.in_session) throw Error("CmlEngine::ProcessFrame called before BeginSession");
+  if (!IsFinitePose(frame.odom_T_robot)) {
+    throw Error(StrCat("frame ", frame.global_index, " (session ", frame.session_index, ", index ",
+                       frame.index_in_session, "): odometry is not finite"));
+  }
+  const std::int64_t t = next_frame_;
+  FrameResult result;
+  result.frame = t;
+  result.session = session_.session;
+
+  // 2. Hand the updates due at t to the worker; it runs while we unwrap and describe.
+  updater_->Schedule(t);
+
+  Descriptor y;
+  try {
+    // 3. Unwrap / prepare.
+    auto t0 = Clock::now();
+    const cv::Mat panorama = PreparePanoramaOf(frame);
+    result.stats.unwrap_us = MicrosSince(t0);
+    // 4. Describe.
+    t0 = Clock::now();
+    y = extractor_->Compute(panorama);
+    result.stats.describe_us = MicrosSince(t0);
+  } catch (...) {
+    updater_->WaitUntilApplied(t);  // never leave the worker running between calls
+    throw;
+  }
+
+  // 5. Barrier: exactly the updates of frames <= t - delay are in the map.
+  auto t0 = Clock::now();
+  result.stats.updates_applied = updater_->WaitUntilApplied(t);
+  result.stats.update_us = MicrosSince(t0);
+  result.stats.apply_us = updater_->TakeApplyMicroseconds();
+
+  // 6a. p(x|y) from the map (distributed coding).
+  t0 = Clock::now();
+  result.stats.num_views = model_->NumViews();
+  result.stats.num_map_components = model_->NumComponents();
+  const std::vector<ViewMatch> matches = model_->FindMatches(y);
+  Mixture p_x_y = model_->Hypothesis(matches);
+  result.stats.num_matches = static_cast<int>(matches.size());
+  for (const ViewMatch& m : matches) result.stats.best_similarity = std::max(result.stats.best_similarity, m.similarity);
+  result.stats.hypothesis_components = static_cast<int>(p_x_y.size());
+  ShapeHypothesis(result.stats.best_similarity, &p_x_y);
+  result.stats.match_us = MicrosSince(t0);
+
+  // 1. Odometry increment (zero on a session's first frame, see BeginSession).
+  current_increment_ = session_.has_prev_odom ? ComputeIncrement(session_.prev_odom, frame.odom_T_robot)
+                                              : OdometryIncrement{};
+
+  // 6b. p(x_t) = Fuse(Propagate(p(x_{t-1}), u_t), p(x|y)).
+  t0 = Clock::now();
+  std::vector<Mixture> sources;
+  bool seeding = false;
+  if (!tracker_.HasState()) {
+    // Global start: only a confident p(x|y) may seed the mixture.
+    if (!p_x_y.empty() && result.stats.best_similarity >= options_.global_seed_min_similarity) {
+      sources.push_back(std::move(p_x_y));
+      seeding = true;
+    }
+  } else if (!p_x_y.empty()) {
+    // Prior of each appearance hypothesis: the p(x|u) mass within its gate (2), floored
+    // by hypothesis_weight_scale (a place no current hypothesis covers: kidnapping, loop
+    // closure after long drift). With [G] (8) alone a matched component gains w_b in
+    // full whatever its own weight, so an aliased match (symmetric rooms, heading off by
+    // ~180 deg) that once entered as a new hypothesis won within two or three frames
+    // against a confident p(x|u); with the prior, evidence there grows multiplicatively.
+    const Mixture p_x_u = Propagate(tracker_.state(), current_increment_, options_.tracker.motion);
+    double total_u = 0.0;
+    for (const Gaussian& a : p_x_u) total_u += a.weight;
+    for (Gaussian& b : p_x_y) {
+      double prior = 0.0;
+      for (const Gaussian& a : p_x_u) {
+        if (SquaredMahalanobis(a.mean, b.mean, a.covariance + b.covariance) < options_.tracker.gamma) {
+          prior += a.weight;
+        }
+      }
+      if (total_u > 0.0) prior /= total_u;
+      b.weight *= std::max(prior, options_.hypothesis_weight_scale);
+    }
+    sources.push_back(std::move(p_x_y));
+  }
+  // A unimodal estimate fused with a non-empty p(x|y) was fixed by appearance (a p(x|y)
+  // component far from p(x|u) would have made it multimodal).
+  const bool appearance_fix = !sources.empty();
+  result.estimate = tracker_.Step(current_increment_, sources);
+  result.stats.fuse_us = MicrosSince(t0);
+  result.stats.mixture_components = static_cast<int>(tracker_.state().size());
+  if (seeding && result.estimate) {
+    counters_.global_seeds += 1;
+    session_.awaiting_global_seed = false;
+  }
+
+  // 7. Map update (delayed) or wait for reconstruction.
+  if (!result.estimate) {
+    counters_.unknown_frames += 1;
+  } else if (result.estimate->unimodal && IsConfidentAnchor(*result.estimate, appearance_fix)) {
+    counters_.unimodal_frames += 1;
+    QueueUnimodal(t, y, *result.estimate, &result);
+  } else {
+    const bool unimodal = result.estimate->unimodal;  // but not confident enough to anchor
+    (unimodal ? counters_.unimodal_frames : counters_.multimodal_frames) += 1;
+    if (options_.reconstruct_multimodal) {
+      PendingFrame p;
+      p.frame = t;
+      p.session = session_.session;
+      p.descriptor = std::move(y);
+      p.increment = current_increment_;
+      if (unimodal) {
+        Gaussian g = result.estimate->mean;
+        g.weight = 1.0;
+        p.filtered = g;
+      }
+      pending_.push_back(std::move(p));
+      if (static_cast<int>(pending_.size()) > options_.max_pending_multimodal_frames) {
+        PendingFrame& oldest = pending_.front();
+        if (oldest.filtered) {
+          // It updates the map with its filtered estimate and anchors the rest.
+          PushUpdate(t, oldest.frame, oldest.session, oldest.descriptor, *oldest.filtered, false,
+                     &result.stats);
+          anchor_ = std::make_pair(oldest.frame, *oldest.filtered);
+        } else {
+          // The oldest frame goes, and with it the link to the anchor.
+          anchor_.reset();
+          counters_.dropped_pending_frames += 1;
+          result.stats.dropped_pending += 1;
+        }
+        pending_.erase(pending_.begin());
+      }
+    }
+  }
+  result.stats.pending_multimodal = static_cast<int>(pending_.size());
+
+  session_.prev_odom = frame.odom_T_robot;
+  session_.has_prev_odom = true;
+  next_frame_ = t + 1;
+  counters_.frames += 1;
+  result.stats.total_us = MicrosSince(t_start);
+  return result;
+}
+
+void CmlEngine::ReplaceModel(EnvironmentModel model) {
+  if (model.extractor_ptr() != extractor_) {
+    throw Error("CmlEngine::ReplaceModel: the model must be built with the engine's extractor (extractor_ptr())");
+  }
+  model_ = std::make_unique<EnvironmentModel>(std::move(model));
+}
+
+int CmlEngine::Finish() {
+  DropPending(next_frame_ - 1, nullptr);
+  return updater_->Flush();
+}
+
+}  // namespace omnicml

@@ -1,0 +1,537 @@
+#include "omnicml/engine/engine_io.h"
+
+#include <cerrno>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <utility>
+
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include "omnicml/common/common.h"
+
+namespace omnicml {
+
+// Restores the private state of a CmlEngine (friend of CmlEngine).
+class EngineStateAccess {
+ public:
+  static void Write(BinaryWriter& out, const CmlEngine& e);
+  static std::unique_ptr<CmlEngine> Read(BinaryReader& in);
+};
+
+namespace {
+
+constexpr std::size_t kHeaderBytes = 8 + 4 + 8;
+constexpr std::size_t kTrailerBytes = 4;
+
+// ---- small value types -------------------------------------------------------------
+
+void WritePose(BinaryWriter& out, const Pose2& p) {
+  for (int i = 0; i < 3; ++i) out.Write<double>(p[i]);
+}
+Pose2 ReadPose(BinaryReader& in, const char* what) {
+  Pose2 p;
+  for (int i = 0; i < 3; ++i) p[i] = in.Read<double>(what);
+  return p;
+}
+void WriteMatrix3(BinaryWriter& out, const Eigen::Matrix3d& m) {
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) out.Write<double>(m(r, c));
+  }
+}
+Eigen::Matrix3d ReadMatrix3(BinaryReader& in, const char* what) {
+  Eigen::Matrix3d m;
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) m(r, c) = in.Read<double>(what);
+  }
+  return m;
+}
+void WriteGaussian(BinaryWriter& out, const Gaussian& g) {
+  WritePose(out, g.mean);
+  WriteMatrix3(out, g.covariance);
+  out.Write<double>(g.weight);
+}
+Gaussian ReadGaussian(BinaryReader& in, const char* what) {
+  Gaussian g;
+  g.mean = ReadPose(in, what);
+  g.covariance = ReadMatrix3(in, what);
+  g.weight = in.Read<double>(what);
+  return g;
+}
+void WriteIncrement(BinaryWriter& out, const OdometryIncrement& u) {
+  out.Write<double>(u.rot1_rad);
+  out.Write<double>(u.trans_m);
+  out.Write<double>(u.rot2_rad);
+}
+OdometryIncrement ReadIncrement(BinaryReader& in, const char* what) {
+  OdometryIncrement u;
+  u.rot1_rad = in.Read<double>(what);
+  u.trans_m = in.Read<double>(what);
+  u.rot2_rad = in.Read<double>(what);
+  return u;
+}
+void WriteDescriptor(BinaryWriter& out, const Descriptor& d) {
+  const std::vector<std::uint8_t> bytes = Serialize(d);
+  out.Write<std::uint64_t>(bytes.size());
+  out.WriteBytes(bytes);
+}
+Descriptor ReadDescriptor(BinaryReader& in, const char* what) {
+  const std::size_t n = in.ReadCount(what, 1);
+  const std::vector<std::uint8_t> bytes = in.ReadBytes(n, what);
+  try {
+    return Deserialize(bytes);
+  } catch (const Error& e) {
+    in.Fail(what, e.what());
+  }
+}
+
+// Reads an enum stored as its underlying integer and checks it against [lo, hi].
+template <typename E>
+E ReadEnum(BinaryReader& in, const char* what, int lo, int hi) {
+  using U = std::underlying_type_t<E>;
+  const auto v = static_cast<long long>(in.Read<U>(what));
+  if (v < lo || v > hi) in.Fail(what, StrCat("invalid value ", v));
+  return static_cast<E>(v);
+}
+
+// ---- options -----------------------------------------------------------------------
+
+void WriteDescriptorOptions(BinaryWriter& out, const DescriptorOptions& o) {
+  out.Write<std::uint8_t>(static_cast<std::uint8_t>(o.kind));
+  // Fourier.
+  out.Write<std::int32_t>(o.fourier.bands);
+  out.Write<std::int32_t>(o.fourier.coefficients);
+  out.Write<std::int32_t>(static_cast<std::int32_t>(o.fourier.distance));
+  out.Write<bool>(o.fourier.normalize_bands);
+  out.Write<bool>(o.fourier.normalize_columns);
+  // Invariant feature histogram.
+  out.Write<std::uint64_t>(o.ifh.kernels.size());
+  for (const IfhKernel& k : o.ifh.kernels) {
+    out.Write<std::uint64_t>(k.offsets.size());
+    for (const cv::Point2d& p : k.offsets) {
+      out.Write<double>(p.x);
+      out.Write<double>(p.y);
+    }
+  }
+  out.Write<std::int32_t>(o.ifh.angles);
+  out.Write<std::int32_t>(o.ifh.bins);
+  out.WriteVector(o.ifh.scales);
+  out.Write<bool>(o.ifh.color);
+  out.Write<double>(o.ifh.sample_fraction);
+  out.Write<std::uint32_t>(o.ifh.seed);
+  // Colour histogram.
+  out.Write<std::int32_t>(o.color.bins);
+  out.Write<std::int32_t>(o.color.filter_width);
+  out.Write<bool>(o.color.normalized_rgb);
+  out.Write<std::int32_t>(static_cast<std::int32_t>(o.color.distance));
+}
+
+DescriptorOptions ReadDescriptorOptions(BinaryReader& in) {
+  DescriptorOptions o;
+  o.kind = ReadEnum<DescriptorKind>(in, "descriptor.kind", 1, 3);
+  o.fourier.bands = in.Read<std::int32_t>("descriptor.fourier.bands");
+  o.fourier.coefficients = in.Read<std::int32_t>("descriptor.fourier.coefficients");
+  o.fourier.distance = ReadEnum<FourierDistance>(in, "descriptor.fourier.distance", 0, 1);
+  o.fourier.normalize_bands = in.Read<bool>("descriptor.fourier.normalize_bands");
+  o.fourier.normalize_columns = in.Read<bool>("descriptor.fourier.normalize_columns");
+  const std::size_t kernels = in.ReadCount("descriptor.ifh.kernels", 8);
+  o.ifh.kernels.clear();
+  for (std::size_t i = 0; i < kernels; ++i) {
+    IfhKernel k;
+    const std::size_t offsets = in.ReadCount("descriptor.ifh.kernels.offsets", 16);
+    for (std::size_t j = 0; j < offsets; ++j) {
+      cv::Point2d p;
+      p.x = in.Read<double>("descriptor.ifh.kernels.offsets");
+      p.y = in.Read<double>("descriptor.ifh.kernels.offsets");
+      k.offsets.push_back(p);
+    }
+    o.ifh.kernels.push_back(std::move(k));
+  }
+  o.ifh.angles = in.Read<std::int32_t>("descriptor.ifh.angles");
+  o.ifh.bins = in.Read<std::int32_t>("descriptor.ifh.bins");
+  o.ifh.scales = in.ReadVector<double>("descriptor.ifh.scales");
+  o.ifh.color = in.Read<bool>("descriptor.ifh.color");
+  o.ifh.sample_fraction = in.Read<double>("descriptor.ifh.sample_fraction");
+  o.ifh.seed = in.Read<std::uint32_t>("descriptor.ifh.seed");
+  o.color.bins = in.Read<std::int32_t>("descriptor.color.bins");
+  o.color.filter_width = in.Read<std::int32_t>("descriptor.color.filter_width");
+  o.color.normalized_rgb = in.Read<bool>("descriptor.color.normalized_rgb");
+  o.color.distance = ReadEnum<HistogramDistance>(in, "descriptor.color.distance", 0, 4);
+  return o;
+}
+
+void WriteTrackerOptions(BinaryWriter& out, const TrackerOptions& o) {
+  out.Write<double>(o.gamma);
+  out.Write<double>(o.w_min);
+  out.Write<double>(o.delta);
+  out.Write<std::int32_t>(o.max_components);
+  out.Write<double>(o.unimodal_min_weight);
+  out.Write<double>(o.min_covariance_eigenvalue);
+  out.Write<double>(o.motion.a1);
+  out.Write<double>(o.motion.a2);
+  out.Write<double>(o.motion.a3);
+  out.Write<double>(o.motion.a4);
+}
+
+TrackerOptions ReadTrackerOptions(BinaryReader& in) {
+  TrackerOptions o;
+  o.gamma = in.Read<double>("tracker.gamma");
+  o.w_min = in.Read<double>("tracker.w_min");
+  o.delta = in.Read<double>("tracker.delta");
+  o.max_components = in.Read<std::int32_t>("tracker.max_components");
+  o.unimodal_min_weight = in.Read<double>("tracker.unimodal_min_weight");
+  o.min_covariance_eigenvalue = in.Read<double>("tracker.min_covariance_eigenvalue");
+  o.motion.a1 = in.Read<double>("tracker.motion.a1");
+  o.motion.a2 = in.Read<double>("tracker.motion.a2");
+  o.motion.a3 = in.Read<double>("tracker.motion.a3");
+  o.motion.a4 = in.Read<double>("tracker.motion.a4");
+  return o;
+}
+
+void WriteModelOptions(BinaryWriter& out, const EnvironmentModelOptions& o) {
+  out.Write<double>(o.e_max);
+  out.Write<std::int32_t>(o.top_k);
+  out.Write<double>(o.beta);
+  out.Write<double>(o.d_max);
+  out.Write<double>(o.d_for_m);
+  out.Write<double>(o.beta_for);
+  out.Write<double>(o.d_gain_m);
+  out.Write<double>(o.w_min);
+  out.Write<double>(o.merge_delta);
+  out.Write<double>(o.heading_sigma_no_rotation_rad);
+  out.Write<std::uint8_t>(static_cast<std::uint8_t>(o.forgetting));
+  out.Write<double>(o.spatial_cell_m);
+  out.Write<bool>(o.log_component_events);
+}
+
+EnvironmentModelOptions ReadModelOptions(BinaryReader& in) {
+  EnvironmentModelOptions o;
+  o.e_max = in.Read<double>("model.e_max");
+  o.top_k = in.Read<std::int32_t>("model.top_k");
+  o.beta = in.Read<double>("model.beta");
+  o.d_max = in.Read<double>("model.d_max");
+  o.d_for_m = in.Read<double>("model.d_for_m");
+  o.beta_for = in.Read<double>("model.beta_for");
+  o.d_gain_m = in.Read<double>("model.d_gain_m");
+  o.w_min = in.Read<double>("model.w_min");
+  o.merge_delta = in.Read<double>("model.merge_delta");
+  o.heading_sigma_no_rotation_rad = in.Read<double>("model.heading_sigma_no_rotation_rad");
+  o.forgetting = ReadEnum<ForgettingMode>(in, "model.forgetting", 0, 2);
+  o.spatial_cell_m = in.Read<double>("model.spatial_cell_m");
+  o.log_component_events = in.Read<bool>("model.log_component_events");
+  return o;
+}
+
+void WriteCalibration(BinaryWriter& out, const OmniCalibration& c) {
+  out.Write<double>(c.center_x_px);
+  out.Write<double>(c.center_y_px);
+  out.Write<double>(c.inner_radius_px);
+  out.Write<double>(c.outer_radius_px);
+  out.Write<double>(c.azimuth0_rad);
+  out.Write<std::int32_t>(static_cast<std::int32_t>(c.direction));
+  out.Write<std::int32_t>(static_cast<std::int32_t>(c.elevation));
+  out.Write<std::int32_t>(c.panorama_width);
+  out.Write<std::int32_t>(c.panorama_height);
+}
+
+OmniCalibration ReadCalibration(BinaryReader& in) {
+  OmniCalibration c;
+  c.center_x_px = in.Read<double>("camera.calibration.center_x_px");
+  c.center_y_px = in.Read<double>("camera.calibration.center_y_px");
+  c.inner_radius_px = in.Read<double>("camera.calibration.inner_radius_px");
+  c.outer_radius_px = in.Read<double>("camera.calibration.outer_radius_px");
+  c.azimuth0_rad = in.Read<double>("camera.calibration.azimuth0_rad");
+  c.direction = ReadEnum<RingDirection>(in, "camera.calibration.direction", 0, 1);
+  c.elevation = ReadEnum<ElevationMapping>(in, "camera.calibration.elevation", 0, 1);
+  c.panorama_width = in.Read<std::int32_t>("camera.calibration.panorama_width");
+  c.panorama_height = in.Read<std::int32_t>("camera.calibration.panorama_height");
+  return c;
+}
+
+[[noreturn]] void FailFile(const std::string& path, const std::string& message) {
+  throw Error(StrCat(path, ": ", message));
+}
+
+}  // namespace
+
+void WriteEngineOptions(BinaryWriter& out, const CmlEngineOptions& o) {
+  WriteDescriptorOptions(out, o.descriptor);
+  WriteTrackerOptions(out, o.tracker);
+  WriteModelOptions(out, o.model);
+  out.Write<double>(o.reconstruction.min_translation_variance_m2);
+  out.Write<double>(o.reconstruction.min_rotation_variance_rad2);
+  out.Write<std::int32_t>(o.reconstruction.max_iterations);
+  out.Write<double>(o.reconstruction.function_tolerance);
+  out.Write<bool>(o.reconstruction.compute_covariances);
+  out.Write<std::int32_t>(o.update_delay_frames);
+  out.Write<std::int32_t>(o.threads);
+  out.Write<bool>(o.reconstruct_multimodal);
+  out.Write<std::int32_t>(o.max_pending_multimodal_frames);
+  out.Write<double>(o.anchor_max_sigma_m);
+  out.Write<std::int32_t>(o.panorama_width);
+  out.Write<std::int32_t>(o.panorama_height);
+  WritePose(out, o.initial_pose);
+  WriteMatrix3(out, o.initial_covariance);
+  out.Write<double>(o.hypothesis_min_similarity);
+  out.Write<bool>(o.hypothesis_weight_by_similarity);
+  out.Write<double>(o.hypothesis_weight_scale);
+  out.Write<double>(o.appearance_sigma_m);
+  out.Write<double>(o.global_seed_min_similarity);
+  out.Write<bool>(o.continue_odometry_across_sessions);
+}
+
+CmlEngineOptions ReadEngineOptions(BinaryReader& in) {
+  CmlEngineOptions o;
+  o.descriptor = ReadDescriptorOptions(in);
+  o.tracker = ReadTrackerOptions(in);
+  o.model = ReadModelOptions(in);
+  o.reconstruction.min_translation_variance_m2 = in.Read<double>("reconstruction.min_translation_variance_m2");
+  o.reconstruction.min_rotation_variance_rad2 = in.Read<double>("reconstruction.min_rotation_variance_rad2");
+  o.reconstruction.max_iterations = in.Read<std::int32_t>("reconstruction.max_iterations");
+  o.reconstruction.function_tolerance = in.Read<double>("reconstruction.function_tolerance");
+  o.reconstruction.compute_covariances = in.Read<bool>("reconstruction.compute_covariances");
+  o.reconstruction.motion = o.tracker.motion;
+  o.update_delay_frames = in.Read<std::int32_t>("update_delay_frames");
+  o.threads = in.Read<std::int32_t>("threads");
+  o.reconstruct_multimodal = in.Read<bool>("reconstruct_multimodal");
+  o.max_pending_multimodal_frames = in.Read<std::int32_t>("max_pending_multimodal_frames");
+  o.anchor_max_sigma_m = in.Read<double>("anchor_max_sigma_m");
+  o.panorama_width = in.Read<std::int32_t>("panorama_width");
+  o.panorama_height = in.Read<std::int32_t>("panorama_height");
+  o.initial_pose = ReadPose(in, "initial_pose");
+  o.initial_covariance = ReadMatrix3(in, "initial_covariance");
+  o.hypothesis_min_similarity = in.Read<double>("hypothesis_min_similarity");
+  o.hypothesis_weight_by_similarity = in.Read<bool>("hypothesis_weight_by_similarity");
+  o.hypothesis_weight_scale = in.Read<double>("hypothesis_weight_scale");
+  o.appearance_sigma_m = in.Read<double>("appearance_sigma_m");
+  o.global_seed_min_similarity = in.Read<double>("global_seed_min_similarity");
+  o.continue_odometry_across_sessions = in.Read<bool>("continue_odometry_across_sessions");
+  return o;
+}
+
+void EngineStateAccess::Write(BinaryWriter& out, const CmlEngine& e) {
+  WriteEngineOptions(out, e.options_);
+  // Counters.
+  const EngineCounters& c = e.counters_;
+  for (std::int64_t v : {c.frames, c.unimodal_frames, c.multimodal_frames, c.unknown_frames,
+                         c.reconstructed_frames, c.dropped_pending_frames, c.updates_queued, c.global_seeds,
+                         c.global_fallbacks}) {
+    out.Write<std::int64_t>(v);
+  }
+  // Session state.
+  const EngineSessionState& s = e.session_;
+  out.Write<std::int32_t>(s.session);
+  out.Write<bool>(s.in_session);
+  out.Write<std::int32_t>(static_cast<std::int32_t>(s.camera.kind));
+  out.Write<std::int32_t>(s.camera.image_width);
+  out.Write<std::int32_t>(s.camera.image_height);
+  WriteCalibration(out, s.camera.calibration);
+  out.Write<std::int32_t>(static_cast<std::int32_t>(s.start_mode));
+  out.Write<bool>(s.has_prev_odom);
+  WritePose(out, s.prev_odom);
+  out.Write<bool>(s.awaiting_global_seed);
+  out.Write<std::int64_t>(e.next_frame_);
+  // Tracker mixture.
+  const Mixture& m = e.tracker_.state();
+  out.Write<std::uint64_t>(m.size());
+  for (const Gaussian& g : m) WriteGaussian(out, g);
+  // Pending multimodal frames and their anchor.
+  out.Write<std::uint64_t>(e.pending_.size());
+  for (const PendingFrame& p : e.pending_) {
+    out.Write<std::int64_t>(p.frame);
+    out.Write<std::int32_t>(p.session);
+    WriteDescriptor(out, p.descriptor);
+    WriteIncrement(out, p.increment);
+    out.Write<bool>(p.filtered.has_value());
+    if (p.filtered) WriteGaussian(out, *p.filtered);
+  }
+  out.Write<bool>(e.anchor_.has_value());
+  if (e.anchor_) {
+    out.Write<std::int64_t>(e.anchor_->first);
+    WriteGaussian(out, e.anchor_->second);
+  }
+  // Queued map updates (the worker is idle between frames).
+  const std::deque<MapUpdate>& q = e.updater_->queued();
+  out.Write<std::uint64_t>(q.size());
+  for (const MapUpdate& u : q) {
+    out.Write<std::int64_t>(u.frame);
+    out.Write<std::int64_t>(u.due_frame);
+    out.Write<std::int32_t>(u.session_index);
+    WriteDescriptor(out, u.descriptor);
+    WriteGaussian(out, u.state);
+    out.Write<bool>(u.reconstructed);
+  }
+  // The map.
+  e.model_->Serialize(out);
+}
+
+std::unique_ptr<CmlEngine> EngineStateAccess::Read(BinaryReader& in) {
+  const CmlEngineOptions options = ReadEngineOptions(in);
+  std::unique_ptr<CmlEngine> e;
+  try {
+    e = std::make_unique<CmlEngine>(options);
+  } catch (const Error& err) {
+    in.Fail("options", StrCat("invalid stored options: ", err.what()));
+  }
+  EngineCounters& c = e->counters_;
+  for (std::int64_t* v : {&c.frames, &c.unimodal_frames, &c.multimodal_frames, &c.unknown_frames,
+                          &c.reconstructed_frames, &c.dropped_pending_frames, &c.updates_queued, &c.global_seeds,
+                          &c.global_fallbacks}) {
+    *v = in.Read<std::int64_t>("counters");
+  }
+  EngineSessionState& s = e->session_;
+  s.session = in.Read<std::int32_t>("session.index");
+  s.in_session = in.Read<bool>("session.in_session");
+  s.camera.kind = ReadEnum<ImageKind>(in, "session.camera.kind", 0, 1);
+  s.camera.image_width = in.Read<std::int32_t>("session.camera.image_width");
+  s.camera.image_height = in.Read<std::int32_t>("session.camera.image_height");
+  s.camera.calibration = ReadCalibration(in);
+  s.start_mode = ReadEnum<SessionStartMode>(in, "session.start_mode", 0, 2);
+  s.has_prev_odom = in.Read<bool>("session.has_prev_odom");
+  s.prev_odom = ReadPose(in, "session.prev_odom");
+  s.awaiting_global_seed = in.Read<bool>("session.awaiting_global_seed");
+  e->next_frame_ = in.Read<std::int64_t>("next_frame");
+  if (e->next_frame_ < 0) in.Fail("next_frame", "negative frame index");
+
+  const std::size_t components = in.ReadCount("tracker.state", 13 * 8);
+  Mixture m;
+  for (std::size_t i = 0; i < components; ++i) m.push_back(ReadGaussian(in, "tracker.state"));
+  e->tracker_.set_state(std::move(m));
+
+  const std::size_t pending = in.ReadCount("pending", 8 + 4 + 8 + 24 + 1);
+  for (std::size_t i = 0; i < pending; ++i) {
+    PendingFrame p;
+    p.frame = in.Read<std::int64_t>("pending.frame");
+    p.session = in.Read<std::int32_t>("pending.session");
+    p.descriptor = ReadDescriptor(in, "pending.descriptor");
+    p.increment = ReadIncrement(in, "pending.increment");
+    if (in.Read<bool>("pending.filtered")) p.filtered = ReadGaussian(in, "pending.filtered");
+    e->pending_.push_back(std::move(p));
+  }
+  if (in.Read<bool>("anchor")) {
+    const std::int64_t frame = in.Read<std::int64_t>("anchor.frame");
+    e->anchor_ = std::make_pair(frame, ReadGaussian(in, "anchor.state"));
+  }
+
+  const std::size_t queued = in.ReadCount("queued_updates", 8 + 8 + 4 + 8 + 13 * 8 + 1);
+  std::int64_t last_due = INT64_MIN;
+  for (std::size_t i = 0; i < queued; ++i) {
+    MapUpdate u;
+    u.frame = in.Read<std::int64_t>("queued_updates.frame");
+    u.due_frame = in.Read<std::int64_t>("queued_updates.due_frame");
+    u.session_index = in.Read<std::int32_t>("queued_updates.session");
+    u.descriptor = ReadDescriptor(in, "queued_updates.descriptor");
+    u.state = ReadGaussian(in, "queued_updates.state");
+    u.reconstructed = in.Read<bool>("queued_updates.reconstructed");
+    if (u.due_frame < last_due) in.Fail("queued_updates.due_frame", "due frames decrease");
+    last_due = u.due_frame;
+    e->updater_->PushRaw(std::move(u));
+  }
+
+  e->model_ = std::make_unique<EnvironmentModel>(EnvironmentModel::Deserialize(in, e->options_.model, e->extractor_));
+  in.ExpectEnd("engine payload");
+  if (s.in_session) e->MakeUnwrapper();
+  return e;
+}
+
+std::vector<std::uint8_t> EncodeEngine(const CmlEngine& engine) {
+  BinaryWriter payload;
+  EngineStateAccess::Write(payload, engine);
+  BinaryWriter file;
+  for (char ch : kEngineMagic) file.Write<std::uint8_t>(static_cast<std::uint8_t>(ch));
+  file.Write<std::uint32_t>(kEngineFormatVersion);
+  file.Write<std::uint64_t>(payload.size());
+  file.WriteBytes(payload.bytes());
+  file.Write<std::uint32_t>(Crc32(payload.bytes()));
+  return file.Release();
+}
+
+std::unique_ptr<CmlEngine> DecodeEngine(const std::vector<std::uint8_t>& bytes, const std::string& source) {
+  if (bytes.size() < 8 || std::memcmp(bytes.data(), kEngineMagic, 8) != 0) {
+    FailFile(source, bytes.size() < 8 ? "not an omnicml engine file (shorter than the magic bytes)"
+                                      : "not an omnicml engine file (bad magic bytes)");
+  }
+  BinaryReader header(std::span<const std::uint8_t>(bytes.data(), bytes.size()), source);
+  header.ReadBytes(8, "magic");
+  if (bytes.size() < kHeaderBytes) FailFile(source, StrCat("truncated header (", bytes.size(), " bytes)"));
+  const auto version = header.Read<std::uint32_t>("format version");
+  if (version != kEngineFormatVersion) {
+    FailFile(source, StrCat("unsupported engine format version ", version, " (this build reads ",
+                            kEngineFormatVersion, ")"));
+  }
+  const auto length = header.Read<std::uint64_t>("payload length");
+  const std::uint64_t available = bytes.size() - kHeaderBytes;
+  if (available < kTrailerBytes || length > available - kTrailerBytes) {
+    FailFile(source, StrCat("truncated: header announces ", length, " payload bytes + 4 checksum bytes, ",
+                            available, " bytes follow the header"));
+  }
+  if (length + kTrailerBytes != available) {
+    FailFile(source, StrCat("corrupted: ", available - length - kTrailerBytes, " unexpected bytes after the checksum"));
+  }
+  const std::span<const std::uint8_t> payload(bytes.data() + kHeaderBytes, length);
+  BinaryReader trailer(std::span<const std::uint8_t>(bytes.data() + kHeaderBytes + length, kTrailerBytes), source);
+  const auto stored = trailer.Read<std::uint32_t>("checksum");
+  const std::uint32_t actual = Crc32(payload);
+  if (stored != actual) {
+    FailFile(source, StrCat("corrupted: checksum mismatch (stored 0x", std::hex, stored, ", computed 0x", actual, ")"));
+  }
+  BinaryReader in(payload, source);
+  return EngineStateAccess::Read(in);
+}
+
+void WriteFileAtomically(const std::string& path, const std::vector<std::uint8_t>& bytes) {
+  namespace fs = std::filesystem;
+  const fs::path target(path);
+  const fs::path dir = target.has_parent_path() ? target.parent_path() : fs::path(".");
+  std::string tmpl = (dir / (target.filename().string() + ".tmp.XXXXXX")).string();
+  const int fd = ::mkstemp(tmpl.data());
+  if (fd < 0) FailFile(path, StrCat("cannot create a temporary file in ", dir.string(), ": ", std::strerror(errno)));
+  auto fail = [&](const char* what) {
+    const std::string reason = std::strerror(errno);
+    ::close(fd);
+    ::unlink(tmpl.c_str());
+    FailFile(path, StrCat(what, ": ", reason));
+  };
+  std::size_t written = 0;
+  while (written < bytes.size()) {
+    const ssize_t n = ::write(fd, bytes.data() + written, bytes.size() - written);
+    if (n < 0) {
+      if (errno == EINTR) continue;
+      fail("write failed");
+    }
+    written += static_cast<std::size_t>(n);
+  }
+  if (::fchmod(fd, 0644) != 0) fail("chmod failed");
+  if (::fsync(fd) != 0) fail("fsync failed");
+  if (::close(fd) != 0) {
+    const std::string reason = std::strerror(errno);
+    ::unlink(tmpl.c_str());
+    FailFile(path, StrCat("close failed: ", reason));
+  }
+  if (::rename(tmpl.c_str(), path.c_str()) != 0) {
+    const std::string reason = std::strerror(errno);
+    ::unlink(tmpl.c_str());
+    FailFile(path, StrCat("rename failed: ", reason));
+  }
+  // Make the rename itself durable.
+  const int dfd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY);
+  if (dfd >= 0) {
+    ::fsync(dfd);
+    ::close(dfd);
+  }
+}
+
+void SaveEngine(const CmlEngine& engine, const std::string& path) { WriteFileAtomically(path, EncodeEngine(engine)); }
+
+std::unique_ptr<CmlEngine> LoadEngine(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) FailFile(path, "cannot open engine file");
+  std::vector<std::uint8_t> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  if (in.bad()) FailFile(path, "read error");
+  return DecodeEngine(bytes, path);
+}
+
+}  // namespace omnicml

@@ -1,0 +1,577 @@
+#include "omnicml/evaluation/evaluation.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <map>
+#include <sstream>
+
+#include <Eigen/Geometry>
+
+#include "omnicml/common/common.h"
+#include "omnicml/report/report.h"
+#include "omnicml/report/svg_plot.h"
+
+namespace omnicml {
+namespace fs = std::filesystem;
+
+namespace {
+
+const std::vector<std::string>& FixedColumns() {
+  static const std::vector<std::string> kColumns = {
+      "session",           "frame",         "global_frame",     "stamp_s",
+      "est_x_m",           "est_y_m",       "est_phi_rad",      "mean_x_m",
+      "mean_y_m",          "mean_phi_rad",  "unimodal",         "truth_x_m",
+      "truth_y_m",         "truth_phi_rad", "position_error_m", "heading_error_rad",
+      "odometry_error_m",  "views",         "map_components",   "hypotheses",
+      "mixture_components"};
+  return kColumns;
+}
+
+
+std::vector<std::string> SplitCsv(const std::string& line) {
+  std::vector<std::string> cells;
+  std::string cell;
+  for (char c : line) {
+    if (c == ',') {
+      cells.push_back(cell);
+      cell.clear();
+    } else if (c != '\r') {
+      cell += c;
+    }
+  }
+  cells.push_back(cell);
+  return cells;
+}
+
+std::string Fixed(double v, int decimals) {
+  if (!std::isfinite(v)) return "-";
+  char buf[40];
+  std::snprintf(buf, sizeof buf, "%.*f", decimals, v);
+  return buf;
+}
+
+}  // namespace
+
+void WriteFramesCsvHeader(std::ostream& os, const std::vector<std::string>& stage_names) {
+  const auto& cols = FixedColumns();
+  for (std::size_t i = 0; i < cols.size(); ++i) os << (i ? "," : "") << cols[i];
+  for (const auto& s : stage_names) os << ",time_" << s << "_us";
+  os << "\n";
+}
+
+void WriteFramesCsvRow(std::ostream& os, const FrameRecord& r) {
+  os << r.session << ',' << r.frame << ',' << r.global_frame << ',' << ShortestDouble(r.stamp_s) << ',';
+  if (r.has_estimate) {
+    os << ShortestDouble(r.estimate.x()) << ',' << ShortestDouble(r.estimate.y()) << ',' << ShortestDouble(r.estimate.z()) << ','
+       << ShortestDouble(r.mean_estimate.x()) << ',' << ShortestDouble(r.mean_estimate.y()) << ',' << ShortestDouble(r.mean_estimate.z())
+       << ',';
+  } else {
+    os << ",,,,,,";
+  }
+  os << (r.unimodal ? 1 : 0) << ',';
+  if (r.has_truth) {
+    os << ShortestDouble(r.truth.x()) << ',' << ShortestDouble(r.truth.y()) << ',' << ShortestDouble(r.truth.z()) << ',';
+  } else {
+    os << ",,,";
+  }
+  os << ShortestDouble(r.position_error_m) << ',' << ShortestDouble(r.heading_error_rad) << ',' << ShortestDouble(r.odometry_error_m)
+     << ',' << r.views << ',' << r.map_components << ',' << r.hypotheses << ','
+     << r.mixture_components;
+  for (double t : r.stage_times_us) os << ',' << ShortestDouble(t);
+  os << '\n';
+}
+
+FramesTable ReadFramesCsv(const fs::path& path) {
+  std::ifstream in(path);
+  if (!in) throw Error(StrCat("cannot read '", path.string(), "'"));
+  std::string line;
+  if (!std::getline(in, line))
+    throw Error(StrCat(path.string(), ":1: empty file, expected a header"));
+  const std::vector<std::string> header = SplitCsv(line);
+  std::map<std::string, std::size_t> col;
+  for (std::size_t i = 0; i < header.size(); ++i) col[header[i]] = i;
+  for (const auto& name : FixedColumns()) {
+    if (!col.count(name)) {
+      throw Error(StrCat(path.string(), ":1: missing column '", name, "'"));
+    }
+  }
+  FramesTable table;
+  std::vector<std::size_t> time_cols;
+  for (std::size_t i = 0; i < header.size(); ++i) {
+    const std::string& h = header[i];
+    if (h.size() > 8 && h.rfind("time_", 0) == 0 && h.substr(h.size() - 3) == "_us") {
+      table.stage_names.push_back(h.substr(5, h.size() - 8));
+      time_cols.push_back(i);
+    }
+  }
+  int line_no = 1;
+  while (std::getline(in, line)) {
+    ++line_no;
+    if (line.empty() || line == "\r") continue;
+    const std::vector<std::string> cells = SplitCsv(line);
+    if (cells.size() < header.size()) {
+      throw Error(StrCat(path.string(), ":", line_no, ": ", cells.size(), " cells, expected ",
+                         header.size()));
+    }
+    auto num = [&](const std::string& name) -> double {
+      const std::string& s = cells[col.at(name)];
+      if (s.empty()) return kNaN;
+      char* end = nullptr;
+      const double v = std::strtod(s.c_str(), &end);
+      if (end == s.c_str() || *end != '\0') {
+        throw Error(
+            StrCat(path.string(), ":", line_no, ": column '", name, "': cannot parse '", s, "'"));
+      }
+      return v;
+    };
+    auto integer = [&](const std::string& name) -> std::int64_t {
+      const double v = num(name);
+      if (!std::isfinite(v)) {
+        throw Error(StrCat(path.string(), ":", line_no, ": column '", name, "' must not be empty"));
+      }
+      return static_cast<std::int64_t>(v);
+    };
+    FrameRecord r;
+    r.session = static_cast<int>(integer("session"));
+    r.frame = integer("frame");
+    r.global_frame = integer("global_frame");
+    r.stamp_s = num("stamp_s");
+    const double ex = num("est_x_m"), ey = num("est_y_m"), ephi = num("est_phi_rad");
+    r.has_estimate = std::isfinite(ex) && std::isfinite(ey) && std::isfinite(ephi);
+    if (r.has_estimate) {
+      r.estimate = Pose2(ex, ey, ephi);
+      r.mean_estimate = Pose2(num("mean_x_m"), num("mean_y_m"), num("mean_phi_rad"));
+    }
+    r.unimodal = integer("unimodal") != 0;
+    const double tx = num("truth_x_m"), ty = num("truth_y_m"), tphi = num("truth_phi_rad");
+    r.has_truth = std::isfinite(tx) && std::isfinite(ty) && std::isfinite(tphi);
+    if (r.has_truth) r.truth = Pose2(tx, ty, tphi);
+    r.position_error_m = num("position_error_m");
+    r.heading_error_rad = num("heading_error_rad");
+    r.odometry_error_m = num("odometry_error_m");
+    r.views = static_cast<int>(integer("views"));
+    r.map_components = static_cast<int>(integer("map_components"));
+    r.hypotheses = static_cast<int>(integer("hypotheses"));
+    r.mixture_components = static_cast<int>(integer("mixture_components"));
+    for (std::size_t k = 0; k < time_cols.size(); ++k) {
+      r.stage_times_us.push_back(num(header[time_cols[k]]));
+    }
+    table.records.push_back(std::move(r));
+  }
+  return table;
+}
+
+void RecomputeErrors(std::vector<FrameRecord>* records) {
+  for (FrameRecord& r : *records) {
+    if (r.has_estimate && r.has_truth) {
+      r.position_error_m = (r.estimate.head<2>() - r.truth.head<2>()).norm();
+      r.heading_error_rad = std::abs(WrapAngle(r.estimate.z() - r.truth.z()));
+    } else {
+      r.position_error_m = kNaN;
+      r.heading_error_rad = kNaN;
+    }
+  }
+}
+
+std::string ToString(Alignment alignment) {
+  switch (alignment) {
+    case Alignment::kNone:
+      return "none";
+    case Alignment::kStart:
+      return "start";
+    case Alignment::kSe2:
+      return "se2";
+  }
+  return "none";
+}
+
+Alignment AlignmentFromString(const std::string& s) {
+  if (s == "none") return Alignment::kNone;
+  if (s == "start") return Alignment::kStart;
+  if (s == "se2") return Alignment::kSe2;
+  throw Error(StrCat("unknown alignment '", s, "' (expected none, start or se2)"));
+}
+
+Pose2 Align(std::vector<FrameRecord>* records, Alignment alignment) {
+  Pose2 transform = Pose2::Zero();
+  auto apply = [](const Pose2& t, FrameRecord* r) {
+    r->estimate = Compose(t, r->estimate);
+    r->mean_estimate = Compose(t, r->mean_estimate);
+  };
+  if (alignment == Alignment::kStart) {
+    std::map<int, Pose2> per_session;
+    for (FrameRecord& r : *records) {
+      if (!r.has_estimate) continue;
+      auto it = per_session.find(r.session);
+      if (it == per_session.end()) {
+        if (!r.has_truth) continue;
+        // T such that Compose(T, estimate) == truth.
+        it = per_session.emplace(r.session, Compose(r.truth, Between(r.estimate, Pose2::Zero())))
+                 .first;
+      }
+      apply(it->second, &r);
+    }
+  } else if (alignment == Alignment::kSe2) {
+    std::vector<const FrameRecord*> pairs;
+    for (const FrameRecord& r : *records) {
+      if (r.has_estimate && r.has_truth) pairs.push_back(&r);
+    }
+    if (pairs.size() < 2) {
+      throw Error("se2 alignment needs at least two frames with estimate and ground truth");
+    }
+    Eigen::Matrix2Xd src(2, pairs.size()), dst(2, pairs.size());
+    for (std::size_t i = 0; i < pairs.size(); ++i) {
+      src.col(static_cast<Eigen::Index>(i)) = pairs[i]->estimate.head<2>();
+      dst.col(static_cast<Eigen::Index>(i)) = pairs[i]->truth.head<2>();
+    }
+    const double spread = (src.colwise() - src.rowwise().mean()).norm();
+    if (spread < 1e-9) {
+      throw Error("se2 alignment needs estimates at distinct positions");
+    }
+    // Umeyama/Horn least-squares rigid alignment, no scale.
+    const Eigen::Matrix3d t = Eigen::umeyama(src, dst, false);
+    transform = Pose2(t(0, 2), t(1, 2), std::atan2(t(1, 0), t(0, 0)));
+    for (FrameRecord& r : *records) {
+      if (r.has_estimate) apply(transform, &r);
+    }
+  }
+  RecomputeErrors(records);
+  return transform;
+}
+
+double Quantile(const std::vector<double>& sorted, double q) {
+  if (sorted.empty()) return kNaN;
+  q = std::clamp(q, 0.0, 1.0);
+  const double pos = q * static_cast<double>(sorted.size() - 1);
+  const std::size_t lo = static_cast<std::size_t>(std::floor(pos));
+  const std::size_t hi = std::min(lo + 1, sorted.size() - 1);
+  const double frac = pos - static_cast<double>(lo);
+  return sorted[lo] + frac * (sorted[hi] - sorted[lo]);
+}
+
+ErrorStats ComputeStats(std::vector<double> values) {
+  values.erase(
+      std::remove_if(values.begin(), values.end(), [](double v) { return !std::isfinite(v); }),
+      values.end());
+  ErrorStats s;
+  s.count = static_cast<int>(values.size());
+  if (values.empty()) return s;
+  std::sort(values.begin(), values.end());
+  double sum = 0;
+  for (double v : values) sum += v;
+  s.mean = sum / static_cast<double>(values.size());
+  s.median = Quantile(values, 0.5);
+  s.p95 = Quantile(values, 0.95);
+  s.max = values.back();
+  return s;
+}
+
+std::vector<double> HistogramCounts(const std::vector<double>& values,
+                                    const std::vector<double>& edges) {
+  if (edges.size() < 2) return {};
+  std::vector<double> counts(edges.size() - 1, 0.0);
+  for (double v : values) {
+    if (!std::isfinite(v) || v < edges.front()) continue;
+    auto it = std::upper_bound(edges.begin(), edges.end(), v);
+    std::size_t bin = static_cast<std::size_t>(it - edges.begin()) - 1;
+    bin = std::min(bin, counts.size() - 1);
+    counts[bin] += 1;
+  }
+  return counts;
+}
+
+DayEvaluation EvaluateDay(const std::vector<FrameRecord>& records, int session,
+                          const std::vector<std::string>& stage_names) {
+  DayEvaluation d;
+  d.session = session;
+  std::vector<double> pos, head, odo, times;
+  int unimodal = 0;
+  std::size_t total_col = stage_names.size();
+  for (std::size_t i = 0; i < stage_names.size(); ++i) {
+    if (stage_names[i] == "total") total_col = i;
+  }
+  for (const FrameRecord& r : records) {
+    if (session >= 0 && r.session != session) continue;
+    ++d.frames;
+    if (r.has_truth) ++d.frames_with_truth;
+    if (r.has_estimate) ++d.frames_with_estimate;
+    if (r.unimodal) ++unimodal;
+    pos.push_back(r.position_error_m);
+    head.push_back(r.heading_error_rad);
+    odo.push_back(r.odometry_error_m);
+    if (total_col < r.stage_times_us.size()) times.push_back(r.stage_times_us[total_col]);
+    d.views_at_end = r.views;
+    d.map_components_at_end = r.map_components;
+  }
+  if (d.frames > 0) d.unimodal_fraction = static_cast<double>(unimodal) / d.frames;
+  d.position_m = ComputeStats(pos);
+  d.heading_rad = ComputeStats(head);
+  d.odometry_m = ComputeStats(odo);
+  d.mean_frame_time_us = ComputeStats(times).mean;
+  return d;
+}
+
+EvaluationResult Evaluate(const FramesTable& table, Alignment alignment, int histogram_bins) {
+  EvaluationResult result;
+  result.alignment = alignment;
+  std::vector<FrameRecord> records = table.records;
+  result.alignment_transform = Align(&records, alignment);
+  std::vector<int> sessions;
+  for (const FrameRecord& r : records) {
+    if (sessions.empty() || sessions.back() != r.session) {
+      if (std::find(sessions.begin(), sessions.end(), r.session) == sessions.end()) {
+        sessions.push_back(r.session);
+      }
+    }
+  }
+  std::sort(sessions.begin(), sessions.end());
+  for (int s : sessions) result.days.push_back(EvaluateDay(records, s, table.stage_names));
+  result.overall = EvaluateDay(records, -1, table.stage_names);
+
+  // Common bins: 0 .. the run's p99 (rounded up to a nice value), so outliers do not
+  // squash the histogram; larger errors land in the last bin.
+  histogram_bins = std::max(1, histogram_bins);
+  auto make_edges = [&](const std::vector<double>& all, double fallback) {
+    std::vector<double> finite;
+    for (double v : all) {
+      if (std::isfinite(v)) finite.push_back(v);
+    }
+    std::sort(finite.begin(), finite.end());
+    double hi = finite.empty() ? fallback : Quantile(finite, 0.99);
+    if (!(hi > 0)) hi = fallback;
+    // A round bin width (1, 2, 2.5 or 5 x 10^k) giving at most histogram_bins bins.
+    const double raw = hi / histogram_bins;
+    const double magnitude = std::pow(10.0, std::floor(std::log10(raw)));
+    double width = 10 * magnitude;
+    for (double m : {1.0, 2.0, 2.5, 5.0}) {
+      if (m * magnitude >= raw * (1 - 1e-9)) {
+        width = m * magnitude;
+        break;
+      }
+    }
+    const int n = std::max(1, static_cast<int>(std::ceil(hi / width - 1e-9)));
+    std::vector<double> edges(static_cast<std::size_t>(n) + 1);
+    for (int i = 0; i <= n; ++i) edges[static_cast<std::size_t>(i)] = width * i;
+    return edges;
+  };
+  std::vector<double> all_pos, all_head;
+  for (const FrameRecord& r : records) {
+    all_pos.push_back(r.position_error_m);
+    all_head.push_back(r.heading_error_rad);
+  }
+  result.position_bin_edges_m = make_edges(all_pos, 1.0);
+  result.heading_bin_edges_rad = make_edges(all_head, 0.5);
+  for (int s : sessions) {
+    std::vector<double> pos, head;
+    for (const FrameRecord& r : records) {
+      if (r.session != s) continue;
+      pos.push_back(r.position_error_m);
+      head.push_back(r.heading_error_rad);
+    }
+    result.position_histograms.push_back(HistogramCounts(pos, result.position_bin_edges_m));
+    result.heading_histograms.push_back(HistogramCounts(head, result.heading_bin_edges_rad));
+  }
+  return result;
+}
+
+namespace {
+
+std::vector<std::string> DayRow(const DayEvaluation& d, const DayEvaluation* previous) {
+  std::string change = "-";
+  if (previous != nullptr && std::isfinite(previous->position_m.mean) &&
+      std::isfinite(d.position_m.mean)) {
+    const double delta = d.position_m.mean - previous->position_m.mean;
+    change = (delta >= 0 ? "+" : "") + Fixed(delta, 3);
+  }
+  return {d.session < 0 ? "all" : std::to_string(d.session + 1),
+          std::to_string(d.frames),
+          Fixed(d.unimodal_fraction * 100, 1),
+          Fixed(d.position_m.mean, 3),
+          Fixed(d.position_m.median, 3),
+          Fixed(d.position_m.p95, 3),
+          Fixed(d.position_m.max, 3),
+          Fixed(d.heading_rad.mean * 180 / kPi, 2),
+          Fixed(d.heading_rad.p95 * 180 / kPi, 2),
+          Fixed(d.odometry_m.mean, 3),
+          change,
+          std::to_string(d.views_at_end)};
+}
+
+const std::vector<std::string>& DayHeader() {
+  static const std::vector<std::string> kHeader = {
+      "day",   "frames",        "unimodal%",    "mean_m",      "median_m", "p95_m",
+      "max_m", "head_mean_deg", "head_p95_deg", "odom_mean_m", "d_mean_m", "views"};
+  return kHeader;
+}
+
+
+}  // namespace
+
+std::string ShortestDouble(double v) {
+  if (!std::isfinite(v)) return "";
+  char buf[40];
+  std::snprintf(buf, sizeof buf, "%.17g", v);
+  // Prefer a shorter form when it round-trips.
+  for (int precision = 6; precision < 17; ++precision) {
+    char shorter[40];
+    std::snprintf(shorter, sizeof shorter, "%.*g", precision, v);
+    if (std::strtod(shorter, nullptr) == v) return shorter;
+  }
+  return buf;
+}
+
+std::string FormatTextTable(const std::vector<std::string>& header,
+                            const std::vector<std::vector<std::string>>& rows, bool left_align_first) {
+  std::vector<std::size_t> width(header.size());
+  for (std::size_t i = 0; i < header.size(); ++i) width[i] = header[i].size();
+  for (const auto& row : rows) {
+    for (std::size_t i = 0; i < row.size() && i < width.size(); ++i)
+      width[i] = std::max(width[i], row[i].size());
+  }
+  std::ostringstream os;
+  auto line = [&](const std::vector<std::string>& cells) {
+    for (std::size_t i = 0; i < width.size(); ++i) {
+      const std::string c = i < cells.size() ? cells[i] : "";
+      const std::string pad(width[i] - c.size(), ' ');
+      if (i > 0) os << "  ";
+      if (i == 0 && left_align_first) {
+        os << c << pad;
+      } else {
+        os << pad << c;
+      }
+    }
+    os << "\n";
+  };
+  line(header);
+  for (const auto& row : rows) line(row);
+  return os.str();
+}
+
+std::string FormatEvaluation(const EvaluationResult& result, bool with_histogram) {
+  std::ostringstream os;
+  os << "alignment: " << ToString(result.alignment);
+  if (result.alignment == Alignment::kSe2) {
+    os << " (tx " << Fixed(result.alignment_transform.x(), 3) << " m, ty "
+       << Fixed(result.alignment_transform.y(), 3) << " m, theta "
+       << Fixed(result.alignment_transform.z() * 180 / kPi, 2) << " deg)";
+  }
+  os << "\nposition error per day (metres; heading in degrees; d_mean_m = change of the mean from "
+        "the previous day)\n";
+  std::vector<std::vector<std::string>> rows;
+  for (std::size_t i = 0; i < result.days.size(); ++i) {
+    rows.push_back(DayRow(result.days[i], i > 0 ? &result.days[i - 1] : nullptr));
+  }
+  rows.push_back(DayRow(result.overall, nullptr));
+  os << FormatTextTable(DayHeader(), rows);
+  if (with_histogram && !result.position_histograms.empty()) {
+    os << "\nposition error histogram (frames per bin and day)\n";
+    std::vector<std::string> header = {"bin_m"};
+    for (const auto& d : result.days) header.push_back("day" + std::to_string(d.session + 1));
+    std::vector<std::vector<std::string>> hist_rows;
+    const auto& edges = result.position_bin_edges_m;
+    for (std::size_t b = 0; b + 1 < edges.size(); ++b) {
+      std::vector<std::string> row = {b + 2 == edges.size()
+                                          ? Fixed(edges[b], 2) + "+"
+                                          : Fixed(edges[b], 2) + "-" + Fixed(edges[b + 1], 2)};
+      for (const auto& h : result.position_histograms) row.push_back(Fixed(h[b], 0));
+      hist_rows.push_back(row);
+    }
+    os << FormatTextTable(header, hist_rows);
+  }
+  return os.str();
+}
+
+void WriteDaysCsv(std::ostream& os, const std::vector<FrameRecord>& records,
+                  const std::vector<std::string>& stage_names,
+                  const std::vector<std::string>& extra_columns,
+                  const std::function<std::vector<std::string>(int session)>& extra_values) {
+  os << "session,frames,frames_with_truth,unimodal_fraction,position_error_mean_m,"
+        "position_error_median_m,position_error_p95_m,position_error_max_m,heading_error_mean_"
+        "rad,odometry_error_mean_m,views_at_end,map_components_at_end,";
+  for (const std::string& c : extra_columns) os << c << ',';
+  os << "mean_frame_time_us\n";
+  std::vector<int> sessions;
+  for (const FrameRecord& r : records) {
+    if (sessions.empty() || sessions.back() != r.session) sessions.push_back(r.session);
+  }
+  for (int s : sessions) {
+    const DayEvaluation d = EvaluateDay(records, s, stage_names);
+    os << s << ',' << d.frames << ',' << d.frames_with_truth << ','
+       << ShortestDouble(d.unimodal_fraction) << ',' << ShortestDouble(d.position_m.mean) << ','
+       << ShortestDouble(d.position_m.median) << ',' << ShortestDouble(d.position_m.p95) << ','
+       << ShortestDouble(d.position_m.max) << ',' << ShortestDouble(d.heading_rad.mean) << ','
+       << ShortestDouble(d.odometry_m.mean) << ',' << d.views_at_end << ','
+       << d.map_components_at_end << ',';
+    if (!extra_columns.empty()) {
+      const std::vector<std::string> values = extra_values(s);
+      OMNICML_CHECK(values.size() == extra_columns.size()) << "WriteDaysCsv: extra values";
+      for (const std::string& v : values) os << v << ',';
+    }
+    os << ShortestDouble(d.mean_frame_time_us) << '\n';
+  }
+}
+
+namespace {
+std::string DayName(const DayEvaluation& day) { return "day " + std::to_string(day.session + 1); }
+}  // namespace
+
+std::string RenderPositionHistogramSvg(const EvaluationResult& result, const std::string& title) {
+  SvgPlot plot(title, "error [m]", "frames");
+  for (std::size_t i = 0; i < result.days.size(); ++i) {
+    plot.AddHistogram(DayName(result.days[i]), result.position_bin_edges_m,
+                      result.position_histograms[i], result.days.size() > 1);
+  }
+  return plot.Render();
+}
+
+std::string RenderEvaluationHtml(const EvaluationResult& result, const FramesTable& table,
+                                 const std::string& title) {
+  HtmlReport report(title);
+  report.AddParagraph(
+      "Alignment of the estimate to ground truth: " + ToString(result.alignment) +
+      ". Errors of the strongest hypothesis; d_mean_m is the change of the mean position "
+      "error from the previous day.");
+  std::vector<std::vector<std::string>> rows;
+  for (std::size_t i = 0; i < result.days.size(); ++i) {
+    rows.push_back(DayRow(result.days[i], i > 0 ? &result.days[i - 1] : nullptr));
+  }
+  rows.push_back(DayRow(result.overall, nullptr));
+  report.AddHeading("Error per day");
+  report.AddTable(DayHeader(), rows);
+
+  report.AddHeading("Error histograms (cf. [G] Fig. 5 and 6)");
+  SvgPlot head_plot("Heading error", "error [deg]", "frames");
+  std::vector<double> head_edges_deg;
+  for (double e : result.heading_bin_edges_rad) head_edges_deg.push_back(e * 180 / kPi);
+  for (std::size_t i = 0; i < result.days.size(); ++i) {
+    head_plot.AddHistogram(DayName(result.days[i]), head_edges_deg, result.heading_histograms[i],
+                           result.days.size() > 1);
+  }
+  report.AddSvg(RenderPositionHistogramSvg(result, "Position error"));
+  report.AddSvg(head_plot.Render());
+
+  // Error over the run, estimate versus dead reckoning (re-aligned the same way).
+  std::vector<FrameRecord> records = table.records;
+  Align(&records, result.alignment);
+  std::vector<double> x, err, odo, views;
+  for (const FrameRecord& r : records) {
+    x.push_back(static_cast<double>(r.global_frame));
+    err.push_back(r.position_error_m);
+    odo.push_back(r.odometry_error_m);
+    views.push_back(r.views);
+  }
+  SvgPlot over_time("Position error over the run", "frame", "error [m]", 960, 320);
+  over_time.AddLine("estimate", x, err);
+  over_time.AddLine("odometry only", x, odo);
+  report.AddSvg(over_time.Render());
+  SvgPlot map_plot("Map size", "frame", "reference views", 960, 260);
+  map_plot.AddLine("views", x, views);
+  report.AddSvg(map_plot.Render());
+  report.AddHeading("Text summary");
+  report.AddPreformatted(FormatEvaluation(result));
+  return report.Render();
+}
+
+}  // namespace omnicml

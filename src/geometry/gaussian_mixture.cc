@@ -1,0 +1,108 @@
+#include "omnicml/geometry/gaussian_mixture.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
+
+#include "omnicml/common/common.h"
+
+namespace omnicml {
+
+double SquaredMahalanobis(const Pose2& a, const Pose2& b, const Eigen::Matrix3d& s) {
+  if (!s.allFinite()) throw Error("SquaredMahalanobis: the covariance has NaN/inf entries");
+  const Eigen::LLT<Eigen::Matrix3d> llt(s);
+  if (llt.info() != Eigen::Success) {
+    throw Error("SquaredMahalanobis: the covariance is not symmetric positive definite");
+  }
+  const Eigen::Vector3d d = PoseDifference(a, b);
+  // d^T S^-1 d = |L^-1 d|^2 with S = L L^T; never negative.
+  return llt.matrixL().solve(d).squaredNorm();
+}
+
+Eigen::Matrix3d RepairCovariance(const Eigen::Matrix3d& c, double min_eigenvalue,
+                                 const std::string& what) {
+  if (!c.allFinite()) throw Error(StrCat(what, ": has NaN/inf entries"));
+  const double scale = c.cwiseAbs().maxCoeff();
+  const double asymmetry = (c - c.transpose()).cwiseAbs().maxCoeff();
+  if (asymmetry > 1e-6 * scale) {
+    throw Error(StrCat(what, ": is not symmetric (largest |C - C^T| entry ", asymmetry,
+                       ", largest |C| entry ", scale, ")"));
+  }
+  const Eigen::Matrix3d sym = 0.5 * (c + c.transpose());
+  // Fast path for the common, well-conditioned case: the closed-form eigenvalues are
+  // accurate to ~1e-12 of the largest one, so a smallest eigenvalue well above that
+  // bound and above min_eigenvalue means nothing needs repairing.
+  {
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> direct;
+    direct.computeDirect(sym, Eigen::EigenvaluesOnly);
+    const Eigen::Vector3d l = direct.eigenvalues();
+    if (l.allFinite() && l(0) > 1e-8 * l.cwiseAbs().maxCoeff() && l(0) > 2.0 * min_eigenvalue)
+      return sym;
+  }
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(sym);
+  if (eig.info() != Eigen::Success) throw Error(StrCat(what, ": eigen decomposition failed"));
+  const Eigen::Vector3d lambda = eig.eigenvalues();  // ascending
+  const double largest = lambda.cwiseAbs().maxCoeff();
+  if (lambda(0) < -1e-6 * largest) {
+    throw Error(StrCat(what, ": is not positive semi-definite (eigenvalues ", lambda(0), ", ",
+                       lambda(1), ", ", lambda(2), ")"));
+  }
+  if (lambda(0) >= min_eigenvalue) return sym;
+  const Eigen::Vector3d clamped = lambda.cwiseMax(min_eigenvalue);
+  const Eigen::Matrix3d v = eig.eigenvectors();
+  const Eigen::Matrix3d repaired = v * clamped.asDiagonal() * v.transpose();
+  return 0.5 * (repaired + repaired.transpose());
+}
+
+Gaussian MomentMatch(std::span<const Gaussian> components) {
+  if (components.empty()) throw Error("MomentMatch: no components");
+  if (components.size() == 1) return components.front();
+  double total = 0.0, sum_x = 0.0, sum_y = 0.0, sum_sin = 0.0, sum_cos = 0.0;
+  for (const Gaussian& g : components) {
+    if (!(std::isfinite(g.weight) && g.weight >= 0)) {
+      throw Error(StrCat("MomentMatch: component weight must be finite and >= 0, got ", g.weight));
+    }
+    total += g.weight;
+    sum_x += g.weight * g.mean.x();
+    sum_y += g.weight * g.mean.y();
+    sum_sin += g.weight * std::sin(g.mean.z());
+    sum_cos += g.weight * std::cos(g.mean.z());
+  }
+  if (!(total > 0)) throw Error("MomentMatch: the weights sum to zero");
+  Gaussian out;
+  out.weight = total;
+  // [G] (13) with the circular mean for the heading: either side of +-pi averages to pi.
+  out.mean = MakePose(sum_x / total, sum_y / total, std::atan2(sum_sin, sum_cos));
+  // [G] (14): C = sum_i w_i (C_i + d_i d_i^T) / sum_i w_i with d_i wrapped.
+  Eigen::Matrix3d c = Eigen::Matrix3d::Zero();
+  for (const Gaussian& g : components) {
+    const Eigen::Vector3d d = PoseDifference(g.mean, out.mean);
+    c += (g.weight / total) * (g.covariance + d * d.transpose());
+  }
+  out.covariance = 0.5 * (c + c.transpose());
+  return out;
+}
+
+double TotalWeight(const Mixture& m) {
+  double total = 0.0;
+  for (const Gaussian& g : m) total += g.weight;
+  return total;
+}
+
+void NormalizeWeights(Mixture* m) {
+  const double total = TotalWeight(*m);
+  if (m->empty() || !(total > 0) || !std::isfinite(total)) return;
+  for (Gaussian& g : *m) g.weight /= total;
+}
+
+int StrongestComponent(const Mixture& m) {
+  int best = -1;
+  for (int i = 0; i < static_cast<int>(m.size()); ++i) {
+    if (best < 0 || m[i].weight > m[best].weight) best = i;
+  }
+  return best;
+}
+
+}  // namespace omnicml

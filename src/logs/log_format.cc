@@ -1,0 +1,701 @@
+#include "omnicml/logs/log_format.h"
+
+#include <fcntl.h>  // AT_FDCWD
+#include <stdio.h>  // renameat2 (glibc, _GNU_SOURCE)
+#include <unistd.h>
+
+#include <algorithm>
+#include <array>
+#include <charconv>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <sstream>
+#include <system_error>
+
+#include <yaml-cpp/yaml.h>
+#include <opencv2/imgcodecs.hpp>
+
+#include "logs/internal/csv_util.h"
+#include "omnicml/common/common.h"
+#include "omnicml/unwrap/omni_unwrapper.h"
+
+namespace omnicml {
+namespace fs = std::filesystem;
+
+namespace {
+
+constexpr std::size_t kMaxSkippedMessages = 1000;
+constexpr int kFramesCsvColumns = 8;
+
+// ---------------------------------------------------------------------------------
+// session.yaml parsing. Every error is "path:line: what" with the 1-based line of the
+// offending node.
+
+class YamlFile {
+ public:
+  explicit YamlFile(std::string path) : path_(std::move(path)) {}
+  const std::string& path() const { return path_; }
+
+  [[noreturn]] void Fail(const YAML::Node& node, const std::string& what) const {
+    const int line = node.IsDefined() ? node.Mark().line + 1 : 0;
+    if (line > 0) throw Error(StrCat(path_, ":", line, ": ", what));
+    throw Error(StrCat(path_, ": ", what));
+  }
+
+  // Checks that `node` is a map whose keys are all in `allowed`.
+  void CheckMap(const YAML::Node& node, const std::string& where,
+                std::initializer_list<const char*> allowed) const {
+    if (!node.IsMap()) Fail(node, StrCat("'", where, "' must be a map"));
+    for (const auto& kv : node) {
+      const std::string key = kv.first.Scalar();
+      if (std::none_of(allowed.begin(), allowed.end(), [&](const char* a) { return key == a; })) {
+        Fail(kv.first, StrCat("unknown key '", key, "' in '", where, "'"));
+      }
+    }
+  }
+
+  YAML::Node Required(const YAML::Node& map, const std::string& key,
+                      const std::string& where) const {
+    YAML::Node child = map[key];
+    if (!child.IsDefined() || child.IsNull()) {
+      Fail(map, StrCat("missing key '", key, "' in '", where, "'"));
+    }
+    return child;
+  }
+
+  std::string String(const YAML::Node& node, const std::string& key) const {
+    if (!node.IsScalar()) Fail(node, StrCat("'", key, "' must be a scalar"));
+    return node.Scalar();
+  }
+
+  double Double(const YAML::Node& node, const std::string& key) const {
+    if (!node.IsScalar()) Fail(node, StrCat("'", key, "' must be a number"));
+    const auto value = internal::ParseFiniteDouble(internal::Trim(node.Scalar()));
+    if (!value) Fail(node, StrCat("'", key, "': '", node.Scalar(), "' is not a finite number"));
+    return *value;
+  }
+
+  int Int(const YAML::Node& node, const std::string& key) const {
+    if (!node.IsScalar()) Fail(node, StrCat("'", key, "' must be an integer"));
+    const std::string& s = node.Scalar();
+    int value = 0;
+    const auto [ptr, ec] = std::from_chars(s.data(), s.data() + s.size(), value);
+    if (ec != std::errc() || ptr != s.data() + s.size()) {
+      Fail(node, StrCat("'", key, "': '", s, "' is not an integer"));
+    }
+    return value;
+  }
+
+  Eigen::Vector3d Vector3(const YAML::Node& node, const std::string& key) const {
+    if (!node.IsSequence() || node.size() != 3)
+      Fail(node, StrCat("'", key, "' must be a list of 3 numbers"));
+    Eigen::Vector3d v;
+    for (int i = 0; i < 3; ++i) v[i] = Double(node[i], key);
+    return v;
+  }
+
+ private:
+  std::string path_;
+};
+
+OmniCalibration ParseCalibration(const YamlFile& file, const YAML::Node& node) {
+  file.CheckMap(node, "camera.calibration",
+                {"center_x_px", "center_y_px", "inner_radius_px", "outer_radius_px", "azimuth0_rad",
+                 "direction", "elevation", "panorama_width", "panorama_height"});
+  const std::string where = "camera.calibration";
+  OmniCalibration c;
+  c.center_x_px = file.Double(file.Required(node, "center_x_px", where), "center_x_px");
+  c.center_y_px = file.Double(file.Required(node, "center_y_px", where), "center_y_px");
+  c.inner_radius_px = file.Double(file.Required(node, "inner_radius_px", where), "inner_radius_px");
+  c.outer_radius_px = file.Double(file.Required(node, "outer_radius_px", where), "outer_radius_px");
+  c.azimuth0_rad = file.Double(file.Required(node, "azimuth0_rad", where), "azimuth0_rad");
+  const YAML::Node direction = file.Required(node, "direction", where);
+  const std::string d = file.String(direction, "direction");
+  if (d == "counter_clockwise") {
+    c.direction = RingDirection::kCounterClockwise;
+  } else if (d == "clockwise") {
+    c.direction = RingDirection::kClockwise;
+  } else {
+    file.Fail(direction,
+              StrCat("unknown direction '", d, "' (expected counter_clockwise or clockwise)"));
+  }
+  const YAML::Node elevation = file.Required(node, "elevation", where);
+  const std::string e = file.String(elevation, "elevation");
+  if (e == "linear") {
+    c.elevation = ElevationMapping::kLinear;
+  } else if (e == "linear_inverted") {
+    c.elevation = ElevationMapping::kLinearInverted;
+  } else {
+    file.Fail(elevation,
+              StrCat("unknown elevation '", e, "' (expected linear or linear_inverted)"));
+  }
+  c.panorama_width = file.Int(file.Required(node, "panorama_width", where), "panorama_width");
+  c.panorama_height = file.Int(file.Required(node, "panorama_height", where), "panorama_height");
+  return c;
+}
+
+// Validates a camera model; `fail` prefixes the message with the place of the problem.
+template <typename Fail>
+void CheckCamera(const CameraModel& camera, Fail fail) {
+  if (camera.image_width < 2 || camera.image_height < 1) {
+    fail(StrCat("camera image size ", camera.image_width, "x", camera.image_height, " is invalid"));
+  }
+  if (camera.kind == ImageKind::kRawRing) {
+    try {
+      camera.calibration.Validate();
+      camera.calibration.ValidateFor(camera.image_width, camera.image_height);
+    } catch (const Error& e) {
+      fail(StrCat("camera.calibration: ", e.what()));
+    }
+  }
+}
+
+template <typename Fail>
+void CheckStart(const SessionStart& start, Fail fail) {
+  if (start.mode != SessionStartMode::kKnownPose) return;
+  if (!start.map_T_robot.allFinite()) fail("start.pose is not finite");
+  for (int i = 0; i < 3; ++i) {
+    const double v = start.covariance(i, i);
+    if (!std::isfinite(v) || v <= 0.0)
+      fail("start.covariance_diagonal must be positive and finite");
+  }
+}
+
+// Shortest round-trip text of a double (no validation).
+std::string ToChars(double value) {
+  std::array<char, 64> buffer;
+  const auto [ptr, ec] = std::to_chars(buffer.data(), buffer.data() + buffer.size(), value);
+  OMNICML_CHECK(ec == std::errc());
+  return std::string(buffer.data(), ptr);
+}
+
+// A YAML double-quoted string.
+std::string YamlQuoted(const std::string& s) {
+  std::string out = "\"";
+  for (const unsigned char ch : s) {
+    if (ch == '"' || ch == '\\') {
+      out += '\\';
+      out += static_cast<char>(ch);
+    } else if (ch < 0x20 || ch == 0x7f) {
+      char buf[8];
+      std::snprintf(buf, sizeof(buf), "\\x%02x", ch);
+      out += buf;
+    } else {
+      out += static_cast<char>(ch);
+    }
+  }
+  return out + "\"";
+}
+
+// Lists the session directories of a log directory, or the directory itself when it is a
+// session. Throws omnicml::Error.
+std::vector<std::string> ListSessionDirs(const std::string& log_dir) {
+  std::error_code ec;
+  if (!fs::is_directory(log_dir, ec)) throw Error(StrCat(log_dir, ": not a directory"));
+  if (fs::exists(fs::path(log_dir) / "session.yaml", ec)) return {log_dir};
+  std::vector<std::string> dirs;
+  for (const auto& entry : fs::directory_iterator(log_dir, ec)) {
+    if (!entry.is_directory()) continue;
+    const std::string name = entry.path().filename().string();
+    if (name.empty() || name[0] == '.') continue;
+    dirs.push_back(entry.path().string());
+  }
+  if (ec) throw Error(StrCat(log_dir, ": cannot list directory: ", ec.message()));
+  std::sort(dirs.begin(), dirs.end());
+  if (dirs.empty()) throw Error(StrCat(log_dir, ": no session directory (and no session.yaml)"));
+  for (const auto& dir : dirs) {
+    const std::string yaml = (fs::path(dir) / "session.yaml").string();
+    if (!fs::exists(yaml, ec))
+      throw Error(StrCat(yaml, ": missing file (every session directory needs one)"));
+  }
+  return dirs;
+}
+
+void CheckFramesHeader(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw Error(StrCat(path, ": missing or unreadable file"));
+  std::string header;
+  if (!std::getline(in, header))
+    throw Error(StrCat(path, ":1: empty file (expected the header line)"));
+  internal::StripCarriageReturn(&header);
+  if (header != kFramesCsvHeader) {
+    throw Error(StrCat(path, ":1: header is '", header, "', expected '", kFramesCsvHeader, "'"));
+  }
+}
+
+}  // namespace
+
+std::string FormatRoundTrip(double value) {
+  if (!std::isfinite(value)) throw Error(StrCat("cannot write non-finite number ", value));
+  return ToChars(value);
+}
+
+// -----------------------------------------------------------------------------------
+// session.yaml
+
+SessionInfo ReadSessionYaml(const std::string& path) {
+  YamlFile file(path);
+  YAML::Node root;
+  try {
+    root = YAML::LoadFile(path);
+  } catch (const YAML::BadFile&) {
+    throw Error(StrCat(path, ": missing or unreadable file"));
+  } catch (const YAML::Exception& e) {
+    throw Error(StrCat(path, ":", e.mark.line + 1, ": YAML syntax error: ", e.msg));
+  }
+  if (!root.IsMap()) throw Error(StrCat(path, ":1: expected a map of session keys"));
+  file.CheckMap(root, "session",
+                {"format_version", "day_label", "start_time_s", "camera", "start"});
+
+  const YAML::Node version = file.Required(root, "format_version", "session");
+  if (file.Int(version, "format_version") != kLogFormatVersion) {
+    file.Fail(version, StrCat("unsupported format_version ", version.Scalar(),
+                              " (this reader knows ", kLogFormatVersion, ")"));
+  }
+  SessionInfo info;
+  if (root["day_label"]) info.day_label = file.String(root["day_label"], "day_label");
+  if (root["start_time_s"]) info.start_time_s = file.Double(root["start_time_s"], "start_time_s");
+
+  const YAML::Node camera = file.Required(root, "camera", "session");
+  file.CheckMap(camera, "camera", {"model", "image_width", "image_height", "calibration"});
+  const YAML::Node model = file.Required(camera, "model", "camera");
+  const std::string model_name = file.String(model, "model");
+  if (model_name == "panorama") {
+    info.camera.kind = ImageKind::kPanorama;
+  } else if (model_name == "omni_ring") {
+    info.camera.kind = ImageKind::kRawRing;
+  } else {
+    file.Fail(model,
+              StrCat("unknown camera model '", model_name, "' (expected panorama or omni_ring)"));
+  }
+  info.camera.image_width = file.Int(file.Required(camera, "image_width", "camera"), "image_width");
+  info.camera.image_height =
+      file.Int(file.Required(camera, "image_height", "camera"), "image_height");
+  if (info.camera.kind == ImageKind::kRawRing) {
+    info.camera.calibration =
+        ParseCalibration(file, file.Required(camera, "calibration", "camera"));
+  } else if (camera["calibration"]) {
+    file.Fail(camera["calibration"], "'calibration' is only meaningful for model omni_ring");
+  }
+  CheckCamera(info.camera, [&](const std::string& what) { file.Fail(camera, what); });
+
+  const YAML::Node start = file.Required(root, "start", "session");
+  file.CheckMap(start, "start", {"mode", "pose", "covariance_diagonal"});
+  const YAML::Node mode = file.Required(start, "mode", "start");
+  try {
+    info.start.mode = SessionStartModeFromString(file.String(mode, "mode"));
+  } catch (const Error& e) {
+    file.Fail(mode, e.what());
+  }
+  if (info.start.mode == SessionStartMode::kKnownPose) {
+    const YAML::Node pose = file.Required(start, "pose", "start");
+    const Eigen::Vector3d p = file.Vector3(pose, "pose");
+    info.start.map_T_robot = MakePose(p.x(), p.y(), p.z());
+    const YAML::Node cov = file.Required(start, "covariance_diagonal", "start");
+    info.start.covariance = file.Vector3(cov, "covariance_diagonal").asDiagonal();
+    CheckStart(info.start, [&](const std::string& what) { file.Fail(cov, what); });
+  } else {
+    info.start.map_T_robot = Pose2::Zero();
+    for (const char* key : {"pose", "covariance_diagonal"}) {
+      if (start[key])
+        file.Fail(start[key], StrCat("'", key, "' is only meaningful for mode known"));
+    }
+  }
+  return info;
+}
+
+std::string SessionYamlText(const SessionInfo& info) {
+  std::ostringstream os;
+  os << "format_version: " << kLogFormatVersion << "\n";
+  os << "day_label: " << YamlQuoted(info.day_label) << "\n";
+  os << "start_time_s: " << FormatRoundTrip(info.start_time_s) << "\n";
+  os << "camera:\n";
+  os << "  model: " << (info.camera.kind == ImageKind::kRawRing ? "omni_ring" : "panorama") << "\n";
+  os << "  image_width: " << info.camera.image_width << "\n";
+  os << "  image_height: " << info.camera.image_height << "\n";
+  if (info.camera.kind == ImageKind::kRawRing) {
+    const OmniCalibration& c = info.camera.calibration;
+    os << "  calibration:\n";
+    os << "    center_x_px: " << FormatRoundTrip(c.center_x_px) << "\n";
+    os << "    center_y_px: " << FormatRoundTrip(c.center_y_px) << "\n";
+    os << "    inner_radius_px: " << FormatRoundTrip(c.inner_radius_px) << "\n";
+    os << "    outer_radius_px: " << FormatRoundTrip(c.outer_radius_px) << "\n";
+    os << "    azimuth0_rad: " << FormatRoundTrip(c.azimuth0_rad) << "\n";
+    os << "    direction: "
+       << (c.direction == RingDirection::kClockwise ? "clockwise" : "counter_clockwise") << "\n";
+    os << "    elevation: "
+       << (c.elevation == ElevationMapping::kLinearInverted ? "linear_inverted" : "linear") << "\n";
+    os << "    panorama_width: " << c.panorama_width << "\n";
+    os << "    panorama_height: " << c.panorama_height << "\n";
+  }
+  os << "start:\n";
+  os << "  mode: " << ToString(info.start.mode) << "\n";
+  if (info.start.mode == SessionStartMode::kKnownPose) {
+    const Pose2& p = info.start.map_T_robot;
+    os << "  pose: [" << FormatRoundTrip(p.x()) << ", " << FormatRoundTrip(p.y()) << ", "
+       << FormatRoundTrip(WrapAngle(p.z())) << "]\n";
+    const Eigen::Matrix3d& c = info.start.covariance;
+    os << "  covariance_diagonal: [" << FormatRoundTrip(c(0, 0)) << ", " << FormatRoundTrip(c(1, 1))
+       << ", " << FormatRoundTrip(c(2, 2)) << "]\n";
+  }
+  return os.str();
+}
+
+// -----------------------------------------------------------------------------------
+// LogReader
+
+LogReader::LogReader(const std::string& log_dir, LogReaderOptions options)
+    : LogReader(std::vector<std::string>{log_dir}, options) {}
+
+LogReader::LogReader(const std::vector<std::string>& log_dirs, LogReaderOptions options)
+    : options_(options) {
+  options_.Validate();
+  if (log_dirs.empty()) throw Error("LogReader: no log directory given");
+  for (const auto& log_dir : log_dirs) {
+    for (const auto& dir : ListSessionDirs(log_dir)) {
+      SessionInfo info = ReadSessionYaml((fs::path(dir) / "session.yaml").string());
+      info.name = fs::path(dir).filename().string();
+      if (info.name.empty()) info.name = fs::path(dir).parent_path().filename().string();
+      CheckFramesHeader((fs::path(dir) / "frames.csv").string());
+      sessions_.push_back(std::move(info));
+      session_dirs_.push_back(dir);
+    }
+  }
+}
+
+LogReader::~LogReader() = default;
+
+int LogReader::NumSessions() const { return static_cast<int>(sessions_.size()); }
+
+const SessionInfo& LogReader::Session(int index) const {
+  OMNICML_CHECK(index >= 0 && index < NumSessions()) << "session index " << index;
+  return sessions_[index];
+}
+
+const std::string& LogReader::SessionDirectory(int index) const {
+  OMNICML_CHECK(index >= 0 && index < NumSessions()) << "session index " << index;
+  return session_dirs_[index];
+}
+
+bool LogReader::OpenSession() {
+  if (session_ >= NumSessions()) return false;
+  csv_path_ = (fs::path(session_dirs_[session_]) / "frames.csv").string();
+  csv_ = std::ifstream(csv_path_, std::ios::binary);
+  if (!csv_) throw Error(StrCat(csv_path_, ": missing or unreadable file"));
+  std::string header;
+  if (!std::getline(csv_, header))
+    throw Error(StrCat(csv_path_, ":1: empty file (expected the header line)"));
+  internal::StripCarriageReturn(&header);
+  if (header != kFramesCsvHeader) {
+    throw Error(
+        StrCat(csv_path_, ":1: header is '", header, "', expected '", kFramesCsvHeader, "'"));
+  }
+  line_number_ = 1;
+  index_in_session_ = 0;
+  have_last_stamp_ = false;
+  session_channels_ = 0;
+  return true;
+}
+
+bool LogReader::Next(Frame* frame) {
+  OMNICML_CHECK(frame != nullptr);
+  while (true) {
+    if (session_ < 0 || !csv_.is_open()) {
+      ++session_;
+      if (session_ >= NumSessions()) {
+        session_ = NumSessions();
+        return false;
+      }
+      OpenSession();
+    }
+    std::string line;
+    if (!std::getline(csv_, line)) {
+      if (csv_.bad()) throw Error(StrCat(csv_path_, ":", line_number_ + 1, ": read error"));
+      csv_.close();
+      continue;
+    }
+    ++line_number_;
+    internal::StripCarriageReturn(&line);
+    try {
+      ParseRow(line, frame);
+    } catch (const Error& e) {
+      if (!options_.skip_unreadable_frames) throw;
+      ++num_skipped_;
+      if (skipped_messages_.size() < kMaxSkippedMessages) skipped_messages_.push_back(e.what());
+      continue;
+    }
+    frame->session_index = session_;
+    frame->index_in_session = index_in_session_++;
+    frame->global_index = global_index_++;
+    return true;
+  }
+}
+
+void LogReader::ParseRow(const std::string& line, Frame* frame) {
+  const auto fail = [&](const std::string& what) {
+    throw Error(StrCat(csv_path_, ":", line_number_, ": ", what));
+  };
+  const std::vector<std::string_view> fields = internal::SplitCsv(line);
+  if (static_cast<int>(fields.size()) != kFramesCsvColumns) {
+    fail(StrCat("wrong column count ", fields.size(), " (expected ", kFramesCsvColumns, ")"));
+  }
+  static constexpr std::array<const char*, kFramesCsvColumns> kNames = {
+      "stamp_s", "image", "odom_x_m", "odom_y_m", "odom_phi_rad", "gt_x_m", "gt_y_m", "gt_phi_rad"};
+  const auto number = [&](int column) {
+    const auto value = internal::ParseFiniteDouble(internal::Trim(fields[column]));
+    if (!value) {
+      fail(StrCat("column ", kNames[column], ": '", fields[column], "' is not a finite number"));
+    }
+    return *value;
+  };
+  const double stamp_s = number(0);
+  if (have_last_stamp_ && !(stamp_s > last_stamp_s_)) {
+    fail(StrCat("stamp_s ", fields[0], " does not increase (previous ",
+                FormatRoundTrip(last_stamp_s_), ")"));
+  }
+  const std::string image_name(internal::Trim(fields[1]));
+  if (image_name.empty()) fail("empty image file name");
+  const Pose2 odom = MakePose(number(2), number(3), number(4));
+  std::optional<Pose2> truth;
+  const int empty_gt = static_cast<int>(internal::Trim(fields[5]).empty()) +
+                       internal::Trim(fields[6]).empty() + internal::Trim(fields[7]).empty();
+  if (empty_gt == 0) {
+    truth = MakePose(number(5), number(6), number(7));
+  } else if (empty_gt != 3) {
+    fail("ground truth columns must be all empty or all numbers");
+  }
+
+  cv::Mat image;
+  if (options_.load_images) {
+    const std::string path = (fs::path(session_dirs_[session_]) / image_name).string();
+    try {
+      image = ReadImage(path);
+    } catch (const Error& e) {
+      fail(e.what());  // ReadImage names the file
+    }
+    const CameraModel& camera = sessions_[session_].camera;
+    if (image.cols != camera.image_width || image.rows != camera.image_height) {
+      fail(StrCat("image ", path, " is ", image.cols, "x", image.rows, ", session.yaml declares ",
+                  camera.image_width, "x", camera.image_height));
+    }
+    if (image.depth() != CV_8U || (image.channels() != 1 && image.channels() != 3)) {
+      fail(StrCat("image ", path, " is not 8-bit grey or colour"));
+    }
+    if (session_channels_ != 0 && image.channels() != session_channels_) {
+      fail(StrCat("image ", path, " has ", image.channels(),
+                  " channels, the session's first image ", session_channels_));
+    }
+  }
+  // Commit (nothing above changed the reader's state).
+  if (options_.load_images && session_channels_ == 0) session_channels_ = image.channels();
+  last_stamp_s_ = stamp_s;
+  have_last_stamp_ = true;
+  frame->stamp_s = stamp_s;
+  frame->image = image;
+  frame->odom_T_robot = odom;
+  frame->map_T_robot_truth = truth;
+}
+
+LogSummary ValidateLog(const std::string& log_dir) {
+  LogReader reader(log_dir);
+  LogSummary summary;
+  for (int s = 0; s < reader.NumSessions(); ++s) {
+    LogSessionSummary session;
+    session.name = reader.Session(s).name;
+    session.directory = reader.SessionDirectory(s);
+    session.day_label = reader.Session(s).day_label;
+    summary.sessions.push_back(session);
+  }
+  Frame frame;
+  while (reader.Next(&frame)) {
+    LogSessionSummary& session = summary.sessions[frame.session_index];
+    if (session.frames == 0) session.first_stamp_s = frame.stamp_s;
+    session.last_stamp_s = frame.stamp_s;
+    ++session.frames;
+    if (frame.map_T_robot_truth) ++session.frames_with_truth;
+    ++summary.total_frames;
+  }
+  return summary;
+}
+
+// -----------------------------------------------------------------------------------
+// LogWriter
+
+LogWriter::LogWriter(const std::string& log_dir, bool overwrite) : overwrite_(overwrite) {
+  fs::path dir = fs::path(log_dir).lexically_normal();
+  if (dir.has_filename() == false) dir = dir.parent_path();  // "a/b/" -> "a/b"
+  log_dir_ = dir.string();
+  if (log_dir_.empty() || dir.filename() == "." || dir.filename() == "..") {
+    throw Error(StrCat("LogWriter: invalid log directory '", log_dir, "'"));
+  }
+  std::error_code ec;
+  if (fs::exists(log_dir_, ec) && !overwrite_) {
+    throw Error(StrCat(log_dir_, ": already exists (remove it or ask to overwrite)"));
+  }
+  partial_dir_ = StrCat(log_dir_, ".partial-", ::getpid());
+  fs::remove_all(partial_dir_, ec);  // a stale one of a crashed process with our pid
+  fs::create_directories(partial_dir_, ec);
+  if (ec) throw Error(StrCat(partial_dir_, ": cannot create directory: ", ec.message()));
+}
+
+LogWriter::~LogWriter() {
+  if (finished_) return;
+  csv_.close();
+  std::error_code ec;
+  fs::remove_all(partial_dir_, ec);
+}
+
+void LogWriter::CloseSession() {
+  if (!csv_.is_open()) return;
+  csv_.flush();
+  const bool ok = csv_.good();
+  csv_.close();
+  if (!ok) throw Error(StrCat(session_dir_, "/frames.csv: write error"));
+}
+
+void LogWriter::BeginSession(const SessionInfo& info) {
+  if (finished_) throw Error("LogWriter: BeginSession after Finish");
+  const std::string& name = info.name;
+  if (name.empty() || name[0] == '.' || name.find('/') != std::string::npos ||
+      name.find('\\') != std::string::npos) {
+    throw Error(StrCat("LogWriter: invalid session name '", name, "'"));
+  }
+  if (!session_names_.empty() && !(session_names_.back() < name)) {
+    throw Error(StrCat("LogWriter: session '", name, "' must sort after the previous session '",
+                       session_names_.back(), "' (readers take sessions in name order)"));
+  }
+  const auto fail = [&](const std::string& what) {
+    throw Error(StrCat("LogWriter: session '", name, "': ", what));
+  };
+  CheckCamera(info.camera, fail);
+  CheckStart(info.start, fail);
+  if (!std::isfinite(info.start_time_s)) fail("start_time_s is not finite");
+  const std::string yaml = SessionYamlText(info);
+
+  CloseSession();
+  session_dir_ = (fs::path(partial_dir_) / name).string();
+  std::error_code ec;
+  fs::create_directory(session_dir_, ec);
+  if (ec) throw Error(StrCat(session_dir_, ": cannot create directory: ", ec.message()));
+  {
+    std::ofstream out((fs::path(session_dir_) / "session.yaml").string(), std::ios::binary);
+    out << yaml;
+    out.flush();
+    if (!out) throw Error(StrCat(session_dir_, "/session.yaml: write error"));
+  }
+  csv_ = std::ofstream((fs::path(session_dir_) / "frames.csv").string(), std::ios::binary);
+  csv_ << kFramesCsvHeader << "\n";
+  if (!csv_) throw Error(StrCat(session_dir_, "/frames.csv: cannot write"));
+  session_names_.push_back(name);
+  session_ = info;
+  frames_in_session_ = 0;
+  session_channels_ = 0;
+}
+
+void LogWriter::Write(const Frame& frame) {
+  if (finished_) throw Error("LogWriter: Write after Finish");
+  if (!csv_.is_open()) throw Error("LogWriter: Write before BeginSession");
+  const auto fail = [&](const std::string& what) {
+    throw Error(
+        StrCat("LogWriter: session '", session_.name, "' frame ", frames_in_session_, ": ", what));
+  };
+  if (!std::isfinite(frame.stamp_s)) fail("stamp_s is not finite");
+  if (frames_in_session_ > 0 && !(frame.stamp_s > last_stamp_s_)) {
+    fail(StrCat("stamp_s ", frame.stamp_s, " does not increase (previous ", last_stamp_s_, ")"));
+  }
+  if (!frame.odom_T_robot.allFinite()) fail("odom_T_robot is not finite");
+  if (frame.map_T_robot_truth && !frame.map_T_robot_truth->allFinite())
+    fail("map_T_robot_truth is not finite");
+  const cv::Mat& image = frame.image;
+  if (image.empty()) fail("empty image");
+  if (image.type() != CV_8UC1 && image.type() != CV_8UC3) fail("image is not CV_8UC1 or CV_8UC3");
+  if (image.cols != session_.camera.image_width || image.rows != session_.camera.image_height) {
+    fail(StrCat("image is ", image.cols, "x", image.rows, ", the session's camera ",
+                session_.camera.image_width, "x", session_.camera.image_height));
+  }
+  if (session_channels_ != 0 && image.channels() != session_channels_) {
+    fail(StrCat("image has ", image.channels(), " channels, the session's first image ",
+                session_channels_));
+  }
+
+  char name[32];
+  std::snprintf(name, sizeof(name), "%06lld.png", static_cast<long long>(frames_in_session_));
+  const std::string path = (fs::path(session_dir_) / name).string();
+  // Lossless PNG with fixed settings, so the bytes are deterministic. Run-length deflate
+  // after PNG's row filters was as small as level 3-6 and faster on rendered rings and on
+  // AntWorld panoramas. (The partial directory already makes the whole log atomic, so no
+  // per-image temporary file.)
+  bool written = false;
+  try {
+    written = cv::imwrite(
+        path, image,
+        {cv::IMWRITE_PNG_COMPRESSION, 1, cv::IMWRITE_PNG_STRATEGY, cv::IMWRITE_PNG_STRATEGY_RLE});
+  } catch (const cv::Exception& e) {
+    throw Error(StrCat(path, ": cannot write image: ", e.what()));
+  }
+  if (!written) throw Error(StrCat(path, ": cannot write image"));
+
+  const Pose2& o = frame.odom_T_robot;
+  csv_ << FormatRoundTrip(frame.stamp_s) << ',' << name << ',' << FormatRoundTrip(o.x()) << ','
+       << FormatRoundTrip(o.y()) << ',' << FormatRoundTrip(WrapAngle(o.z())) << ',';
+  if (frame.map_T_robot_truth) {
+    const Pose2& t = *frame.map_T_robot_truth;
+    csv_ << FormatRoundTrip(t.x()) << ',' << FormatRoundTrip(t.y()) << ','
+         << FormatRoundTrip(WrapAngle(t.z()));
+  } else {
+    csv_ << ",,";
+  }
+  csv_ << '\n';
+  if (!csv_) throw Error(StrCat(session_dir_, "/frames.csv: write error"));
+  if (session_channels_ == 0) session_channels_ = image.channels();
+  last_stamp_s_ = frame.stamp_s;
+  ++frames_in_session_;
+}
+
+void LogWriter::AddFile(const std::string& file_name, const std::string& contents) {
+  if (finished_) throw Error("LogWriter: AddFile after Finish");
+  if (file_name.empty() || file_name[0] == '.' || file_name.find('/') != std::string::npos ||
+      file_name.find('\\') != std::string::npos) {
+    throw Error(StrCat("LogWriter: invalid file name '", file_name, "'"));
+  }
+  const std::string path = (fs::path(partial_dir_) / file_name).string();
+  std::error_code ec;
+  if (fs::is_directory(path, ec)) throw Error(StrCat(path, ": a session has that name"));
+  std::ofstream out(path, std::ios::binary | std::ios::trunc);
+  out << contents;
+  out.flush();
+  if (!out) throw Error(StrCat(path, ": write error"));
+}
+
+void LogWriter::Finish() {
+  if (finished_) throw Error("LogWriter: Finish called twice");
+  if (session_names_.empty()) throw Error(StrCat(log_dir_, ": no session was written"));
+  CloseSession();
+  std::error_code ec;
+  if (fs::exists(log_dir_, ec)) {
+    if (!overwrite_) throw Error(StrCat(log_dir_, ": appeared while writing; not replaced"));
+    // Swap the new log in atomically, then delete the old one (now under the partial name).
+    if (::renameat2(AT_FDCWD, partial_dir_.c_str(), AT_FDCWD, log_dir_.c_str(), RENAME_EXCHANGE) ==
+        0) {
+      fs::remove_all(partial_dir_, ec);
+      finished_ = true;
+      return;
+    }
+    // Fallback (file systems without RENAME_EXCHANGE): move the old log aside first.
+    const std::string old_dir = StrCat(log_dir_, ".old-", ::getpid());
+    fs::remove_all(old_dir, ec);
+    fs::rename(log_dir_, old_dir, ec);
+    if (ec) throw Error(StrCat(log_dir_, ": cannot move the old log aside: ", ec.message()));
+    fs::rename(partial_dir_, log_dir_, ec);
+    if (ec) throw Error(StrCat(log_dir_, ": cannot rename ", partial_dir_, ": ", ec.message()));
+    fs::remove_all(old_dir, ec);
+    finished_ = true;
+    return;
+  }
+  fs::rename(partial_dir_, log_dir_, ec);
+  if (ec) throw Error(StrCat(log_dir_, ": cannot rename ", partial_dir_, ": ", ec.message()));
+  finished_ = true;
+}
+
+}  // namespace omnicml

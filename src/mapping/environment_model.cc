@@ -1,0 +1,769 @@
+#include "omnicml/mapping/environment_model.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <utility>
+
+#include <Eigen/Cholesky>
+
+namespace omnicml {
+namespace {
+
+constexpr std::uint32_t kModelMagic = 0x4D45434Fu;  // "OCEM" little-endian
+constexpr std::uint32_t kModelVersion = 1;
+
+// (a - b)^T s^-1 (a - b) with the angle difference wrapped. s is a sum of SPD matrices.
+double SquaredMahalanobisSum(const Pose2& a, const Pose2& b, const Eigen::Matrix3d& s) {
+  const Eigen::Vector3d d = PoseDifference(a, b);
+  const Eigen::LLT<Eigen::Matrix3d> llt(s);
+  OMNICML_CHECK(llt.info() == Eigen::Success) << "covariance sum is not positive definite";
+  return d.dot(llt.solve(d));
+}
+
+// mu_t with its angle expressed relative to view i's panorama: phi_t minus the relative
+// heading RelativeHeading(y_t, y_i) (docs/design.md "Environment model", phase 2). Without a
+// relative heading (histograms) the heading is stored as it is.
+Pose2 InViewFrame(const Pose2& mu_t, const std::optional<double>& relative_heading_rad) {
+  if (!relative_heading_rad) return mu_t;
+  return MakePose(mu_t.x(), mu_t.y(), mu_t.z() - *relative_heading_rad);
+}
+
+// The covariance a stored component is compared or returned with: its own, plus the
+// heading inflation when the query has no relative heading.
+Eigen::Matrix3d EffectiveCovariance(const Eigen::Matrix3d& c,
+                                    const std::optional<double>& relative_heading_rad,
+                                    double heading_sigma_rad) {
+  if (relative_heading_rad) return c;
+  Eigen::Matrix3d out = c;
+  out(2, 2) += heading_sigma_rad * heading_sigma_rad;
+  return out;
+}
+
+// [G] eqs. (13)-(14): merges `other` into `keep` with weights eta_n / (eta_n + eta_m) and
+// eta_m / (eta_n + eta_m); the angle of the mean is averaged through the wrapped
+// difference, spread terms use wrapped differences to the merged mean. eta and w are
+// summed (w clamped to 1 to stay a weight).
+void MergeInto(ViewComponent& keep, const ViewComponent& other) {
+  const double eta = keep.eta + other.eta;
+  const double a = keep.eta / eta;
+  const double b = other.eta / eta;
+  const Eigen::Vector3d step = PoseDifference(other.mean, keep.mean);
+  const Pose2 mean = MakePose(keep.mean.x() + b * step.x(), keep.mean.y() + b * step.y(),
+                              keep.mean.z() + b * step.z());
+  const Eigen::Vector3d dk = PoseDifference(keep.mean, mean);
+  const Eigen::Vector3d dm = PoseDifference(other.mean, mean);
+  Eigen::Matrix3d c =
+      a * (keep.covariance + dk * dk.transpose()) + b * (other.covariance + dm * dm.transpose());
+  keep.covariance = 0.5 * (c + c.transpose());
+  keep.mean = mean;
+  keep.eta = eta;
+  keep.weight = std::min(1.0, keep.weight + other.weight);
+}
+
+// Which rule last changed a component's weight in this Update (for removal reasons).
+enum class Touch : std::uint8_t { kNone, kIncrease, kPassive, kActive };
+
+const char* RemovalReason(Touch t) {
+  switch (t) {
+    case Touch::kPassive:
+      return "passive forgetting (17)";
+    case Touch::kActive:
+      return "active forgetting (18)-(19)";
+    default:
+      return "weight below w_min";
+  }
+}
+
+void WriteDescriptor(BinaryWriter& out, const Descriptor& d) {
+  out.Write(d.kind);
+  out.WriteVector(d.features);
+  out.Write<std::uint64_t>(d.coefficients.size());
+  for (const std::complex<float>& c : d.coefficients) {
+    out.Write(c.real());
+    out.Write(c.imag());
+  }
+  out.Write<std::int32_t>(d.panorama_width);
+}
+
+Descriptor ReadDescriptor(BinaryReader& in) {
+  Descriptor d;
+  const auto kind = in.Read<std::uint8_t>("descriptor kind");
+  if (kind < 1 || kind > 3)
+    in.Fail("descriptor kind", StrCat("invalid descriptor kind ", int{kind}));
+  d.kind = static_cast<DescriptorKind>(kind);
+  d.features = in.ReadVector<float>("descriptor features");
+  const std::size_t n = in.ReadCount("descriptor coefficients", 8);
+  d.coefficients.reserve(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    const float re = in.Read<float>("descriptor coefficient");
+    const float im = in.Read<float>("descriptor coefficient");
+    d.coefficients.emplace_back(re, im);
+  }
+  d.panorama_width = in.Read<std::int32_t>("descriptor panorama width");
+  return d;
+}
+
+void WritePose(BinaryWriter& out, const Pose2& p) {
+  for (int k = 0; k < 3; ++k) out.Write(p[k]);
+}
+
+Pose2 ReadPose(BinaryReader& in, const char* what) {
+  Pose2 p;
+  for (int k = 0; k < 3; ++k) p[k] = in.Read<double>(what);
+  return p;
+}
+
+}  // namespace
+
+std::string ToString(ForgettingMode mode) {
+  switch (mode) {
+    case ForgettingMode::kActive:
+      return "active";
+    case ForgettingMode::kPassive:
+      return "passive";
+    case ForgettingMode::kStatic:
+      return "static";
+  }
+  return "unknown";
+}
+
+ForgettingMode ForgettingModeFromString(const std::string& name) {
+  if (name == "active") return ForgettingMode::kActive;
+  if (name == "passive") return ForgettingMode::kPassive;
+  if (name == "static") return ForgettingMode::kStatic;
+  throw Error(StrCat("unknown forgetting mode '", name, "' (expected active, passive or static)"));
+}
+
+std::string ToString(MapEventType type) {
+  switch (type) {
+    case MapEventType::kViewInserted:
+      return "view_inserted";
+    case MapEventType::kViewRemoved:
+      return "view_removed";
+    case MapEventType::kComponentAdded:
+      return "component_added";
+    case MapEventType::kComponentMerged:
+      return "component_merged";
+    case MapEventType::kComponentRemoved:
+      return "component_removed";
+  }
+  return "unknown";
+}
+
+void EnvironmentModelOptions::Validate() const {
+  auto fail = [](const char* field, const std::string& rule, double value) {
+    throw Error(StrCat("EnvironmentModelOptions.", field, " must be ", rule, ", got ", value));
+  };
+  if (!(std::isfinite(e_max) && e_max > 0)) fail("e_max", "finite and > 0", e_max);
+  if (top_k < 0) fail("top_k", ">= 0", top_k);
+  if (!(beta > 0 && beta <= 1)) fail("beta", "in (0, 1]", beta);
+  if (!(std::isfinite(d_max) && d_max > 0)) fail("d_max", "finite and > 0", d_max);
+  if (!(std::isfinite(d_for_m) && d_for_m > 0)) fail("d_for_m", "finite and > 0", d_for_m);
+  if (!(std::isfinite(beta_for) && beta_for >= 0)) fail("beta_for", "finite and >= 0", beta_for);
+  if (!(std::isfinite(d_gain_m) && d_gain_m >= 0)) fail("d_gain_m", "finite and >= 0", d_gain_m);
+  if (!(w_min >= 0 && w_min < 1)) fail("w_min", "in [0, 1)", w_min);
+  if (!(std::isfinite(merge_delta) && merge_delta >= 0))
+    fail("merge_delta", "finite and >= 0", merge_delta);
+  if (!(std::isfinite(heading_sigma_no_rotation_rad) && heading_sigma_no_rotation_rad > 0)) {
+    fail("heading_sigma_no_rotation_rad", "finite and > 0", heading_sigma_no_rotation_rad);
+  }
+  if (forgetting != ForgettingMode::kActive && forgetting != ForgettingMode::kPassive &&
+      forgetting != ForgettingMode::kStatic) {
+    fail("forgetting", "active, passive or static", static_cast<int>(forgetting));
+  }
+  if (!(std::isfinite(spatial_cell_m) && spatial_cell_m > 0))
+    fail("spatial_cell_m", "finite and > 0", spatial_cell_m);
+}
+
+double ReferenceView::TotalWeight() const {
+  double sum = 0.0;
+  for (const ViewComponent& c : components) sum += c.weight;
+  return sum;
+}
+
+EnvironmentModel::EnvironmentModel(const EnvironmentModelOptions& options,
+                                   std::shared_ptr<const DescriptorExtractor> extractor)
+    : options_(options), extractor_(std::move(extractor)), spatial_(options.spatial_cell_m) {
+  options_.Validate();
+  if (!extractor_) throw Error("EnvironmentModel: the descriptor extractor is null");
+  feature_size_ = extractor_->FeatureSize();
+  if (feature_size_ == 0) throw Error("EnvironmentModel: the extractor's FeatureSize() is 0");
+}
+
+void EnvironmentModel::CheckDescriptor(const Descriptor& y, const char* where) const {
+  if (y.kind != extractor_->kind()) {
+    // (Kinds printed as numbers: this module does not link the descriptor library.)
+    throw Error(StrCat("EnvironmentModel::", where, ": descriptor kind ", static_cast<int>(y.kind),
+                       " differs from the model's kind ", static_cast<int>(extractor_->kind())));
+  }
+  if (y.features.size() != feature_size_) {
+    throw Error(StrCat("EnvironmentModel::", where, ": descriptor has ", y.features.size(),
+                       " features, the model expects ", feature_size_));
+  }
+}
+
+std::vector<ViewMatch> EnvironmentModel::Search(const Descriptor& y, int top_k) const {
+  const std::size_t n = feature_size_;
+  const float* query = y.features.data();
+  const float* rows = features_.data();
+  const double e_max = options_.e_max;
+  std::vector<ViewMatch> out;
+  // The hot loop: one contiguous row per view, the extractor's raw-pointer distance.
+  for (std::size_t i = 0; i < views_.size(); ++i) {
+    const double e = extractor_->Distance(query, rows + i * n, n);
+    if (e < e_max) {
+      ViewMatch m;
+      m.view_index = i;
+      m.view_id = views_[i].id;
+      m.distance = e;
+      // docs/design.md: S = max(0, 1 - E / E_max), linear.
+      m.similarity = std::max(0.0, 1.0 - e / e_max);
+      out.push_back(m);
+    }
+  }
+  std::sort(out.begin(), out.end(), [](const ViewMatch& a, const ViewMatch& b) {
+    return a.distance != b.distance ? a.distance < b.distance : a.view_id < b.view_id;
+  });
+  if (top_k > 0 && out.size() > static_cast<std::size_t>(top_k))
+    out.resize(static_cast<std::size_t>(top_k));
+  for (ViewMatch& m : out) {
+    const std::optional<double> rel =
+        extractor_->RelativeHeading(y, views_[m.view_index].descriptor);
+    if (rel) m.relative_heading_rad = WrapAngle(*rel);
+  }
+  return out;
+}
+
+std::vector<ViewMatch> EnvironmentModel::FindMatches(const Descriptor& y) const {
+  CheckDescriptor(y, "FindMatches");
+  return Search(y, options_.top_k);
+}
+
+std::vector<ViewMatch> EnvironmentModel::FindAllMatches(const Descriptor& y) const {
+  CheckDescriptor(y, "FindAllMatches");
+  return Search(y, 0);
+}
+
+Mixture EnvironmentModel::Hypothesis(const Descriptor& y) const {
+  return Hypothesis(FindMatches(y));
+}
+
+Mixture EnvironmentModel::Hypothesis(const std::vector<ViewMatch>& matches) const {
+  Mixture out;
+  double total = 0.0;
+  for (const ViewMatch& m : matches) {
+    if (m.view_index >= views_.size() || views_[m.view_index].id != m.view_id) {
+      throw Error(StrCat("EnvironmentModel::Hypothesis: match of view ", m.view_id,
+                         " is stale (the model changed since FindMatches)"));
+    }
+    const ReferenceView& view = views_[m.view_index];
+    for (const ViewComponent& c : view.components) {
+      // docs/design.md: weight w_ij * S_i, heading rotated by the relative heading.
+      Gaussian g;
+      g.mean = m.relative_heading_rad
+                   ? MakePose(c.mean.x(), c.mean.y(), c.mean.z() + *m.relative_heading_rad)
+                   : c.mean;
+      g.covariance = EffectiveCovariance(c.covariance, m.relative_heading_rad,
+                                         options_.heading_sigma_no_rotation_rad);
+      g.weight = c.weight * m.similarity;
+      total += g.weight;
+      out.push_back(g);
+    }
+  }
+  if (!(total > 0.0)) return {};
+  for (Gaussian& g : out) g.weight /= total;
+  return out;
+}
+
+std::size_t EnvironmentModel::InsertView(const Descriptor& y, const UpdateContext& context,
+                                         const Pose2& where) {
+  ReferenceView v;
+  v.id = next_view_id_++;
+  v.descriptor = y;
+  v.stats.created_frame = context.frame;
+  v.stats.created_session = context.session;
+  v.stats.last_seen_frame = context.frame;
+  v.stats.last_seen_session = context.session;
+  features_.insert(features_.end(), y.features.begin(), y.features.end());
+  index_of_id_[v.id] = views_.size();
+  events_.push_back(MapEvent{MapEventType::kViewInserted, context.frame, context.session, v.id, 0,
+                             where, 0.0, "no view within e_max"});
+  views_.push_back(std::move(v));
+  return views_.size() - 1;
+}
+
+std::uint64_t EnvironmentModel::AddView(const Descriptor& y, std::vector<ViewComponent> components,
+                                        const ViewStats& stats) {
+  CheckDescriptor(y, "AddView");
+  if (components.empty())
+    throw Error("EnvironmentModel::AddView: a view needs at least one component");
+  for (std::size_t j = 0; j < components.size(); ++j) {
+    const ViewComponent& c = components[j];
+    const bool spd = c.covariance.allFinite() &&
+                     c.covariance.isApprox(c.covariance.transpose(), 1e-9) &&
+                     Eigen::LLT<Eigen::Matrix3d>(c.covariance).info() == Eigen::Success;
+    if (!(c.weight >= 0 && c.weight <= 1) || !(c.eta > 0) || !c.mean.allFinite() || !spd) {
+      throw Error(StrCat("EnvironmentModel::AddView: component ", j,
+                         " is invalid (weight in [0, 1], eta > 0, finite mean, SPD covariance)"));
+    }
+  }
+  ReferenceView v;
+  v.id = next_view_id_++;
+  v.descriptor = y;
+  v.stats = stats;
+  v.components = std::move(components);
+  for (ViewComponent& c : v.components) {
+    c.id = next_component_id_++;
+    c.mean.z() = WrapAngle(c.mean.z());
+    c.covariance = 0.5 * (c.covariance + c.covariance.transpose());  // exactly symmetric
+    spatial_.Insert(SpatialEntry{v.id, c.id, c.mean.x(), c.mean.y()});
+    ++num_components_;
+  }
+  features_.insert(features_.end(), y.features.begin(), y.features.end());
+  index_of_id_[v.id] = views_.size();
+  events_.push_back(MapEvent{MapEventType::kViewInserted, stats.created_frame,
+                             stats.created_session, v.id, 0, v.components.front().mean,
+                             v.TotalWeight(), "added"});
+  views_.push_back(std::move(v));
+  return views_.back().id;
+}
+
+void EnvironmentModel::RemoveViewAt(std::size_t index) {
+  OMNICML_CHECK(index < views_.size());
+  const std::size_t last = views_.size() - 1;
+  for (const ViewComponent& c : views_[index].components) {
+    spatial_.Remove(views_[index].id, c.id, c.mean.x(), c.mean.y());
+    --num_components_;
+  }
+  index_of_id_.erase(views_[index].id);
+  if (index != last) {
+    // Swap-remove: the last view (and its feature row) takes the freed slot.
+    views_[index] = std::move(views_[last]);
+    std::copy(features_.begin() + static_cast<std::ptrdiff_t>(last * feature_size_),
+              features_.begin() + static_cast<std::ptrdiff_t>((last + 1) * feature_size_),
+              features_.begin() + static_cast<std::ptrdiff_t>(index * feature_size_));
+    index_of_id_[views_[index].id] = index;
+  }
+  views_.pop_back();
+  features_.resize(views_.size() * feature_size_);
+}
+
+std::optional<std::size_t> EnvironmentModel::FindView(std::uint64_t view_id) const {
+  auto it = index_of_id_.find(view_id);
+  if (it == index_of_id_.end()) return std::nullopt;
+  return it->second;
+}
+
+UpdateStats EnvironmentModel::Update(const Descriptor& y, const Gaussian& estimate,
+                                     const UpdateContext& context) {
+  UpdateStats stats;
+  CheckDescriptor(y, "Update");
+  if (!estimate.mean.allFinite())
+    throw Error("EnvironmentModel::Update: the estimate's mean is not finite");
+  if (!estimate.covariance.allFinite())
+    throw Error("EnvironmentModel::Update: the estimate's covariance is not finite");
+  const Eigen::Matrix3d c_t = 0.5 * (estimate.covariance + estimate.covariance.transpose());
+  if (Eigen::LLT<Eigen::Matrix3d>(c_t).info() != Eigen::Success || !(c_t(0, 0) > 0) ||
+      !(c_t(1, 1) > 0)) {
+    throw Error("EnvironmentModel::Update: the estimate's covariance is not positive definite");
+  }
+  if (options_.forgetting == ForgettingMode::kStatic) return stats;  // the map never changes
+  const Pose2 mu_t = MakePose(estimate.mean.x(), estimate.mean.y(), estimate.mean.z());
+
+  std::vector<ViewMatch> matches = Search(y, 0);
+  stats.matching_views = static_cast<int>(matches.size());
+
+  // Phase 1 ([G 2.3]): insertion iff E(y_t, y_i) >= E_max for every view i.
+  if (matches.empty()) {
+    const std::size_t index = InsertView(y, context, mu_t);
+    stats.view_inserted = true;
+    ViewMatch self;
+    self.view_index = index;
+    self.view_id = views_[index].id;
+    self.distance = 0.0;
+    self.similarity = 1.0;
+    if (extractor_->ProvidesHeading()) self.relative_heading_rad = 0.0;
+    matches.push_back(self);
+  }
+
+  // Phase 2: one component per matching view, w = 0 and eta = S_i / sum_l S_l (our
+  // reading of [G] (11)), then merging of components closer than delta (12).
+  double sum_s = 0.0;
+  for (const ViewMatch& m : matches) sum_s += m.similarity;
+  std::vector<std::uint64_t> fresh;  // components created by this Update, kept separate
+  for (const ViewMatch& m : matches) {
+    ReferenceView& view = views_[m.view_index];
+    view.stats.observations += 1;
+    view.stats.last_seen_frame = context.frame;
+    view.stats.last_seen_session = context.session;
+
+    ViewComponent added;
+    added.weight = 0.0;
+    added.eta = m.similarity / sum_s;  // [G] (11)
+    added.mean = InViewFrame(mu_t, m.relative_heading_rad);
+    added.covariance = c_t;
+
+    std::vector<ViewComponent>& comps = view.components;
+    auto closest_within_delta = [&](const ViewComponent& c, std::size_t skip) {
+      std::size_t best = comps.size();
+      double best_d2 = options_.merge_delta;
+      for (std::size_t j = 0; j < comps.size(); ++j) {
+        if (j == skip) continue;
+        // [G] (12): merge when closer than delta.
+        const double d2 =
+            SquaredMahalanobisSum(c.mean, comps[j].mean, c.covariance + comps[j].covariance);
+        if (d2 < best_d2) {
+          best_d2 = d2;
+          best = j;
+        }
+      }
+      return best;
+    };
+
+    std::size_t k = closest_within_delta(added, comps.size());
+    if (k == comps.size()) {
+      added.id = next_component_id_++;
+      comps.push_back(added);
+      spatial_.Insert(SpatialEntry{view.id, added.id, added.mean.x(), added.mean.y()});
+      ++num_components_;
+      fresh.push_back(added.id);
+      ++stats.components_added;
+      if (options_.log_component_events) {
+        events_.push_back(MapEvent{MapEventType::kComponentAdded, context.frame, context.session,
+                                   view.id, added.id, added.mean, added.weight, "observation"});
+      }
+      continue;
+    }
+    // The new component merges into component k; the moved result may now be within
+    // delta of another one, which is merged in turn (the earlier one in storage order
+    // survives), until no pair involving it is closer than delta.
+    ++stats.components_merged;
+    {
+      const Pose2 old = comps[k].mean;
+      MergeInto(comps[k], added);
+      spatial_.Move(view.id, comps[k].id, old.x(), old.y(), comps[k].mean.x(), comps[k].mean.y());
+      if (options_.log_component_events) {
+        events_.push_back(MapEvent{MapEventType::kComponentMerged, context.frame, context.session,
+                                   view.id, comps[k].id, comps[k].mean, comps[k].weight,
+                                   "merge (12)-(14)"});
+      }
+    }
+    for (;;) {
+      const std::size_t j = closest_within_delta(comps[k], k);
+      if (j == comps.size()) break;
+      const std::size_t keep = std::min(j, k), drop = std::max(j, k);
+      const Pose2 old = comps[keep].mean;
+      const ViewComponent dropped = comps[drop];
+      MergeInto(comps[keep], dropped);
+      spatial_.Remove(view.id, dropped.id, dropped.mean.x(), dropped.mean.y());
+      spatial_.Move(view.id, comps[keep].id, old.x(), old.y(), comps[keep].mean.x(),
+                    comps[keep].mean.y());
+      comps.erase(comps.begin() + static_cast<std::ptrdiff_t>(drop));
+      --num_components_;
+      if (options_.log_component_events) {
+        events_.push_back(MapEvent{MapEventType::kComponentMerged, context.frame, context.session,
+                                   view.id, comps[keep].id, comps[keep].mean, comps[keep].weight,
+                                   "merge (12)-(14)"});
+      }
+      k = keep;
+    }
+  }
+  std::sort(fresh.begin(), fresh.end());
+
+  // Phase 3: weights. touched[id] = rule applied, per component id, for removal reasons.
+  std::unordered_map<std::uint64_t, Touch> touch;
+  std::vector<std::uint64_t> touched_views;
+  for (const ViewMatch& m : matches) {
+    ReferenceView& view = views_[m.view_index];
+    touched_views.push_back(view.id);
+    const Pose2 mu_view = InViewFrame(mu_t, m.relative_heading_rad);
+    const double beta_s = options_.beta * m.similarity;
+    for (ViewComponent& c : view.components) {
+      const Eigen::Matrix3d s = c_t + EffectiveCovariance(c.covariance, m.relative_heading_rad,
+                                                          options_.heading_sigma_no_rotation_rad);
+      // [G] eq. (15): Mahalanobis distance of mu_t to the component.
+      const double d = std::sqrt(SquaredMahalanobisSum(mu_view, c.mean, s));
+      if (d <= options_.d_max) {
+        // [G] eq. (16): weight increase.
+        c.weight = beta_s + (1.0 - beta_s) * c.weight;
+        touch[c.id] = Touch::kIncrease;
+        ++stats.components_increased;
+      } else {
+        // [G] eq. (17): passive forgetting.
+        c.weight = (1.0 - beta_s) * c.weight;
+        touch[c.id] = Touch::kPassive;
+        ++stats.components_passive_forgotten;
+      }
+    }
+  }
+  if (options_.forgetting == ForgettingMode::kActive) {
+    std::vector<std::uint64_t> matched_ids;
+    for (const ViewMatch& m : matches) matched_ids.push_back(m.view_id);
+    std::sort(matched_ids.begin(), matched_ids.end());
+    const double sigma_sum_m = std::sqrt(c_t(0, 0)) + std::sqrt(c_t(1, 1));
+    // Rule 3 visits only components within d_for of mu_t (spatial index), sorted by ids.
+    const std::vector<SpatialEntry> near =
+        spatial_.QueryRadius(mu_t.x(), mu_t.y(), options_.d_for_m);
+    std::size_t view_index = 0;
+    std::uint64_t current_view = 0;
+    for (const SpatialEntry& e : near) {
+      if (std::binary_search(matched_ids.begin(), matched_ids.end(), e.view_id))
+        continue;  // E_i < E_max
+      const double d_xy = std::hypot(e.x_m - mu_t.x(), e.y_m - mu_t.y());
+      // [G] eq. (19): b = beta_for max(1 - d_xy / d_for, 0) d_gain / (sigma_x + sigma_y), in [0,
+      // 1].
+      const double b = std::clamp(options_.beta_for * std::max(1.0 - d_xy / options_.d_for_m, 0.0) *
+                                      options_.d_gain_m / sigma_sum_m,
+                                  0.0, 1.0);
+      if (e.view_id != current_view) {
+        current_view = e.view_id;
+        view_index = index_of_id_.at(e.view_id);
+        touched_views.push_back(e.view_id);
+      }
+      for (ViewComponent& c : views_[view_index].components) {
+        if (c.id != e.component_id) continue;
+        // [G] eq. (18): active forgetting.
+        c.weight = (1.0 - b) * c.weight;
+        touch[c.id] = Touch::kActive;
+        if (b > 0) ++stats.components_active_forgotten;
+        break;
+      }
+    }
+  }
+
+  // Removal: components below w_min (except those created by this Update), then views
+  // whose mixture is empty. Only views touched above can hold such components.
+  for (const std::uint64_t view_id : touched_views) {
+    const auto it = index_of_id_.find(view_id);
+    if (it == index_of_id_.end()) continue;
+    ReferenceView& view = views_[it->second];
+    std::vector<ViewComponent>& comps = view.components;
+    Pose2 last_position = comps.empty() ? mu_t : comps.back().mean;
+    std::size_t out = 0;
+    for (std::size_t j = 0; j < comps.size(); ++j) {
+      ViewComponent& c = comps[j];
+      const bool is_fresh = std::binary_search(fresh.begin(), fresh.end(), c.id);
+      if (c.weight >= options_.w_min || is_fresh) {
+        if (out != j) comps[out] = std::move(c);
+        ++out;
+        continue;
+      }
+      const auto t = touch.find(c.id);
+      events_.push_back(MapEvent{MapEventType::kComponentRemoved, context.frame, context.session,
+                                 view.id, c.id, c.mean, c.weight,
+                                 RemovalReason(t == touch.end() ? Touch::kNone : t->second)});
+      spatial_.Remove(view.id, c.id, c.mean.x(), c.mean.y());
+      --num_components_;
+      ++stats.components_removed;
+      last_position = c.mean;
+    }
+    comps.resize(out);
+    if (comps.empty()) {
+      events_.push_back(MapEvent{MapEventType::kViewRemoved, context.frame, context.session,
+                                 view.id, 0, last_position, 0.0, "view empty"});
+      RemoveViewAt(it->second);
+      ++stats.views_removed;
+    }
+  }
+  return stats;
+}
+
+std::size_t EnvironmentModel::MemoryBytes() const {
+  std::size_t bytes = features_.capacity() * sizeof(float);
+  bytes += views_.capacity() * sizeof(ReferenceView);
+  for (const ReferenceView& v : views_) {
+    bytes += v.descriptor.features.capacity() * sizeof(float);
+    bytes += v.descriptor.coefficients.capacity() * sizeof(std::complex<float>);
+    bytes += v.components.capacity() * sizeof(ViewComponent);
+  }
+  bytes += index_of_id_.bucket_count() * sizeof(void*) +
+           index_of_id_.size() * (sizeof(std::uint64_t) + sizeof(std::size_t) + 2 * sizeof(void*));
+  bytes += spatial_.MemoryBytes();
+  bytes += events_.capacity() * sizeof(MapEvent);
+  for (const MapEvent& e : events_) bytes += e.reason.capacity() > 15 ? e.reason.capacity() : 0;
+  return bytes;
+}
+
+void EnvironmentModel::Serialize(BinaryWriter& out) const {
+  out.Write(kModelMagic);
+  out.Write(kModelVersion);
+  out.Write(extractor_->kind());
+  out.Write<std::uint64_t>(feature_size_);
+  out.Write(next_view_id_);
+  out.Write(next_component_id_);
+  out.Write<std::uint64_t>(views_.size());
+  for (const ReferenceView& v : views_) {
+    out.Write(v.id);
+    WriteDescriptor(out, v.descriptor);
+    out.Write(v.stats.created_frame);
+    out.Write<std::int32_t>(v.stats.created_session);
+    out.Write(v.stats.observations);
+    out.Write(v.stats.last_seen_frame);
+    out.Write<std::int32_t>(v.stats.last_seen_session);
+    out.Write<std::uint64_t>(v.components.size());
+    for (const ViewComponent& c : v.components) {
+      out.Write(c.id);
+      out.Write(c.weight);
+      out.Write(c.eta);
+      WritePose(out, c.mean);
+      for (int r = 0; r < 3; ++r)
+        for (int q = 0; q < 3; ++q) out.Write(c.covariance(r, q));
+    }
+  }
+  out.Write<std::uint64_t>(events_.size());
+  for (const MapEvent& e : events_) {
+    out.Write(e.type);
+    out.Write(e.frame);
+    out.Write<std::int32_t>(e.session);
+    out.Write(e.view_id);
+    out.Write(e.component_id);
+    WritePose(out, e.position);
+    out.Write(e.weight);
+    out.WriteString(e.reason);
+  }
+}
+
+EnvironmentModel EnvironmentModel::Deserialize(
+    BinaryReader& in, const EnvironmentModelOptions& options,
+    std::shared_ptr<const DescriptorExtractor> extractor) {
+  EnvironmentModel model(options, std::move(extractor));
+  if (in.Read<std::uint32_t>("environment model magic") != kModelMagic) {
+    in.Fail("environment model magic", "not an environment model (bad magic number)");
+  }
+  const auto version = in.Read<std::uint32_t>("environment model version");
+  if (version != kModelVersion) {
+    in.Fail("environment model version", StrCat("unsupported environment model version ", version));
+  }
+  const auto kind = in.Read<std::uint8_t>("model descriptor kind");
+  const auto feature_size = in.Read<std::uint64_t>("model feature size");
+  if (kind != static_cast<std::uint8_t>(model.extractor_->kind()) ||
+      feature_size != model.feature_size_) {
+    in.Fail("model descriptor kind",
+            StrCat("the stored model uses descriptor kind ", int{kind}, " with ", feature_size,
+                   " features, the extractor gives kind ",
+                   static_cast<int>(model.extractor_->kind()), " with ", model.feature_size_));
+  }
+  model.next_view_id_ = in.Read<std::uint64_t>("next view id");
+  model.next_component_id_ = in.Read<std::uint64_t>("next component id");
+  // Smallest possible view record: id, descriptor (kind, 2 counts, width), counters, count.
+  const std::size_t num_views = in.ReadCount("views", 8 + 1 + 8 + 8 + 4 + 8 + 4 + 8 + 8 + 4 + 8);
+  model.views_.reserve(num_views);
+  for (std::size_t i = 0; i < num_views; ++i) {
+    ReferenceView v;
+    v.id = in.Read<std::uint64_t>("view id");
+    v.descriptor = ReadDescriptor(in);
+    if (v.descriptor.kind != model.extractor_->kind() ||
+        v.descriptor.features.size() != model.feature_size_) {
+      in.Fail("view descriptor",
+              StrCat("view ", v.id, " has a descriptor of another kind or length"));
+    }
+    v.stats.created_frame = in.Read<std::int64_t>("view created frame");
+    v.stats.created_session = in.Read<std::int32_t>("view created session");
+    v.stats.observations = in.Read<std::int64_t>("view observations");
+    v.stats.last_seen_frame = in.Read<std::int64_t>("view last seen frame");
+    v.stats.last_seen_session = in.Read<std::int32_t>("view last seen session");
+    const std::size_t num_components = in.ReadCount("view components", 8 * 15);
+    if (num_components == 0)
+      in.Fail("view components", StrCat("view ", v.id, " has no components"));
+    for (std::size_t j = 0; j < num_components; ++j) {
+      ViewComponent c;
+      c.id = in.Read<std::uint64_t>("component id");
+      c.weight = in.Read<double>("component weight");
+      c.eta = in.Read<double>("component eta");
+      c.mean = ReadPose(in, "component mean");
+      for (int r = 0; r < 3; ++r)
+        for (int q = 0; q < 3; ++q) c.covariance(r, q) = in.Read<double>("component covariance");
+      const bool spd = c.covariance.allFinite() && c.covariance == c.covariance.transpose() &&
+                       Eigen::LLT<Eigen::Matrix3d>(c.covariance).info() == Eigen::Success;
+      if (!(c.weight >= 0 && c.weight <= 1) || !(c.eta > 0) || !c.mean.allFinite() || !spd ||
+          std::abs(c.mean.z()) > kPi) {
+        in.Fail("component", StrCat("component ", c.id, " of view ", v.id, " has invalid values"));
+      }
+      v.components.push_back(c);
+    }
+    model.views_.push_back(std::move(v));
+  }
+  const std::size_t num_events = in.ReadCount("events", 1 + 8 + 4 + 8 + 8 + 24 + 8 + 8);
+  model.events_.reserve(num_events);
+  for (std::size_t i = 0; i < num_events; ++i) {
+    MapEvent e;
+    const auto type = in.Read<std::uint8_t>("event type");
+    if (type > static_cast<std::uint8_t>(MapEventType::kComponentRemoved)) {
+      in.Fail("event type", StrCat("invalid event type ", int{type}));
+    }
+    e.type = static_cast<MapEventType>(type);
+    e.frame = in.Read<std::int64_t>("event frame");
+    e.session = in.Read<std::int32_t>("event session");
+    e.view_id = in.Read<std::uint64_t>("event view id");
+    e.component_id = in.Read<std::uint64_t>("event component id");
+    e.position = ReadPose(in, "event position");
+    e.weight = in.Read<double>("event weight");
+    e.reason = in.ReadString("event reason");
+    model.events_.push_back(std::move(e));
+  }
+  model.RebuildDerived();
+  // Ids must be unique and below the next ids, or later insertions would collide.
+  std::vector<std::uint64_t> view_ids, component_ids;
+  for (const ReferenceView& v : model.views_) {
+    view_ids.push_back(v.id);
+    for (const ViewComponent& c : v.components) component_ids.push_back(c.id);
+  }
+  std::sort(view_ids.begin(), view_ids.end());
+  std::sort(component_ids.begin(), component_ids.end());
+  if (std::adjacent_find(view_ids.begin(), view_ids.end()) != view_ids.end() ||
+      std::adjacent_find(component_ids.begin(), component_ids.end()) != component_ids.end() ||
+      (!view_ids.empty() && view_ids.back() >= model.next_view_id_) ||
+      (!component_ids.empty() && component_ids.back() >= model.next_component_id_)) {
+    in.Fail("environment model", "duplicate or out-of-range view/component ids");
+  }
+  return model;
+}
+
+void EnvironmentModel::RebuildDerived() {
+  features_.clear();
+  features_.reserve(views_.size() * feature_size_);
+  index_of_id_.clear();
+  spatial_.Clear();
+  num_components_ = 0;
+  for (std::size_t i = 0; i < views_.size(); ++i) {
+    const ReferenceView& v = views_[i];
+    features_.insert(features_.end(), v.descriptor.features.begin(), v.descriptor.features.end());
+    index_of_id_[v.id] = i;
+    for (const ViewComponent& c : v.components) {
+      spatial_.Insert(SpatialEntry{v.id, c.id, c.mean.x(), c.mean.y()});
+      ++num_components_;
+    }
+  }
+}
+
+void EnvironmentModel::CheckInvariants() const {
+  OMNICML_CHECK(features_.size() == views_.size() * feature_size_) << "feature rows out of sync";
+  OMNICML_CHECK(index_of_id_.size() == views_.size()) << "id map out of sync";
+  std::size_t components = 0;
+  std::vector<SpatialEntry> expected;
+  for (std::size_t i = 0; i < views_.size(); ++i) {
+    const ReferenceView& v = views_[i];
+    OMNICML_CHECK(!v.components.empty()) << "view " << v.id << " is empty";
+    OMNICML_CHECK(v.id < next_view_id_) << "view id " << v.id;
+    const auto it = index_of_id_.find(v.id);
+    OMNICML_CHECK(it != index_of_id_.end() && it->second == i) << "id map wrong for view " << v.id;
+    OMNICML_CHECK(std::equal(v.descriptor.features.begin(), v.descriptor.features.end(),
+                             features_.begin() + static_cast<std::ptrdiff_t>(i * feature_size_)))
+        << "feature row of view " << v.id << " differs from its descriptor";
+    for (const ViewComponent& c : v.components) {
+      OMNICML_CHECK(c.weight >= 0.0 && c.weight <= 1.0) << "weight " << c.weight;
+      OMNICML_CHECK(c.eta > 0.0) << "eta " << c.eta;
+      OMNICML_CHECK(c.id < next_component_id_) << "component id " << c.id;
+      expected.push_back(SpatialEntry{v.id, c.id, c.mean.x(), c.mean.y()});
+      ++components;
+    }
+  }
+  OMNICML_CHECK(components == num_components_) << "component count out of sync";
+  std::sort(expected.begin(), expected.end(), [](const SpatialEntry& a, const SpatialEntry& b) {
+    return a.view_id != b.view_id ? a.view_id < b.view_id : a.component_id < b.component_id;
+  });
+  OMNICML_CHECK(expected == spatial_.All()) << "spatial index out of sync";
+}
+
+}  // namespace omnicml

@@ -1,0 +1,771 @@
+#include "omnicml/unwrap/omni_unwrapper.h"
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <set>
+#include <system_error>
+#include <vector>
+
+#include <unistd.h>
+
+#include <yaml-cpp/yaml.h>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "unwrap/internal/circle_fit.h"
+#include "omnicml/common/common.h"
+
+namespace omnicml {
+namespace {
+
+namespace fs = std::filesystem;
+
+// Geometry shared by the forward and the inverse maps.
+//
+// Pixel centres: raw pixel (row i, column j) sits at (x, y) = (j, i) (origin at the
+// centre of the top-left pixel, as cv::remap assumes). Panorama column c is centred on
+// robot azimuth alpha = 2 pi c / W; panorama row r is a radial bin of width
+// dr = (outer - inner) / H whose centre lies at outer - (r + 0.5) dr (kLinear) or
+// inner + (r + 0.5) dr (kLinearInverted), so the H rows tile [inner, outer] exactly.
+// Image-plane angle theta (from +x towards +y, clockwise on screen) of azimuth alpha:
+//   theta = azimuth0 - alpha  for kCounterClockwise (counter-clockwise on screen),
+//   theta = azimuth0 + alpha  for kClockwise.
+struct RingGeometry {
+  explicit RingGeometry(const OmniCalibration& c)
+      : cx(c.center_x_px),
+        cy(c.center_y_px),
+        inner(c.inner_radius_px),
+        outer(c.outer_radius_px),
+        azimuth0(c.azimuth0_rad),
+        sign(c.direction == RingDirection::kCounterClockwise ? -1.0 : 1.0),
+        inverted(c.elevation == ElevationMapping::kLinearInverted),
+        width(c.panorama_width),
+        height(c.panorama_height),
+        dr((c.outer_radius_px - c.inner_radius_px) / c.panorama_height) {}
+
+  double RadiusOfRow(double row) const {
+    return inverted ? inner + (row + 0.5) * dr : outer - (row + 0.5) * dr;
+  }
+  double RowOfRadius(double radius) const {
+    return inverted ? (radius - inner) / dr - 0.5 : (outer - radius) / dr - 0.5;
+  }
+  double ThetaOfColumn(double column) const { return azimuth0 + sign * kTwoPi * column / width; }
+  // Column in [0, W) of image-plane angle theta.
+  double ColumnOfTheta(double theta) const {
+    double alpha = std::fmod(sign * (theta - azimuth0), kTwoPi);
+    if (alpha < 0.0) alpha += kTwoPi;
+    double column = alpha * width / kTwoPi;
+    if (column >= width) column -= width;
+    return column;
+  }
+
+  double cx, cy, inner, outer, azimuth0, sign;
+  bool inverted;
+  int width, height;
+  double dr;
+};
+
+// Render paints raw pixels whose centre lies up to half a pixel outside [inner, outer]:
+// Unwrap's bilinear samples of the first and last panorama rows (half a radial bin inside
+// the ring) then never blend in background, so Unwrap(Render(p)) reproduces p up to
+// rounding even on its edge rows (measured: without the margin the edge rows were off by
+// 6 grey levels on average, up to 50). The visible ring of a rendered image is thus about
+// 0.5 px wider on each side than the calibration's radii.
+constexpr double kRenderMarginPx = 0.5;
+
+// Shifts a panorama by `shift` columns around azimuth: out(c) = in(c + shift), wrapping;
+// integer shifts are exact, fractional ones bilinear.
+cv::Mat ShiftColumnsWrapped(const cv::Mat& in, double shift) {
+  const double rounded = std::round(shift);
+  if (std::abs(shift - rounded) < 1e-9) {
+    const int k = ((static_cast<int>(rounded) % in.cols) + in.cols) % in.cols;
+    if (k == 0) return in;
+    cv::Mat out;
+    cv::hconcat(in.colRange(k, in.cols), in.colRange(0, k), out);
+    return out;
+  }
+  const cv::Matx23d out_to_in(1.0, 0.0, shift, 0.0, 1.0, 0.0);
+  cv::Mat out;
+  cv::warpAffine(in, out, out_to_in, in.size(), cv::INTER_LINEAR | cv::WARP_INVERSE_MAP,
+                 cv::BORDER_WRAP);
+  return out;
+}
+
+// Resamples a panorama to `size` keeping the convention: output column c looks along the
+// same azimuth 2 pi c / W as input column c W_in / W (columns are centred on their azimuth,
+// and wrap around). Rows are elevation bins (pixel-area convention, as cv::resize).
+// Shrinking both axes averages (INTER_AREA); otherwise bilinear.
+cv::Mat ResizePanorama(const cv::Mat& in, cv::Size size) {
+  if (in.size() == size) return in;
+  const double s = static_cast<double>(in.cols) / size.width;  // input columns per output column
+  if (in.cols >= size.width && in.rows >= size.height) {
+    // cv::resize centres output column c on input column (c + 0.5) s - 0.5, but the
+    // convention wants c s: pre-shift the input by 0.5 - 0.5 s columns (exact for odd s).
+    cv::Mat out;
+    cv::resize(ShiftColumnsWrapped(in, 0.5 - 0.5 * s), out, size, 0, 0, cv::INTER_AREA);
+    return out;
+  }
+  // Bilinear from a copy padded by one wrapped column on each side: output (c, r) samples
+  // input column c s and row (r + 0.5) s_rows - 0.5 (clamped).
+  cv::Mat padded;
+  cv::copyMakeBorder(in, padded, 0, 0, 1, 1, cv::BORDER_WRAP);
+  const double s_rows = static_cast<double>(in.rows) / size.height;
+  cv::Mat map_x(size, CV_32FC1), map_y(size, CV_32FC1);
+  for (int r = 0; r < size.height; ++r) {
+    const float y = static_cast<float>(std::clamp((r + 0.5) * s_rows - 0.5, 0.0, in.rows - 1.0));
+    float* mx = map_x.ptr<float>(r);
+    float* my = map_y.ptr<float>(r);
+    for (int c = 0; c < size.width; ++c) {
+      mx[c] = static_cast<float>(c * s + 1.0);
+      my[c] = y;
+    }
+  }
+  cv::Mat out;
+  cv::remap(padded, out, map_x, map_y, cv::INTER_LINEAR, cv::BORDER_REPLICATE);
+  return out;
+}
+
+void Require(bool ok, const std::string& what) {
+  if (!ok) throw Error(what);
+}
+
+std::string TypeName(const cv::Mat& image) {
+  return StrCat(image.cols, "x", image.rows, ", ", image.channels(), " channel(s), depth ",
+                cv::depthToString(image.depth()));
+}
+
+// A fresh temporary name beside `path` that keeps the extension (OpenCV picks the
+// encoder from it): <path>.tmp-<pid>-<n><ext>.
+fs::path TemporaryPathFor(const fs::path& path) {
+  static std::atomic<int> counter{0};
+  const int n = counter.fetch_add(1);
+  return fs::path(StrCat(path.string(), ".tmp-", ::getpid(), "-", n, path.extension().string()));
+}
+
+void RenameOrThrow(const fs::path& from, const fs::path& to) {
+  std::error_code ec;
+  fs::rename(from, to, ec);
+  if (ec) {
+    fs::remove(from, ec);
+    throw Error(StrCat("cannot write '", to.string(), "': rename of the temporary file failed"));
+  }
+}
+
+const std::set<std::string>& CalibrationKeys() {
+  static const std::set<std::string> keys = {
+      "center_x_px", "center_y_px", "inner_radius_px", "outer_radius_px", "azimuth0_rad",
+      "direction",   "elevation",   "panorama_width",  "panorama_height"};
+  return keys;
+}
+
+std::string Where(const std::string& path, const YAML::Node& node) {
+  const YAML::Mark mark = node.Mark();
+  if (mark.line >= 0) return StrCat(path, ":", mark.line + 1);
+  return path;
+}
+
+template <typename T>
+T YamlScalar(const std::string& path, const YAML::Node& node, const std::string& key,
+             const char* kind) {
+  if (!node.IsScalar()) throw Error(StrCat(Where(path, node), ": '", key, "' must be ", kind));
+  try {
+    return node.as<T>();
+  } catch (const YAML::Exception&) {
+    throw Error(StrCat(Where(path, node), ": '", key, "': '", node.Scalar(), "' is not ", kind));
+  }
+}
+
+// Reads the OmniCalibration keys of a YAML map into `c` (unknown key: Error naming it).
+void ParseCalibrationMap(const std::string& path, const YAML::Node& root, OmniCalibration& c) {
+  for (const auto& entry : root) {
+    if (!entry.first.IsScalar())
+      throw Error(StrCat(Where(path, entry.first), ": calibration keys must be names"));
+    const std::string key = entry.first.Scalar();
+    const YAML::Node& value = entry.second;
+    if (!CalibrationKeys().count(key)) {
+      throw Error(
+          StrCat(Where(path, entry.first), ": unknown key '", key, "' in calibration file"));
+    }
+    if (key == "center_x_px") c.center_x_px = YamlScalar<double>(path, value, key, "a number");
+    if (key == "center_y_px") c.center_y_px = YamlScalar<double>(path, value, key, "a number");
+    if (key == "inner_radius_px")
+      c.inner_radius_px = YamlScalar<double>(path, value, key, "a number");
+    if (key == "outer_radius_px")
+      c.outer_radius_px = YamlScalar<double>(path, value, key, "a number");
+    if (key == "azimuth0_rad") c.azimuth0_rad = YamlScalar<double>(path, value, key, "a number");
+    if (key == "panorama_width") c.panorama_width = YamlScalar<int>(path, value, key, "an integer");
+    if (key == "panorama_height")
+      c.panorama_height = YamlScalar<int>(path, value, key, "an integer");
+    if (key == "direction") {
+      const std::string d = YamlScalar<std::string>(path, value, key, "a string");
+      if (d == "counter_clockwise") {
+        c.direction = RingDirection::kCounterClockwise;
+      } else if (d == "clockwise") {
+        c.direction = RingDirection::kClockwise;
+      } else {
+        throw Error(StrCat(Where(path, value), ": direction '", d,
+                           "' is not counter_clockwise or clockwise"));
+      }
+    }
+    if (key == "elevation") {
+      const std::string e = YamlScalar<std::string>(path, value, key, "a string");
+      if (e == "linear") {
+        c.elevation = ElevationMapping::kLinear;
+      } else if (e == "linear_inverted") {
+        c.elevation = ElevationMapping::kLinearInverted;
+      } else {
+        throw Error(
+            StrCat(Where(path, value), ": elevation '", e, "' is not linear or linear_inverted"));
+      }
+    }
+  }
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------------------------------
+// OmniCalibration
+
+void OmniCalibration::Validate() const {
+  auto finite = [](double v) { return std::isfinite(v); };
+  Require(finite(center_x_px),
+          StrCat("calibration: center_x_px = ", center_x_px, " is not finite"));
+  Require(finite(center_y_px),
+          StrCat("calibration: center_y_px = ", center_y_px, " is not finite"));
+  Require(finite(inner_radius_px) && inner_radius_px >= 0.0,
+          StrCat("calibration: inner_radius_px = ", inner_radius_px, " must be finite and >= 0"));
+  Require(finite(outer_radius_px) && outer_radius_px > inner_radius_px,
+          StrCat("calibration: outer_radius_px = ", outer_radius_px,
+                 " must be finite and exceed inner_radius_px = ", inner_radius_px));
+  Require(finite(azimuth0_rad),
+          StrCat("calibration: azimuth0_rad = ", azimuth0_rad, " is not finite"));
+  Require(panorama_width >= 2 && panorama_width <= 65536,
+          StrCat("calibration: panorama_width = ", panorama_width, " must be in [2, 65536]"));
+  Require(panorama_height >= 1 && panorama_height <= 65536,
+          StrCat("calibration: panorama_height = ", panorama_height, " must be in [1, 65536]"));
+}
+
+void OmniCalibration::ValidateFor(int image_width, int image_height) const {
+  Validate();
+  Require(image_width >= 2 && image_height >= 2,
+          StrCat("calibration: image size ", image_width, "x", image_height, " is too small"));
+  // Pixel areas span [-0.5, size - 0.5]; every sample of the ring must fall inside.
+  constexpr double kSlack = 1e-9;
+  const bool fits = center_x_px - outer_radius_px >= -0.5 - kSlack &&
+                    center_x_px + outer_radius_px <= image_width - 0.5 + kSlack &&
+                    center_y_px - outer_radius_px >= -0.5 - kSlack &&
+                    center_y_px + outer_radius_px <= image_height - 0.5 + kSlack;
+  Require(fits, StrCat("calibration leaves the image: ring of outer_radius_px ", outer_radius_px,
+                       " around (", center_x_px, ", ", center_y_px, ") does not fit in a ",
+                       image_width, "x", image_height, " image"));
+}
+
+OmniCalibration OmniCalibration::FromYamlFile(const std::string& path) {
+  std::error_code ec;
+  if (!fs::exists(path, ec)) throw Error(StrCat("calibration file '", path, "' does not exist"));
+  if (!fs::is_regular_file(path, ec))
+    throw Error(StrCat("calibration file '", path, "' is not a regular file"));
+  YAML::Node root;
+  try {
+    root = YAML::LoadFile(path);
+  } catch (const YAML::ParserException& e) {
+    throw Error(StrCat(path, ":", e.mark.line + 1, ": YAML syntax error: ", e.msg));
+  } catch (const YAML::Exception& e) {
+    throw Error(StrCat("cannot read calibration file '", path, "': ", e.what()));
+  }
+  if (!root.IsMap())
+    throw Error(StrCat(path, ": calibration must be a YAML map of the OmniCalibration keys"));
+  OmniCalibration c;
+  try {
+    ParseCalibrationMap(path, root, c);
+  } catch (const YAML::Exception& e) {
+    throw Error(StrCat(path, ":", e.mark.line + 1, ": bad calibration entry: ", e.msg));
+  }
+  try {
+    c.Validate();
+  } catch (const Error& e) {
+    throw Error(StrCat(path, ": ", e.what()));
+  }
+  return c;
+}
+
+void OmniCalibration::ToYamlFile(const std::string& path) const {
+  Validate();
+  YAML::Emitter out;
+  out.SetDoublePrecision(17);
+  out << YAML::BeginMap;
+  out << YAML::Key << "center_x_px" << YAML::Value << center_x_px;
+  out << YAML::Key << "center_y_px" << YAML::Value << center_y_px;
+  out << YAML::Key << "inner_radius_px" << YAML::Value << inner_radius_px;
+  out << YAML::Key << "outer_radius_px" << YAML::Value << outer_radius_px;
+  out << YAML::Key << "azimuth0_rad" << YAML::Value << azimuth0_rad;
+  out << YAML::Key << "direction" << YAML::Value
+      << (direction == RingDirection::kCounterClockwise ? "counter_clockwise" : "clockwise");
+  out << YAML::Key << "elevation" << YAML::Value
+      << (elevation == ElevationMapping::kLinear ? "linear" : "linear_inverted");
+  out << YAML::Key << "panorama_width" << YAML::Value << panorama_width;
+  out << YAML::Key << "panorama_height" << YAML::Value << panorama_height;
+  out << YAML::EndMap;
+
+  const fs::path target(path);
+  const fs::path temp = TemporaryPathFor(target);
+  {
+    std::ofstream file(temp, std::ios::out | std::ios::trunc);
+    if (!file)
+      throw Error(
+          StrCat("cannot write calibration file '", path, "' (cannot create a file there)"));
+    file << out.c_str() << "\n";
+    file.flush();
+    if (!file) {
+      std::error_code ec;
+      fs::remove(temp, ec);
+      throw Error(StrCat("cannot write calibration file '", path, "'"));
+    }
+  }
+  RenameOrThrow(temp, target);
+}
+
+// ---------------------------------------------------------------------------------------
+// OmniUnwrapper
+
+OmniUnwrapper::OmniUnwrapper(const OmniCalibration& calibration, int image_width, int image_height)
+    : calibration_(calibration), image_width_(image_width), image_height_(image_height) {
+  calibration_.ValidateFor(image_width, image_height);
+  const RingGeometry g(calibration_);
+
+  // Forward maps: panorama pixel (r, c) -> raw (x, y).
+  map_x_.create(g.height, g.width, CV_32FC1);
+  map_y_.create(g.height, g.width, CV_32FC1);
+  std::vector<double> cos_theta(g.width), sin_theta(g.width);
+  for (int c = 0; c < g.width; ++c) {
+    const double theta = g.ThetaOfColumn(c);
+    cos_theta[c] = std::cos(theta);
+    sin_theta[c] = std::sin(theta);
+  }
+  for (int r = 0; r < g.height; ++r) {
+    const double radius = g.RadiusOfRow(r);
+    float* mx = map_x_.ptr<float>(r);
+    float* my = map_y_.ptr<float>(r);
+    for (int c = 0; c < g.width; ++c) {
+      mx[c] = static_cast<float>(g.cx + radius * cos_theta[c]);
+      my[c] = static_cast<float>(g.cy + radius * sin_theta[c]);
+    }
+  }
+
+  // Inverse maps: raw (x, y) -> coordinates in the panorama padded by one wrapped column on
+  // each side (Render), so bilinear sampling wraps around azimuth. Rows are clamped to
+  // [0, H-1] (replicating the first and last row up to the ring's edges). A raw pixel is
+  // painted when its centre lies within kRenderMarginPx of the annulus [inner, outer]
+  // (the pixel touches the ring); the others point far outside the padded panorama and
+  // get the background value.
+  constexpr float kOutside = -1000.0f;
+  inv_map_x_.create(image_height, image_width, CV_32FC1);
+  inv_map_y_.create(image_height, image_width, CV_32FC1);
+  for (int y = 0; y < image_height; ++y) {
+    float* ix = inv_map_x_.ptr<float>(y);
+    float* iy = inv_map_y_.ptr<float>(y);
+    const double dy = y - g.cy;
+    for (int x = 0; x < image_width; ++x) {
+      const double dx = x - g.cx;
+      const double radius = std::hypot(dx, dy);
+      if (radius < g.inner - kRenderMarginPx || radius > g.outer + kRenderMarginPx) {
+        ix[x] = kOutside;
+        iy[x] = kOutside;
+        continue;
+      }
+      const double column = g.ColumnOfTheta(std::atan2(dy, dx));
+      const double row = std::clamp(g.RowOfRadius(radius), 0.0, static_cast<double>(g.height - 1));
+      ix[x] = static_cast<float>(column + 1.0);
+      iy[x] = static_cast<float>(row);
+    }
+  }
+
+  // Fixed-point maps (1/32 pixel; OpenCV's fastest remap path): map_x_ holds the integer
+  // positions (CV_16SC2), map_y_ the interpolation table indices (CV_16UC1).
+  cv::Mat fixed_xy, fixed_table;
+  cv::convertMaps(map_x_, map_y_, fixed_xy, fixed_table, CV_16SC2);
+  map_x_ = fixed_xy;
+  map_y_ = fixed_table;
+  cv::convertMaps(inv_map_x_, inv_map_y_, fixed_xy, fixed_table, CV_16SC2);
+  inv_map_x_ = fixed_xy;
+  inv_map_y_ = fixed_table;
+}
+
+cv::Mat OmniUnwrapper::Unwrap(const cv::Mat& raw) const {
+  if (raw.empty()) throw Error("Unwrap: the raw image is empty");
+  if (raw.cols != image_width_ || raw.rows != image_height_) {
+    throw Error(StrCat("Unwrap: raw image is ", raw.cols, "x", raw.rows,
+                       " but the unwrapper was made for ", image_width_, "x", image_height_));
+  }
+  if (raw.type() != CV_8UC1 && raw.type() != CV_8UC3) {
+    throw Error(StrCat("Unwrap: unsupported raw image type (", TypeName(raw),
+                       "); expected 8-bit grey or BGR"));
+  }
+  cv::Mat panorama;
+  cv::remap(raw, panorama, map_x_, map_y_, cv::INTER_LINEAR, cv::BORDER_REPLICATE);
+  return panorama;
+}
+
+cv::Mat OmniUnwrapper::Render(const cv::Mat& panorama, const cv::Scalar& background) const {
+  if (panorama.empty()) throw Error("Render: the panorama is empty");
+  if (panorama.channels() > 4)
+    throw Error(StrCat("Render: unsupported panorama (", TypeName(panorama), ")"));
+  const cv::Size size(calibration_.panorama_width, calibration_.panorama_height);
+  const cv::Mat resized = ResizePanorama(panorama, size);
+  cv::Mat padded;
+  cv::copyMakeBorder(resized, padded, 0, 0, 1, 1, cv::BORDER_WRAP);
+  // Only the ring's bounding box needs sampling; the rest is background.
+  cv::Mat raw(image_height_, image_width_, panorama.type(), background);
+  const double reach = calibration_.outer_radius_px + kRenderMarginPx;
+  const int x0 = std::max(0, static_cast<int>(std::floor(calibration_.center_x_px - reach)));
+  const int y0 = std::max(0, static_cast<int>(std::floor(calibration_.center_y_px - reach)));
+  const int x1 =
+      std::min(image_width_, static_cast<int>(std::ceil(calibration_.center_x_px + reach)) + 1);
+  const int y1 =
+      std::min(image_height_, static_cast<int>(std::ceil(calibration_.center_y_px + reach)) + 1);
+  const cv::Rect box(x0, y0, x1 - x0, y1 - y0);
+  cv::Mat raw_box = raw(box);
+  cv::remap(padded, raw_box, inv_map_x_(box), inv_map_y_(box), cv::INTER_LINEAR,
+            cv::BORDER_CONSTANT, background);
+  OMNICML_CHECK(raw_box.data == raw(box).data) << "remap reallocated its output";
+  return raw;
+}
+
+// ---------------------------------------------------------------------------------------
+// Auto-calibration
+
+namespace {
+
+// Edge points found along rays from a centre.
+struct RingEdges {
+  std::vector<cv::Point2d> inner;
+  std::vector<cv::Point2d> outer;
+};
+
+constexpr int kRays = 360;          // rays around the centre
+constexpr double kRayStepPx = 1.0;  // sample spacing along a ray
+// Samples either side of a threshold crossing searched for the gradient peak.
+constexpr int kRefineHalfWindow = 4;
+
+// Position (in samples, sub-sample) of the strongest gradient of sign `sign` within
+// [lo, hi] of profile p; parabolic refinement of the peak.
+double GradientPeak(const float* p, int n, int lo, int hi, double sign) {
+  lo = std::max(lo, 1);
+  hi = std::min(hi, n - 2);
+  int best = -1;
+  double best_value = 0.0;
+  for (int i = lo; i <= hi; ++i) {
+    const double g = sign * (p[i + 1] - p[i - 1]);
+    if (g > best_value) {
+      best_value = g;
+      best = i;
+    }
+  }
+  if (best < 0) return -1.0;
+  double offset = 0.0;
+  if (best - 1 >= 1 && best + 1 <= n - 2) {
+    const double gm = sign * (p[best] - p[best - 2]);
+    const double g0 = best_value;
+    const double gp = sign * (p[best + 2] - p[best]);
+    const double denom = gm - 2.0 * g0 + gp;
+    if (denom < 0.0) offset = std::clamp(0.5 * (gm - gp) / denom, -0.5, 0.5);
+  }
+  return best + offset;
+}
+
+// Casts kRays rays from `center` over the (float, smoothed) grey image. Along each ray the
+// inner edge is the first dark->bright crossing of `threshold` from the centre, the outer
+// edge the first dark->bright crossing coming in from the image border; each is refined
+// to the gradient peak nearby. Rays that start bright (centre not in the hole, or the ring
+// cut by the image border) give no point for that boundary.
+RingEdges FindRingEdges(const cv::Mat& grey, cv::Point2d center, double threshold) {
+  const double w = grey.cols - 1.0;
+  const double h = grey.rows - 1.0;
+  const double max_len =
+      std::max({std::hypot(center.x, center.y), std::hypot(w - center.x, center.y),
+                std::hypot(center.x, h - center.y), std::hypot(w - center.x, h - center.y)});
+  const int samples = static_cast<int>(std::ceil(max_len / kRayStepPx)) + 1;
+  cv::Mat map_x(kRays, samples, CV_32FC1), map_y(kRays, samples, CV_32FC1);
+  std::vector<int> valid(kRays, 0);
+  std::vector<double> cos_a(kRays), sin_a(kRays);
+  for (int k = 0; k < kRays; ++k) {
+    const double a = kTwoPi * k / kRays;
+    cos_a[k] = std::cos(a);
+    sin_a[k] = std::sin(a);
+    float* mx = map_x.ptr<float>(k);
+    float* my = map_y.ptr<float>(k);
+    int n = 0;
+    for (int i = 0; i < samples; ++i) {
+      const double x = center.x + i * kRayStepPx * cos_a[k];
+      const double y = center.y + i * kRayStepPx * sin_a[k];
+      mx[i] = static_cast<float>(x);
+      my[i] = static_cast<float>(y);
+      if (x >= 0.0 && x <= w && y >= 0.0 && y <= h && n == i) n = i + 1;
+    }
+    valid[k] = n;
+  }
+  cv::Mat profiles;
+  cv::remap(grey, profiles, map_x, map_y, cv::INTER_LINEAR, cv::BORDER_REPLICATE);
+
+  RingEdges edges;
+  for (int k = 0; k < kRays; ++k) {
+    const float* p = profiles.ptr<float>(k);
+    const int n = valid[k];
+    if (n < 8) continue;
+    // Inner boundary: from the centre outwards.
+    int inner_cross = -1;
+    if (p[0] < threshold) {
+      for (int i = 1; i < n; ++i) {
+        if (p[i] >= threshold) {
+          inner_cross = i;
+          break;
+        }
+      }
+    }
+    // Outer boundary: from the image border inwards.
+    int outer_cross = -1;
+    if (p[n - 1] < threshold) {
+      for (int i = n - 2; i >= 0; --i) {
+        if (p[i] >= threshold) {
+          outer_cross = i;
+          break;
+        }
+      }
+    }
+    auto add = [&](std::vector<cv::Point2d>& out, double s) {
+      if (s < 0.0) return;
+      const double t = s * kRayStepPx;
+      out.emplace_back(center.x + t * cos_a[k], center.y + t * sin_a[k]);
+    };
+    if (inner_cross > 0 && outer_cross > inner_cross) {
+      add(edges.inner, GradientPeak(p, n, inner_cross - kRefineHalfWindow,
+                                    inner_cross + kRefineHalfWindow, +1.0));
+    }
+    if (outer_cross > 0 && outer_cross > inner_cross) {
+      add(edges.outer, GradientPeak(p, n, outer_cross - kRefineHalfWindow,
+                                    outer_cross + kRefineHalfWindow, -1.0));
+    }
+  }
+  return edges;
+}
+
+double MedianDistance(const std::vector<cv::Point2d>& points, cv::Point2d center) {
+  std::vector<double> d;
+  d.reserve(points.size());
+  for (const cv::Point2d& p : points) d.push_back(std::hypot(p.x - center.x, p.y - center.y));
+  std::nth_element(d.begin(), d.begin() + static_cast<std::ptrdiff_t>(d.size() / 2), d.end());
+  return d[d.size() / 2];
+}
+
+std::vector<cv::Point2d> Inliers(const std::vector<cv::Point2d>& points,
+                                 const std::vector<char>& is_inlier) {
+  std::vector<cv::Point2d> out;
+  for (std::size_t i = 0; i < points.size(); ++i) {
+    if (is_inlier[i]) out.push_back(points[i]);
+  }
+  return out;
+}
+
+constexpr int kMinEdgePoints = 24;    // per boundary
+constexpr double kLossScalePx = 1.0;  // robust loss scale
+constexpr double kMinInlierThresholdPx = 2.0;
+
+}  // namespace
+
+AutoCalibrationResult AutoCalibrate(const cv::Mat& raw, const OmniCalibration& initial) {
+  if (raw.empty()) throw Error("AutoCalibrate: the image is empty");
+  if (raw.cols < 16 || raw.rows < 16) {
+    throw Error(StrCat("AutoCalibrate: image of ", raw.cols, "x", raw.rows,
+                       " is too small to hold a ring"));
+  }
+  if (raw.depth() != CV_8U || (raw.channels() != 1 && raw.channels() != 3)) {
+    throw Error(StrCat("AutoCalibrate: unsupported image (", TypeName(raw),
+                       "); expected 8-bit grey or BGR"));
+  }
+  initial.Validate();
+
+  // Smoothed grey copy (never blur `raw` in place: a grey input shares its pixels).
+  cv::Mat grey_in;
+  if (raw.channels() == 3) {
+    cv::cvtColor(raw, grey_in, cv::COLOR_BGR2GRAY);
+  } else {
+    grey_in = raw;
+  }
+  cv::Mat grey8;
+  cv::GaussianBlur(grey_in, grey8, cv::Size(0, 0), 1.5);
+
+  // Two classes (dark: outside and hole; bright: the ring) by Otsu; the crossing threshold
+  // sits a third of the way from the dark level to the ring level, so dark texture inside
+  // the ring rarely reaches it.
+  cv::Mat mask;
+  const double otsu = cv::threshold(grey8, mask, 0, 255, cv::THRESH_BINARY | cv::THRESH_OTSU);
+  cv::Mat inverse_mask = 255 - mask;
+  const auto median_of = [&](const cv::Mat& m) {
+    cv::Mat hist;
+    const int channels[] = {0};
+    const int bins[] = {256};
+    const float range[] = {0.f, 256.f};
+    const float* ranges[] = {range};
+    cv::calcHist(&grey8, 1, channels, m, hist, 1, bins, ranges);
+    const double total = cv::sum(hist)[0];
+    if (total < 1.0) return std::nan("");  // empty class: a uniform image
+    double acc = 0.0;
+    for (int i = 0; i < 256; ++i) {
+      acc += hist.at<float>(i);
+      if (acc >= 0.5 * total) return static_cast<double>(i);
+    }
+    return 255.0;
+  };
+  const double dark = median_of(inverse_mask);
+  const double bright = median_of(mask);
+  if (!(bright - dark >= 10.0)) {
+    throw Error(
+        StrCat("AutoCalibrate: no ring found (no contrast between ring and background: levels ",
+               dark, " and ", bright, ", Otsu threshold ", otsu, ")"));
+  }
+  const double threshold = dark + (bright - dark) / 3.0;
+
+  // Coarse centre: centroid of the bright region.
+  cv::threshold(grey8, mask, threshold, 255, cv::THRESH_BINARY);
+  const cv::Moments m = cv::moments(mask, true);
+  if (m.m00 < 1.0) throw Error("AutoCalibrate: no ring found (no bright region)");
+  cv::Point2d center(m.m10 / m.m00, m.m01 / m.m00);
+
+  cv::Mat grey;
+  grey8.convertTo(grey, CV_32F);
+
+  // Two rounds: edges from the coarse centre, robust fits per boundary; then edges again
+  // from the fitted centre (the inner search needs a centre inside the hole).
+  internal::CircleFitReport inner_fit, outer_fit;
+  RingEdges edges;
+  for (int round = 0; round < 2; ++round) {
+    edges = FindRingEdges(grey, center, threshold);
+    if (static_cast<int>(edges.outer.size()) < kMinEdgePoints) {
+      throw Error(StrCat("AutoCalibrate: no ring found (only ", edges.outer.size(),
+                         " outer edge points; is the background outside the ring dark?)"));
+    }
+    outer_fit = internal::FitConcentricCircles(
+        {edges.outer}, {center, {MedianDistance(edges.outer, center)}},
+        internal::RobustLoss::kCauchy, kLossScalePx, kMinInlierThresholdPx);
+    center = outer_fit.circles.center_px;
+  }
+  if (static_cast<int>(edges.inner.size()) < kMinEdgePoints) {
+    throw Error(StrCat("AutoCalibrate: no ring found (only ", edges.inner.size(),
+                       " inner edge points; is the hole inside the ring dark?)"));
+  }
+  inner_fit = internal::FitConcentricCircles(
+      {edges.inner}, {center, {MedianDistance(edges.inner, center)}}, internal::RobustLoss::kCauchy,
+      kLossScalePx, kMinInlierThresholdPx);
+
+  // Joint concentric fit on the inliers of both boundaries (Huber loss).
+  const std::vector<cv::Point2d> inner_in = Inliers(edges.inner, inner_fit.is_inlier[0]);
+  const std::vector<cv::Point2d> outer_in = Inliers(edges.outer, outer_fit.is_inlier[0]);
+  if (static_cast<int>(inner_in.size()) < kMinEdgePoints ||
+      static_cast<int>(outer_in.size()) < kMinEdgePoints) {
+    throw Error(StrCat("AutoCalibrate: no ring found (", inner_in.size(), " inner and ",
+                       outer_in.size(), " outer edge points agree with a circle)"));
+  }
+  const internal::CircleFitReport joint = internal::FitConcentricCircles(
+      {inner_in, outer_in},
+      {outer_fit.circles.center_px, {inner_fit.circles.radii_px[0], outer_fit.circles.radii_px[0]}},
+      internal::RobustLoss::kHuber, kLossScalePx, kMinInlierThresholdPx);
+
+  AutoCalibrationResult result;
+  result.calibration = initial;
+  result.calibration.center_x_px = joint.circles.center_px.x;
+  result.calibration.center_y_px = joint.circles.center_px.y;
+  result.calibration.inner_radius_px = joint.circles.radii_px[0];
+  result.calibration.outer_radius_px = joint.circles.radii_px[1];
+  result.inner_residual_px = joint.rms_px[0];
+  result.outer_residual_px = joint.rms_px[1];
+  result.inner_inliers = joint.inliers[0];
+  result.outer_inliers = joint.inliers[1];
+  if (!(result.calibration.inner_radius_px > 0.0) ||
+      !(result.calibration.outer_radius_px > result.calibration.inner_radius_px)) {
+    throw Error(StrCat("AutoCalibrate: no ring found (fitted radii ",
+                       result.calibration.inner_radius_px, " and ",
+                       result.calibration.outer_radius_px, " px are inconsistent)"));
+  }
+  return result;
+}
+
+// ---------------------------------------------------------------------------------------
+// Images
+
+cv::Mat PreparePanorama(const cv::Mat& panorama, int width, int height) {
+  if (panorama.empty()) throw Error("PreparePanorama: the panorama is empty");
+  if (panorama.cols <= 1 && panorama.rows <= 1) {
+    throw Error(StrCat("PreparePanorama: the panorama is ", panorama.cols, "x", panorama.rows,
+                       " (too small)"));
+  }
+  if (width < 0 || height < 0) {
+    throw Error(StrCat("PreparePanorama: requested size ", width, "x", height, " is negative"));
+  }
+  if (width == 0 || height == 0 || (width == panorama.cols && height == panorama.rows))
+    return panorama;
+  return ResizePanorama(panorama, cv::Size(width, height));
+}
+
+cv::Mat ReadImage(const std::string& path) {
+  std::error_code ec;
+  if (!fs::exists(path, ec)) throw Error(StrCat("image file '", path, "' does not exist"));
+  if (!fs::is_regular_file(path, ec))
+    throw Error(StrCat("image file '", path, "' is not a regular file"));
+  if (fs::file_size(path, ec) == 0)
+    throw Error(StrCat("image file '", path, "' is empty (0 bytes)"));
+  cv::Mat image;
+  try {
+    image = cv::imread(path, cv::IMREAD_UNCHANGED);
+  } catch (const cv::Exception& e) {
+    throw Error(StrCat("image file '", path, "' is unreadable: ", e.what()));
+  }
+  if (image.empty()) {
+    throw Error(
+        StrCat("image file '", path, "' is unreadable (not an image or an unsupported format)"));
+  }
+  if (image.cols <= 1 && image.rows <= 1) {
+    throw Error(StrCat("image file '", path, "' is ", image.cols, "x", image.rows,
+                       " (too small to be an image)"));
+  }
+  const int channels = image.channels();
+  if (channels != 1 && channels != 3 && channels != 4) {
+    throw Error(StrCat("image file '", path, "' has ", channels, " channels (expected 1, 3 or 4)"));
+  }
+  if (image.depth() == CV_16U) {
+    image.convertTo(image, CV_8U, 255.0 / 65535.0);
+  } else if (image.depth() != CV_8U) {
+    throw Error(StrCat("image file '", path, "' has unsupported pixel depth ",
+                       cv::depthToString(image.depth()), " (expected 8 or 16 bit)"));
+  }
+  if (channels == 4) cv::cvtColor(image, image, cv::COLOR_BGRA2BGR);
+  return image;
+}
+
+void WriteImage(const std::string& path, const cv::Mat& image) {
+  if (image.empty()) throw Error(StrCat("cannot write image '", path, "': the image is empty"));
+  const fs::path target(path);
+  if (target.extension().empty()) {
+    throw Error(StrCat("cannot write image '", path, "': no file extension to choose the format"));
+  }
+  const fs::path temp = TemporaryPathFor(target);
+  bool ok = false;
+  std::string reason;
+  try {
+    ok = cv::imwrite(temp.string(), image);
+  } catch (const cv::Exception& e) {
+    reason = StrCat(": ", e.what());
+  }
+  if (!ok) {
+    std::error_code ec;
+    fs::remove(temp, ec);
+    throw Error(StrCat(
+        "cannot write image '", path, "' (", TypeName(image), ")",
+        reason.empty() ? " (missing directory, no permission or unsupported format)" : reason));
+  }
+  RenameOrThrow(temp, target);
+}
+
+}  // namespace omnicml

@@ -1,0 +1,406 @@
+// Tests of the [UN] topological localizer: unanimous voting on crafted votes, the
+// Jeffrey-divergence nearest neighbour on rendered places, the belief, adjacency maps
+// (YAML errors, places from a route) and a short simulated cross-day test.
+#include "omnicml/baselines/topo/topological.h"
+
+#include <unistd.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <set>
+#include <string>
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include "omnicml/common/common.h"
+#include "omnicml/logs/log_format.h"
+#include "omnicml/sim/renderer.h"
+#include "omnicml/sim/simulator.h"
+#include "omnicml/sim/world.h"
+
+namespace omnicml {
+namespace {
+
+using ::testing::HasSubstr;
+
+BandVotes UniformVotes(int place, double confidence) {
+  BandVotes v;
+  for (auto& b : v) {
+    b.place = place;
+    b.reference = 0;
+    b.confidence = confidence;
+  }
+  return v;
+}
+
+// Message of the omnicml::Error thrown by f, or "" if none.
+template <typename F>
+std::string ErrorOf(F&& f) {
+  try {
+    f();
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return "";
+}
+
+// All confident bands name the same place: confident, overall confidence = their sum.
+TEST(TopologicalVote, UnanimousConfidentBandsGiveConfident) {
+  const TopologicalOptions options;
+  const PlaceDecision d = Vote(UniformVotes(2, 0.3), options);
+  EXPECT_EQ(d.state, PlaceState::kConfident);
+  EXPECT_EQ(d.place, 2);
+  EXPECT_EQ(d.voting_bands, 6);
+  EXPECT_NEAR(d.confidence, 1.8, 1e-12);
+}
+
+// Confident bands that disagree leave the robot confused.
+TEST(TopologicalVote, DisagreeingConfidentBandsGiveConfused) {
+  const TopologicalOptions options;
+  BandVotes v = UniformVotes(1, 0.3);
+  v[4].place = 2;
+  v[4].confidence = 0.2;
+  const PlaceDecision d = Vote(v, options);
+  EXPECT_EQ(d.state, PlaceState::kConfused);
+  EXPECT_EQ(d.place, -1);
+  // A disagreeing band below its threshold does not vote: unanimous again.
+  v[4].confidence = 0.01;
+  EXPECT_EQ(Vote(v, options).state, PlaceState::kConfident);
+  EXPECT_EQ(Vote(v, options).place, 1);
+}
+
+// No band reaches its threshold: uncertain.
+TEST(TopologicalVote, NoConfidentBandGivesUncertain) {
+  const TopologicalOptions options;
+  const PlaceDecision d = Vote(UniformVotes(0, 0.04), options);
+  EXPECT_EQ(d.state, PlaceState::kUncertain);
+  EXPECT_EQ(d.voting_bands, 0);
+  BandVotes none;  // no reference images at all
+  EXPECT_EQ(Vote(none, options).state, PlaceState::kUncertain);
+}
+
+// Unanimous but below the action threshold (0.1): uncertain; at or above: confident.
+TEST(TopologicalVote, ActionThreshold) {
+  TopologicalOptions options;
+  EXPECT_DOUBLE_EQ(options.action_threshold, 0.1);
+  BandVotes v = UniformVotes(3, 0.0);
+  v[1].confidence = 0.06;  // the only voting band
+  PlaceDecision d = Vote(v, options);
+  EXPECT_EQ(d.state, PlaceState::kUncertain);
+  EXPECT_EQ(d.place, 3);
+  EXPECT_EQ(d.voting_bands, 1);
+  v[2].confidence = 0.06;  // two bands: 0.12 >= 0.1
+  d = Vote(v, options);
+  EXPECT_EQ(d.state, PlaceState::kConfident);
+  options.action_threshold = 0.2;
+  EXPECT_EQ(Vote(v, options).state, PlaceState::kUncertain);
+  // Band thresholds are per band.
+  options.action_threshold = 0.1;
+  options.band_threshold[2] = 0.5;
+  EXPECT_EQ(Vote(v, options).state, PlaceState::kUncertain);
+}
+
+TEST(TopologicalOptions, ValidateNamesTheField) {
+  TopologicalOptions o;
+  o.band_threshold[3] = 1.5;
+  EXPECT_THAT(ErrorOf([&] { o.Validate(); }), HasSubstr("band_threshold[3]"));
+  o = {};
+  o.action_threshold = -1;
+  EXPECT_THAT(ErrorOf([&] { o.Validate(); }), HasSubstr("action_threshold"));
+  o = {};
+  o.histogram.bins = 1;
+  EXPECT_THAT(ErrorOf([&] { o.Validate(); }), HasSubstr("bins"));
+}
+
+// Three places in a row a - b - c.
+AdjacencyMap LineMap() {
+  std::vector<Place> places(3);
+  for (int i = 0; i < 3; ++i) {
+    places[i].name = std::string(1, static_cast<char>('a' + i));
+    places[i].center_m = Eigen::Vector2d(2.0 * i, 0.0);
+  }
+  places[0].neighbours = {1};
+  places[2].neighbours = {1};
+  return AdjacencyMap(places);
+}
+
+// A colour-histogram descriptor whose every band puts the given weights on bins 2, 12, 22.
+Descriptor Crafted(double w0, double w1, double w2, int bins = 32) {
+  Descriptor d;
+  d.kind = DescriptorKind::kColorHistogram;
+  d.features.assign(ColorHistogram::kBands * bins, 0.001f);
+  for (int b = 0; b < ColorHistogram::kBands; ++b) {
+    d.features[b * bins + 2] += static_cast<float>(w0);
+    d.features[b * bins + 12] += static_cast<float>(w1);
+    d.features[b * bins + 22] += static_cast<float>(w2);
+  }
+  return d;
+}
+
+// The belief follows confident answers only and stays at the last confident place
+// through uncertain and confused frames; candidates are the place and its neighbours.
+TEST(TopologicalLocalizer, BeliefStaysAtLastConfidentPlace) {
+  const AdjacencyMap map = LineMap();
+  EXPECT_TRUE(map.AreNeighbours(1, 0));  // made symmetric
+  TopologicalLocalizer loc(map);
+  loc.AddReference(0, Crafted(1, 0, 0));
+  loc.AddReference(1, Crafted(0, 1, 0));
+  loc.AddReference(2, Crafted(0, 0, 1));
+  loc.Reset();
+  EXPECT_EQ(loc.believed_place(), -1);
+  EXPECT_EQ(loc.CandidatePlaces(), (std::vector<int>{0, 1, 2}));
+
+  PlaceDecision d = loc.Localize(Crafted(0.05, 1, 0));
+  EXPECT_EQ(d.state, PlaceState::kConfident);
+  EXPECT_EQ(d.place, 1);
+  EXPECT_EQ(loc.believed_place(), 1);
+
+  // Half place a, half place c: a tie between a and c in every band -> uncertain.
+  d = loc.Localize(Crafted(0.5, 0, 0.5));
+  EXPECT_EQ(d.state, PlaceState::kUncertain);
+  EXPECT_EQ(loc.believed_place(), 1);
+
+  // Bands 0-2 look like a, bands 3-5 like c -> confused.
+  Descriptor mixed = Crafted(1, 0, 0);
+  const Descriptor c = Crafted(0, 0, 1);
+  std::copy(c.features.begin() + 3 * 32, c.features.end(), mixed.features.begin() + 3 * 32);
+  d = loc.Localize(mixed);
+  EXPECT_EQ(d.state, PlaceState::kConfused);
+  EXPECT_EQ(loc.believed_place(), 1);
+
+  d = loc.Localize(Crafted(0, 0, 1));
+  EXPECT_EQ(d.state, PlaceState::kConfident);
+  EXPECT_EQ(loc.believed_place(), 2);
+  EXPECT_EQ(loc.CandidatePlaces(), (std::vector<int>{1, 2}));
+  // Place a is not a neighbour of c: an image of a now matches b or c, never a.
+  d = loc.Localize(Crafted(1, 0, 0));
+  for (const BandVote& v : d.bands) EXPECT_NE(v.place, 0);
+}
+
+// Only with global_search_after_frames > 0 does a robot whose belief is wrong compare with
+// all places again, after that many non-confident frames.
+TEST(TopologicalLocalizer, GlobalSearchAfterNonConfidentFrames) {
+  for (int after : {0, 2}) {
+    TopologicalOptions options;
+    options.global_search_after_frames = after;
+    TopologicalLocalizer loc(LineMap(), options);
+    loc.AddReference(0, Crafted(1, 0, 0));
+    loc.AddReference(1, Crafted(0, 1, 0));
+    loc.AddReference(2, Crafted(0, 0, 1));
+    loc.Reset(2);
+    EXPECT_EQ(loc.believed_place(), 2);
+    // An image of a, while believed at c: b and c tie -> uncertain.
+    EXPECT_EQ(loc.Localize(Crafted(1, 0.05, 0.05)).state, PlaceState::kUncertain);
+    EXPECT_EQ(loc.Localize(Crafted(1, 0.05, 0.05)).state, PlaceState::kUncertain);
+    const PlaceDecision d = loc.Localize(Crafted(1, 0.05, 0.05));
+    if (after == 0) {
+      EXPECT_EQ(d.state, PlaceState::kUncertain);
+      EXPECT_EQ(loc.believed_place(), 2);
+    } else {
+      EXPECT_EQ(d.state, PlaceState::kConfident);
+      EXPECT_EQ(loc.believed_place(), 0);
+      EXPECT_EQ(loc.CandidatePlaces(), (std::vector<int>{0, 1}));
+    }
+  }
+}
+
+// Per band, the Jeffrey-divergence nearest neighbour picks the place the query was
+// rendered at, between two distinct places of home_store (query 0.3 m away, turned).
+TEST(TopologicalLocalizer, JeffreyNearestNeighbourPicksRenderedPlace) {
+  const World world = LoadBuiltinWorld("home_store");
+  Renderer renderer(world);
+  const RoutePath route(world.route.waypoints_m, world.route.turn_radius_m);
+  const double s_a = 6.0, s_b = 30.0;
+  std::vector<Place> places(2);
+  places[0].name = "A";
+  places[0].center_m = route.PoseAt(s_a).head<2>();
+  places[1].name = "B";
+  places[1].center_m = route.PoseAt(s_b).head<2>();
+  places[0].neighbours = {1};
+  TopologicalOptions options;
+  ASSERT_EQ(options.histogram.distance, HistogramDistance::kJeffrey);
+  TopologicalLocalizer loc(AdjacencyMap(places), options);
+  loc.AddReference(0, loc.Describe(renderer.RenderPanorama(route.PoseAt(s_a))));
+  loc.AddReference(1, loc.Describe(renderer.RenderPanorama(route.PoseAt(s_b))));
+  for (int truth = 0; truth < 2; ++truth) {
+    Pose2 pose = route.PoseAt((truth == 0 ? s_a : s_b) + 0.3);
+    pose.z() = WrapAngle(pose.z() + 1.0);
+    const BandVotes votes = loc.ClassifyBands(loc.Describe(renderer.RenderPanorama(pose)), {0, 1});
+    for (int b = 0; b < ColorHistogram::kBands; ++b) {
+      EXPECT_EQ(votes[b].place, truth) << "band " << b;
+      EXPECT_GT(votes[b].confidence, 0.0) << "band " << b;
+      EXPECT_LT(votes[b].distance_nn, votes[b].distance_other) << "band " << b;
+    }
+    EXPECT_EQ(Vote(votes, options).state, PlaceState::kConfident);
+  }
+}
+
+// Unknown keys and bad values are errors naming the file, the line and the key.
+TEST(AdjacencyMap, YamlErrorsNameFileAndKey) {
+  const std::string ok =
+      "places:\n"
+      "  - {name: dock, center_m: [1, 1], neighbours: [aisle]}\n"
+      "  - {name: aisle, polygon_m: [[2, 0], [4, 0], [4, 2], [2, 2]]}\n"
+      "  - {name: back, route_interval_m: [10, 20], neighbours: [aisle]}\n";
+  const AdjacencyMap map = ParseAdjacencyMap(ok, "places.yaml");
+  ASSERT_EQ(map.size(), 3);
+  EXPECT_TRUE(map.AreNeighbours(1, 0));
+  EXPECT_TRUE(map.AreNeighbours(1, 2));
+  EXPECT_FALSE(map.AreNeighbours(0, 2));
+  EXPECT_EQ(map.PlaceAt(Eigen::Vector2d(3, 1), nullptr), 1);  // inside the polygon
+  EXPECT_THAT(ErrorOf([&] { map.PlaceAt(Eigen::Vector2d(9, 9)); }), HasSubstr("route"));
+
+  EXPECT_THAT(ErrorOf([] {
+                ParseAdjacencyMap("places:\n  - name: a\n    center_m: [0, 0]\n    colour: red\n",
+                                  "places.yaml");
+              }),
+              HasSubstr("places.yaml:4: places[0].colour: unknown key"));
+  EXPECT_THAT(ErrorOf([] { ParseAdjacencyMap("places: []\nscale: 2\n", "m.yaml"); }),
+              HasSubstr("m.yaml:2: scale: unknown key"));
+  EXPECT_THAT(ErrorOf([] {
+                ParseAdjacencyMap("places:\n  - {name: a, center_m: [0, 0], neighbours: [zz]}\n",
+                                  "p.yaml");
+              }),
+              HasSubstr("p.yaml:2: places[0].neighbours: unknown place 'zz'"));
+  EXPECT_THAT(ErrorOf([] { ParseAdjacencyMap("places:\n  - {name: a}\n", "p.yaml"); }),
+              HasSubstr("p.yaml:2: places[0].center_m|polygon_m|route_interval_m"));
+  EXPECT_THAT(
+      ErrorOf([] { ParseAdjacencyMap("places:\n  - {name: a, center_m: [0, x]}\n", "p.yaml"); }),
+      HasSubstr("p.yaml:2: places[0].center_m"));
+  EXPECT_THAT(ErrorOf([] { ParseAdjacencyMap("places: [\n", "p.yaml"); }), HasSubstr("p.yaml:"));
+  EXPECT_THAT(ErrorOf([] { LoadAdjacencyMap("/nonexistent/places.yaml"); }),
+              HasSubstr("/nonexistent/places.yaml"));
+
+  // Written and read back: the same map.
+  const AdjacencyMap again = ParseAdjacencyMap(AdjacencyMapYaml(map), "again.yaml");
+  ASSERT_EQ(again.size(), 3);
+  for (int i = 0; i < 3; ++i) {
+    EXPECT_EQ(again.places()[i].name, map.places()[i].name);
+    EXPECT_EQ(again.places()[i].neighbours, map.places()[i].neighbours);
+    EXPECT_EQ(again.places()[i].region, map.places()[i].region);
+  }
+}
+
+// Places from a route: spaced about place_length_m apart, every route point in a place,
+// consecutive places neighbours; the institute's corridor driven up and down shares places.
+TEST(AdjacencyMap, PlacesFromRouteShareStretchesDrivenTwice) {
+  const World world = LoadBuiltinWorld("institute");
+  const RoutePath route(world.route.waypoints_m, world.route.turn_radius_m);
+  const AdjacencyMap map = PlacesFromRoute(route, 2.0);
+  EXPECT_GT(map.size(), 5);
+  EXPECT_LT(map.size(), static_cast<int>(route.length_m() / 2.0));  // fewer than a split by length
+  int previous = map.PlaceAt(route.PoseAt(0).head<2>());
+  for (double s = 0.1; s < route.length_m(); s += 0.1) {
+    const int p = map.PlaceAt(route.PoseAt(s).head<2>());
+    ASSERT_GE(p, 0);
+    if (p != previous) {
+      EXPECT_TRUE(map.AreNeighbours(previous, p)) << "s=" << s;
+    }
+    previous = p;
+  }
+  // Up the corridor at x = 4.6 and down at x = 5.4: the same place.
+  EXPECT_EQ(map.PlaceAt(Eigen::Vector2d(4.6, 3.0)), map.PlaceAt(Eigen::Vector2d(5.4, 3.0)));
+  EXPECT_THAT(ErrorOf([&] { PlacesFromRoute(route, 0.0); }), HasSubstr("place_length_m"));
+}
+
+// A short cross-day test on the simulated home_store (train on day 1, test on day 2):
+// most confident answers are right and the belief is mostly right.
+TEST(TopologicalLocalizer, SimulatedCrossDayMostlyCorrect) {
+  SimulatorOptions sim;
+  sim.world = "home_store";
+  sim.days = 2;
+  sim.frames_per_day = 200;
+  sim.seed = 3;
+  sim.step_m = 0.3;
+  sim.output = ImageKind::kPanorama;
+  SimulatedFrameSource source(sim);
+  const AdjacencyMap map = PlacesFromRoute(source.route(), 3.0);
+  TopologicalLocalizer loc(map);
+  CrossSequenceOptions cross;
+  cross.train_session = 0;
+  cross.test_session = 1;
+  const CrossSequenceResult r = RunCrossSequence(&source, &loc, cross, &source.route());
+  const TopologicalCounts& c = r.counts;
+  ASSERT_EQ(c.frames, 200);
+  EXPECT_EQ(c.confident_correct + c.confident_wrong + c.uncertain + c.confused, c.frames);
+  const double confident = static_cast<double>(c.confident_correct + c.confident_wrong);
+  std::cout << TopologicalSummaryTable(c, "home_store day 1 -> day 2");
+  ASSERT_GT(confident, 0.5 * c.frames);
+  EXPECT_GT(c.confident_correct / confident, 0.85);
+  EXPECT_GT(static_cast<double>(c.belief_correct) / c.frames, 0.7);
+}
+
+// The cross-sequence test over a written log of raw ring images (unwrapped with the
+// session's calibration), areas as polygon places: deterministic, mostly right, and bad
+// session indices are errors.
+TEST(TopologicalLocalizer, CrossSequenceOverRawRingLog) {
+  namespace fs = std::filesystem;
+  const fs::path dir =
+      fs::temp_directory_path() / ("omnicml_topo_test_log_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  {
+    SimulatorOptions sim;
+    sim.world = "home_store";
+    sim.days = 2;
+    sim.frames_per_day = 60;
+    sim.step_m = 0.95;
+    sim.seed = 5;
+    sim.output = ImageKind::kRawRing;
+    SimulatedFrameSource source(sim);
+    LogWriter writer(dir.string());
+    Frame f;
+    int session = -1;
+    while (source.Next(&f)) {
+      if (f.session_index != session)
+        writer.BeginSession(source.Session(session = f.session_index));
+      writer.Write(f);
+    }
+    writer.Finish();
+  }
+  const AdjacencyMap map = ParseAdjacencyMap(
+      "places:\n"
+      "  - {name: west_end, polygon_m: [[0, 0], [2.8, 0], [2.8, 6.2], [0, 6.2]], neighbours: "
+      "[front_west, middle_west]}\n"
+      "  - {name: front_west, polygon_m: [[2.8, 0], [12.5, 0], [12.5, 2.4], [2.8, 2.4]], "
+      "neighbours: [front_east]}\n"
+      "  - {name: front_east, polygon_m: [[12.5, 0], [21.5, 0], [21.5, 2.4], [12.5, 2.4]], "
+      "neighbours: [east_end]}\n"
+      "  - {name: east_end, polygon_m: [[21.5, 0], [25, 0], [25, 10], [21.5, 10]], neighbours: "
+      "[back_east]}\n"
+      "  - {name: back_east, polygon_m: [[11.5, 7.6], [21.5, 7.6], [21.5, 10], [11.5, 10]], "
+      "neighbours: [cross_aisle]}\n"
+      "  - {name: cross_aisle, polygon_m: [[11.5, 2.4], [13.5, 2.4], [13.5, 7.6], [11.5, 7.6]], "
+      "neighbours: [middle_west]}\n"
+      "  - {name: middle_west, polygon_m: [[2.8, 2.4], [11.5, 2.4], [11.5, 6.4], [2.8, 6.4]]}\n",
+      "home_store_areas.yaml");
+  CrossSequenceOptions cross;
+  cross.train_session = 0;
+  cross.test_session = 1;
+  std::vector<CrossSequenceResult> runs;
+  for (int run = 0; run < 2; ++run) {
+    LogReader reader(dir.string());
+    TopologicalLocalizer loc(map);
+    runs.push_back(RunCrossSequence(&reader, &loc, cross));
+  }
+  const TopologicalCounts& c = runs[0].counts;
+  std::cout << TopologicalSummaryTable(c, "home_store areas, raw ring log, day 1 -> day 2");
+  ASSERT_EQ(c.frames, 60);
+  EXPECT_EQ(runs[0].places_with_references, 7);
+  EXPECT_GT(c.confident_correct, 0.6 * c.frames);
+  EXPECT_LE(c.confident_wrong, 0.05 * c.frames);
+  ASSERT_EQ(runs[1].frames.size(), runs[0].frames.size());
+  for (std::size_t i = 0; i < runs[0].frames.size(); ++i) {
+    EXPECT_EQ(runs[1].frames[i].decision.state, runs[0].frames[i].decision.state);
+    EXPECT_EQ(runs[1].frames[i].decision.confidence, runs[0].frames[i].decision.confidence);
+  }
+  cross.test_session = 2;
+  LogReader reader(dir.string());
+  TopologicalLocalizer loc(map);
+  EXPECT_THAT(ErrorOf([&] { RunCrossSequence(&reader, &loc, cross); }), HasSubstr("the log has 2"));
+  fs::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace omnicml

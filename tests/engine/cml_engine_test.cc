@@ -1,0 +1,429 @@
+#include "omnicml/engine/cml_engine.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <random>
+#include <set>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "omnicml/common/common.h"
+#include "omnicml/engine/engine_io.h"
+#include "omnicml/unwrap/omni_unwrapper.h"
+
+namespace omnicml {
+// The room world and route helpers are shared with engine_io_test.cc (same test binary).
+namespace engine_testing {
+
+// ---- A tiny synthetic world: a textured rectangular room rendered as panoramas ------
+// (independent of the simulator so the engine's own tests stay small and fast).
+
+constexpr double kRoomX = 10.0, kRoomY = 8.0, kWallH = 2.5, kCamH = 1.0;
+
+double WallTexture(double s, double z) {
+  // Incommensurate stripes along the perimeter coordinate s (metres), varying with height.
+  return 128.0 + 45.0 * std::sin(2.0 * kPi * s / 3.7) + 30.0 * std::sin(2.0 * kPi * s / 1.13 + 1.7 * z) +
+         25.0 * std::sin(2.0 * kPi * s / 0.61 + 0.4) * (z > 1.2 ? 1.0 : -1.0);
+}
+
+// Panorama (W x H, CV_8UC1) seen at `pose` (panorama convention of omni_unwrapper.h).
+cv::Mat RenderRoom(const Pose2& pose, int width = 128, int height = 24) {
+  cv::Mat pano(height, width, CV_8UC1);
+  for (int c = 0; c < width; ++c) {
+    const double a = pose[2] + kTwoPi * c / width;
+    const double dx = std::cos(a), dy = std::sin(a);
+    double t = 1e9;
+    if (dx > 1e-12) t = std::min(t, (kRoomX - pose[0]) / dx);
+    if (dx < -1e-12) t = std::min(t, -pose[0] / dx);
+    if (dy > 1e-12) t = std::min(t, (kRoomY - pose[1]) / dy);
+    if (dy < -1e-12) t = std::min(t, -pose[1] / dy);
+    const double hx = pose[0] + t * dx, hy = pose[1] + t * dy;
+    // Perimeter coordinate, counter-clockwise from (0, 0).
+    double s;
+    if (hy < 1e-6) s = hx;
+    else if (hx > kRoomX - 1e-6) s = kRoomX + hy;
+    else if (hy > kRoomY - 1e-6) s = kRoomX + kRoomY + (kRoomX - hx);
+    else s = 2 * kRoomX + kRoomY + (kRoomY - hy);
+    for (int r = 0; r < height; ++r) {
+      const double elev = (35.0 - 70.0 * r / (height - 1)) * kPi / 180.0;
+      const double z = kCamH + t * std::tan(elev);
+      double v = z > kWallH ? 210.0 : (z < 0.0 ? 50.0 + 10.0 * std::sin(t) : WallTexture(s, z));
+      pano.at<std::uint8_t>(r, c) = cv::saturate_cast<std::uint8_t>(v);
+    }
+  }
+  return pano;
+}
+
+struct RouteFrame {
+  Pose2 truth;
+  Pose2 odom;
+};
+
+// Laps around a rectangle inside the room, `step_m` apart, odometry with seeded noise
+// (relative noise on translation and rotation, plus a small heading bias).
+std::vector<RouteFrame> MakeLaps(int laps, double step_m, std::uint32_t seed, int start_offset = 0) {
+  const std::vector<Eigen::Vector2d> corners = {{2.0, 2.0}, {8.0, 2.0}, {8.0, 6.0}, {2.0, 6.0}};
+  std::vector<Pose2> truth;
+  for (int lap = 0; lap < laps; ++lap) {
+    for (int k = 0; k < 4; ++k) {
+      const Eigen::Vector2d a = corners[k], b = corners[(k + 1) % 4];
+      const Eigen::Vector2d d = b - a;
+      const double heading = std::atan2(d.y(), d.x());
+      const int n = static_cast<int>(std::round(d.norm() / step_m));
+      for (int i = 0; i < n; ++i) {
+        const Eigen::Vector2d p = a + d * (static_cast<double>(i) / n);
+        truth.push_back(MakePose(p.x(), p.y(), heading));
+      }
+    }
+  }
+  std::rotate(truth.begin(), truth.begin() + start_offset, truth.end());
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> n01(0.0, 1.0);
+  std::vector<RouteFrame> frames(truth.size());
+  frames[0] = {truth[0], MakePose(0.0, 0.0, 0.0)};
+  for (std::size_t i = 1; i < truth.size(); ++i) {
+    Pose2 rel = Between(truth[i - 1], truth[i]);
+    const double dist = rel.head<2>().norm();
+    rel[0] *= 1.0 + 0.03 * n01(rng);
+    rel[1] += 0.02 * dist * n01(rng);
+    rel[2] = WrapAngle(rel[2] + 0.01 * dist + 0.02 * std::abs(rel[2]) * n01(rng));
+    frames[i] = {truth[i], Compose(frames[i - 1].odom, rel)};
+  }
+  return frames;
+}
+
+SessionInfo PanoramaSession(const std::string& name, SessionStartMode mode, const Pose2& start) {
+  SessionInfo info;
+  info.name = name;
+  info.camera.kind = ImageKind::kPanorama;
+  info.camera.image_width = 128;
+  info.camera.image_height = 24;
+  info.start.mode = mode;
+  info.start.map_T_robot = start;
+  info.start.covariance = Eigen::Vector3d(0.01, 0.01, 0.001).asDiagonal();
+  return info;
+}
+
+Frame MakeFrame(const RouteFrame& r, int session, std::int64_t index) {
+  Frame f;
+  f.session_index = session;
+  f.index_in_session = index;
+  f.global_index = index;
+  f.stamp_s = static_cast<double>(index);
+  f.image = RenderRoom(r.truth);
+  f.odom_T_robot = r.odom;
+  f.map_T_robot_truth = r.truth;
+  return f;
+}
+
+CmlEngineOptions TestOptions() {
+  CmlEngineOptions o;
+  o.update_delay_frames = 2;
+  // Descriptor distances in this small room are smaller than in the simulator's worlds.
+  o.model.e_max = 0.1;
+  return o;
+}
+
+// Position error of the point estimate (mean when unimodal, else the strongest component).
+double PositionError(const FrameResult& r, const Pose2& truth) {
+  const Gaussian& g = r.estimate->unimodal ? r.estimate->mean : r.estimate->strongest;
+  return PoseDifference(g.mean, truth).head<2>().norm();
+}
+
+// Bitwise comparison of two estimates.
+void ExpectSameEstimate(const FrameResult& a, const FrameResult& b) {
+  ASSERT_EQ(a.estimate.has_value(), b.estimate.has_value()) << "frame " << a.frame;
+  if (!a.estimate) return;
+  EXPECT_EQ(a.estimate->mean.mean, b.estimate->mean.mean) << "frame " << a.frame;
+  EXPECT_EQ(a.estimate->mean.covariance, b.estimate->mean.covariance) << "frame " << a.frame;
+  EXPECT_EQ(a.estimate->unimodal, b.estimate->unimodal) << "frame " << a.frame;
+  EXPECT_EQ(a.estimate->num_components, b.estimate->num_components) << "frame " << a.frame;
+}
+
+}  // namespace engine_testing
+
+namespace {
+using namespace engine_testing;
+
+// ---- tests ------------------------------------------------------------------------
+
+// Invalid options are rejected with the field's name.
+TEST(CmlEngineOptions, ValidateNamesField) {
+  // Expects Validate to throw an Error mentioning `field` after `change`.
+  const auto expect_named = [](const auto& change, const std::string& field) {
+    CmlEngineOptions o;
+    change(o);
+    try {
+      o.Validate();
+      ADD_FAILURE() << "no error for " << field;
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find(field), std::string::npos) << e.what();
+    }
+  };
+  const CmlEngineOptions defaults;
+  EXPECT_NO_THROW(defaults.Validate());
+  expect_named([](CmlEngineOptions& o) { o.update_delay_frames = 0; }, "update_delay_frames");
+  expect_named([](CmlEngineOptions& o) { o.model.e_max = -1.0; }, "model");
+  expect_named([](CmlEngineOptions& o) { o.panorama_width = 64; }, "panorama_width");
+  expect_named([](CmlEngineOptions& o) { o.hypothesis_weight_scale = 0.0; }, "hypothesis_weight_scale");
+  expect_named([](CmlEngineOptions& o) { o.appearance_sigma_m = -1.0; }, "appearance_sigma_m");
+  expect_named([](CmlEngineOptions& o) { o.anchor_max_sigma_m = -1.0; }, "anchor_max_sigma_m");
+  CmlEngineOptions bad_threads;
+  bad_threads.threads = 0;
+  EXPECT_THROW(CmlEngine{bad_threads}, Error);
+}
+
+// Frames before any session are refused.
+TEST(CmlEngine, ProcessFrameNeedsSession) {
+  CmlEngine engine(TestOptions());
+  const std::vector<RouteFrame> route = MakeLaps(1, 0.5, 1);
+  EXPECT_THROW(engine.ProcessFrame(MakeFrame(route[0], 0, 0)), Error);
+}
+
+// Known start pose on an empty map: the first estimate is the start pose; the first
+// update reaches the map exactly update_delay_frames frames later.
+TEST(CmlEngine, EmptyMapStartsAtKnownPoseAndDelaysUpdates) {
+  for (int delay : {1, 3}) {
+    CmlEngineOptions o = TestOptions();
+    o.update_delay_frames = delay;
+    CmlEngine engine(o);
+    const std::vector<RouteFrame> route = MakeLaps(1, 0.25, 2);
+    engine.BeginSession(PanoramaSession("d1", SessionStartMode::kKnownPose, route[0].truth));
+    for (int i = 0; i <= delay; ++i) {
+      const FrameResult r = engine.ProcessFrame(MakeFrame(route[i], 0, i));
+      ASSERT_TRUE(r.estimate.has_value());
+      if (i == 0) {
+        EXPECT_LT(PoseDifference(r.estimate->mean.mean, route[0].truth).norm(), 1e-9);
+        EXPECT_TRUE(r.estimate->unimodal);
+      }
+      // Invisible at t + delay - 1, visible at t + delay (t = 0).
+      if (i < delay) {
+        EXPECT_EQ(r.stats.num_views, 0u) << "delay " << delay << " frame " << i;
+      } else {
+        EXPECT_GE(r.stats.num_views, 1u) << "delay " << delay << " frame " << i;
+      }
+    }
+  }
+}
+
+// A global start with an empty map falls back to the configured initial pose.
+TEST(CmlEngine, GlobalStartOnEmptyMapUsesInitialPose) {
+  CmlEngineOptions o = TestOptions();
+  o.initial_pose = MakePose(1.0, 2.0, 0.5);
+  CmlEngine engine(o);
+  engine.BeginSession(PanoramaSession("d1", SessionStartMode::kGlobal, Pose2::Zero()));
+  const std::vector<RouteFrame> route = MakeLaps(1, 0.5, 3);
+  const FrameResult r = engine.ProcessFrame(MakeFrame(route[0], 0, 0));
+  ASSERT_TRUE(r.estimate.has_value());
+  EXPECT_LT(PoseDifference(r.estimate->mean.mean, o.initial_pose).norm(), 1e-9);
+  EXPECT_EQ(engine.counters().global_fallbacks, 1);
+}
+
+// Mapping laps from an empty map beats dead reckoning, and the map stays consistent.
+TEST(CmlEngine, MappingBeatsOdometry) {
+  CmlEngine engine(TestOptions());
+  const std::vector<RouteFrame> route = MakeLaps(4, 0.25, 4);
+  engine.BeginSession(PanoramaSession("d1", SessionStartMode::kKnownPose, route[0].truth));
+  double err_engine = 0.0, err_odom = 0.0;
+  int n = 0;
+  for (std::size_t i = 0; i < route.size(); ++i) {
+    const FrameResult r = engine.ProcessFrame(MakeFrame(route[i], 0, static_cast<std::int64_t>(i)));
+    ASSERT_TRUE(r.estimate.has_value());
+    if (i >= route.size() / 2) {  // second half: after a couple of laps
+      err_engine += PositionError(r, route[i].truth);
+      err_odom += PoseDifference(Compose(route[0].truth, Between(route[0].odom, route[i].odom)), route[i].truth)
+                      .head<2>()
+                      .norm();
+      ++n;
+    }
+  }
+  engine.Finish();
+  engine.model().CheckInvariants();
+  EXPECT_GT(engine.model().NumViews(), 5u);
+  EXPECT_TRUE(engine.queued_updates().empty());
+  EXPECT_LT(err_engine / n, 0.5 * err_odom / n) << "engine " << err_engine / n << " odometry " << err_odom / n;
+}
+
+// The worker thread changes nothing: estimates and map are bit-identical with threads
+// 1 and 2, and from run to run.
+TEST(CmlEngine, BitIdenticalAcrossThreadCounts) {
+  const std::vector<RouteFrame> route = MakeLaps(2, 0.3, 5);
+  std::vector<std::vector<FrameResult>> results;
+  std::vector<std::vector<std::uint8_t>> maps;
+  for (int threads : {1, 2, 2}) {
+    CmlEngineOptions o = TestOptions();
+    o.threads = threads;
+    CmlEngine engine(o);
+    engine.BeginSession(PanoramaSession("d1", SessionStartMode::kKnownPose, route[0].truth));
+    std::vector<FrameResult> rs;
+    for (std::size_t i = 0; i < route.size(); ++i) {
+      rs.push_back(engine.ProcessFrame(MakeFrame(route[i], 0, static_cast<std::int64_t>(i))));
+    }
+    engine.Finish();
+    BinaryWriter w;
+    engine.model().Serialize(w);
+    maps.push_back(w.Release());
+    results.push_back(std::move(rs));
+  }
+  for (std::size_t k = 1; k < results.size(); ++k) {
+    ASSERT_EQ(results[k].size(), results[0].size());
+    for (std::size_t i = 0; i < results[0].size(); ++i) ExpectSameEstimate(results[0][i], results[k][i]);
+    EXPECT_EQ(maps[k], maps[0]) << "run " << k;
+  }
+}
+
+// A global start on day 2 finds the robot from the day-1 map.
+TEST(CmlEngine, GlobalStartFindsRobotFromPreviousMap) {
+  CmlEngine engine(TestOptions());
+  const std::vector<RouteFrame> day1 = MakeLaps(3, 0.25, 6);
+  engine.BeginSession(PanoramaSession("d1", SessionStartMode::kKnownPose, day1[0].truth));
+  for (std::size_t i = 0; i < day1.size(); ++i) {
+    engine.ProcessFrame(MakeFrame(day1[i], 0, static_cast<std::int64_t>(i)));
+  }
+  // Day 2 starts elsewhere on the route with its own odometry frame and no prior.
+  const std::vector<RouteFrame> day2 = MakeLaps(1, 0.25, 7, /*start_offset=*/37);
+  engine.BeginSession(PanoramaSession("d2", SessionStartMode::kGlobal, Pose2::Zero()));
+  int with_estimate = 0;
+  double late_error = 0.0;
+  int late = 0;
+  for (std::size_t i = 0; i < day2.size(); ++i) {
+    const FrameResult r = engine.ProcessFrame(MakeFrame(day2[i], 1, static_cast<std::int64_t>(i)));
+    if (r.estimate) ++with_estimate;
+    if (i >= 20) {
+      ASSERT_TRUE(r.estimate.has_value()) << "frame " << i;
+      late_error += PositionError(r, day2[i].truth);
+      ++late;
+    }
+  }
+  EXPECT_EQ(engine.counters().global_seeds, 1);
+  EXPECT_GT(with_estimate, 0);
+  EXPECT_LT(late_error / late, 0.5) << "mean position error after 20 frames of day 2";
+}
+
+// Raw ring frames are unwrapped with the session calibration and localize like panoramas.
+TEST(CmlEngine, RawRingSessionLocalizes) {
+  OmniCalibration cal;
+  cal.center_x_px = 100;
+  cal.center_y_px = 100;
+  cal.inner_radius_px = 20;
+  cal.outer_radius_px = 90;
+  cal.panorama_width = 128;
+  cal.panorama_height = 24;
+  const OmniUnwrapper renderer(cal, 200, 200);
+  CmlEngine engine(TestOptions());
+  SessionInfo info = PanoramaSession("ring", SessionStartMode::kKnownPose, Pose2::Zero());
+  info.camera.kind = ImageKind::kRawRing;
+  info.camera.image_width = 200;
+  info.camera.image_height = 200;
+  info.camera.calibration = cal;
+  const std::vector<RouteFrame> route = MakeLaps(3, 0.3, 8);
+  info.start.map_T_robot = route[0].truth;
+  engine.BeginSession(info);
+  double err = 0.0, odo = 0.0;
+  int n = 0;
+  for (std::size_t i = 0; i < route.size(); ++i) {
+    Frame f = MakeFrame(route[i], 0, static_cast<std::int64_t>(i));
+    f.image = renderer.Render(RenderRoom(route[i].truth));
+    const FrameResult r = engine.ProcessFrame(f);
+    ASSERT_TRUE(r.estimate.has_value());
+    if (i >= route.size() / 2) {
+      err += PositionError(r, route[i].truth);
+      odo += PoseDifference(Compose(route[0].truth, Between(route[0].odom, route[i].odom)), route[i].truth)
+                 .head<2>()
+                 .norm();
+      ++n;
+    }
+  }
+  EXPECT_GT(engine.model().NumViews(), 3u);
+  EXPECT_LT(err / n, 0.5 * odo / n) << "engine " << err / n << " odometry " << odo / n;
+  // A frame of the wrong size is an error.
+  Frame bad = MakeFrame(route[0], 0, 0);
+  bad.image = cv::Mat(50, 50, CV_8UC1, cv::Scalar(0));
+  EXPECT_THROW(engine.ProcessFrame(bad), Error);
+}
+
+// Per-frame statistics are filled in and consistent with the model.
+// Largest eigenvalue of the xy block of a covariance (m^2).
+double LargestXyVariance(const Eigen::Matrix3d& c) {
+  const double h = 0.5 * (c(0, 0) + c(1, 1)), d = 0.5 * (c(0, 0) - c(1, 1));
+  return h + std::sqrt(d * d + c(0, 1) * c(1, 0));
+}
+
+// Confident anchors: a unimodal estimate that appearance did not fix and whose position
+// is less certain than anchor_max_sigma_m waits like a multimodal frame and reaches the
+// map through the reconstruction at the next anchor; frames that cannot be reconstructed
+// (Finish) still update the map with their filtered estimate. With 0 every unimodal
+// estimate updates the map at once.
+TEST(CmlEngine, UnconfidentUnimodalFramesWaitForTheNextAnchor) {
+  const std::vector<RouteFrame> route = MakeLaps(2, 0.3, 10);
+  for (double anchor_sigma : {0.3, 0.0}) {
+    CmlEngineOptions o = TestOptions();
+    o.anchor_max_sigma_m = anchor_sigma;
+    CmlEngine engine(o);
+    engine.BeginSession(PanoramaSession("d1", SessionStartMode::kKnownPose, route[0].truth));
+    std::set<std::int64_t> waiting;
+    int waited = 0, reconstructed_waiting = 0;
+    for (std::size_t i = 0; i < route.size(); ++i) {
+      const FrameResult r = engine.ProcessFrame(MakeFrame(route[i], 0, static_cast<std::int64_t>(i)));
+      ASSERT_TRUE(r.estimate.has_value());
+      for (const auto& [frame, g] : r.reconstructed) {
+        reconstructed_waiting += waiting.erase(frame) > 0 ? 1 : 0;
+      }
+      const double var = LargestXyVariance(r.estimate->mean.covariance);
+      if (r.estimate->unimodal && !r.map_state) {
+        EXPECT_GT(anchor_sigma, 0.0) << "frame " << i;
+        EXPECT_GT(var, anchor_sigma * anchor_sigma) << "frame " << i;
+        EXPECT_GT(r.stats.pending_multimodal, 0) << "frame " << i;
+        waiting.insert(r.frame);
+        ++waited;
+      }
+      if (r.map_state && anchor_sigma > 0.0) {
+        EXPECT_TRUE(var <= anchor_sigma * anchor_sigma || r.stats.num_matches > 0) << "frame " << i;
+      }
+    }
+    engine.Finish();
+    engine.model().CheckInvariants();
+    const EngineCounters& c = engine.counters();
+    // Every frame updates the map once: at once, reconstructed, or filtered at Finish;
+    // only multimodal frames can be dropped.
+    EXPECT_EQ(c.updates_queued + c.dropped_pending_frames, c.frames);
+    EXPECT_LE(c.dropped_pending_frames, c.multimodal_frames);
+    if (anchor_sigma > 0.0) {
+      EXPECT_GT(waited, 10);
+      EXPECT_GT(reconstructed_waiting, 0);
+    } else {
+      EXPECT_EQ(waited, 0);
+    }
+  }
+}
+
+TEST(CmlEngine, StatisticsAreConsistent) {
+  CmlEngine engine(TestOptions());
+  const std::vector<RouteFrame> route = MakeLaps(2, 0.3, 9);
+  engine.BeginSession(PanoramaSession("d1", SessionStartMode::kKnownPose, route[0].truth));
+  std::int64_t queued = 0, applied = 0;
+  for (std::size_t i = 0; i < route.size(); ++i) {
+    const FrameResult r = engine.ProcessFrame(MakeFrame(route[i], 0, static_cast<std::int64_t>(i)));
+    EXPECT_EQ(r.frame, static_cast<std::int64_t>(i));
+    EXPECT_GE(r.stats.describe_us, 0.0);
+    EXPECT_GE(r.stats.total_us, r.stats.describe_us);
+    EXPECT_LE(r.stats.num_matches, static_cast<int>(r.stats.num_views));
+    EXPECT_EQ(r.stats.mixture_components, static_cast<int>(engine.tracker().state().size()));
+    EXPECT_EQ(r.estimate->num_components, r.stats.mixture_components);
+    if (r.stats.num_matches == 0) {
+      EXPECT_EQ(r.stats.hypothesis_components, 0);
+    }
+    queued += r.stats.updates_queued;
+    applied += r.stats.updates_applied;
+    EXPECT_EQ(queued - applied, static_cast<std::int64_t>(engine.queued_updates().size()));
+  }
+  const EngineCounters& c = engine.counters();
+  EXPECT_EQ(c.frames, static_cast<std::int64_t>(route.size()));
+  EXPECT_EQ(c.unimodal_frames + c.multimodal_frames + c.unknown_frames, c.frames);
+  EXPECT_EQ(c.updates_queued, queued);
+}
+
+}  // namespace
+}  // namespace omnicml

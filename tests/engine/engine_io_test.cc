@@ -1,0 +1,197 @@
+#include "omnicml/engine/engine_io.h"
+
+#include <cstdint>
+#include <filesystem>
+#include <fstream>
+#include <string>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "omnicml/engine/cml_engine.h"
+#include "omnicml/common/common.h"
+
+namespace omnicml {
+// Defined in cml_engine_test.cc (same test binary): a textured room rendered as panoramas
+// and laps through it with noisy odometry.
+namespace engine_testing {
+struct RouteFrame {
+  Pose2 truth;
+  Pose2 odom;
+};
+std::vector<RouteFrame> MakeLaps(int laps, double step_m, std::uint32_t seed, int start_offset);
+SessionInfo PanoramaSession(const std::string& name, SessionStartMode mode, const Pose2& start);
+Frame MakeFrame(const RouteFrame& r, int session, std::int64_t index);
+CmlEngineOptions TestOptions();
+void ExpectSameEstimate(const FrameResult& a, const FrameResult& b);
+}  // namespace engine_testing
+
+namespace {
+using namespace engine_testing;
+namespace fs = std::filesystem;
+
+// A fresh scratch directory under the build tree.
+fs::path ScratchDir(const std::string& name) {
+  const fs::path dir = fs::path(OMNICML_BINARY_DIR) / "test_scratch" / "engine_io" / name;
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  return dir;
+}
+
+std::vector<std::uint8_t> ReadAll(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  return std::vector<std::uint8_t>((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+}
+void WriteAll(const fs::path& p, const std::vector<std::uint8_t>& bytes) {
+  std::ofstream out(p, std::ios::binary | std::ios::trunc);
+  out.write(reinterpret_cast<const char*>(bytes.data()), static_cast<std::streamsize>(bytes.size()));
+}
+
+// Runs the frames of one day; returns the results.
+std::vector<FrameResult> RunDay(CmlEngine& engine, const SessionInfo& info, const std::vector<RouteFrame>& route,
+                                int session) {
+  engine.BeginSession(info);
+  std::vector<FrameResult> out;
+  for (std::size_t i = 0; i < route.size(); ++i) {
+    out.push_back(engine.ProcessFrame(MakeFrame(route[i], session, static_cast<std::int64_t>(i))));
+  }
+  return out;
+}
+
+// Expects `fn` to throw omnicml::Error whose message contains every fragment.
+template <typename Fn>
+void ExpectErrorWith(Fn fn, const std::vector<std::string>& fragments) {
+  try {
+    fn();
+    ADD_FAILURE() << "no error thrown";
+  } catch (const Error& e) {
+    for (const std::string& f : fragments) {
+      EXPECT_NE(std::string(e.what()).find(f), std::string::npos) << "'" << f << "' not in: " << e.what();
+    }
+  }
+}
+
+// Save then load restores the same state: re-encoding gives the same bytes.
+TEST(EngineIo, RoundTripRestoresState) {
+  const fs::path dir = ScratchDir("round_trip");
+  CmlEngineOptions o = TestOptions();
+  o.update_delay_frames = 4;
+  o.model.e_max = 0.45;
+  o.descriptor.fourier.coefficients = 12;
+  CmlEngine engine(o);
+  const std::vector<RouteFrame> route = MakeLaps(1, 0.3, 21, 0);
+  RunDay(engine, PanoramaSession("d1", SessionStartMode::kKnownPose, route[0].truth), route, 0);
+  // Delayed updates or pending multimodal frames are part of the state.
+  ASSERT_FALSE(engine.queued_updates().empty() && engine.pending_frames().empty());
+  const fs::path file = dir / "engine.omnicml";
+  SaveEngine(engine, file.string());
+  const std::unique_ptr<CmlEngine> loaded = LoadEngine(file.string());
+  EXPECT_EQ(EncodeEngine(*loaded), EncodeEngine(engine));
+  EXPECT_EQ(loaded->options().model.e_max, 0.45);
+  EXPECT_EQ(loaded->options().descriptor.fourier.coefficients, 12);
+  EXPECT_EQ(loaded->options().update_delay_frames, 4);
+  EXPECT_EQ(loaded->counters(), engine.counters());
+  EXPECT_EQ(loaded->next_frame(), engine.next_frame());
+  EXPECT_EQ(loaded->model().views(), engine.model().views());
+  loaded->model().CheckInvariants();
+  // No temporary file is left next to the result.
+  int files = 0;
+  for (const auto& entry : fs::directory_iterator(dir)) {
+    (void)entry;
+    ++files;
+  }
+  EXPECT_EQ(files, 1);
+}
+
+// Day 1, save, load, day 2 gives bit-identically the result of one run over both days.
+TEST(EngineIo, SaveLoadBetweenDaysIsBitIdentical) {
+  const fs::path dir = ScratchDir("days");
+  const std::vector<RouteFrame> day1 = MakeLaps(2, 0.3, 31, 0);
+  const std::vector<RouteFrame> day2 = MakeLaps(1, 0.3, 32, 11);
+  const SessionInfo s1 = PanoramaSession("d1", SessionStartMode::kKnownPose, day1[0].truth);
+  const SessionInfo s2 = PanoramaSession("d2", SessionStartMode::kGlobal, Pose2::Zero());
+  for (int threads : {1, 2}) {
+    CmlEngineOptions o = TestOptions();
+    o.threads = threads;
+    CmlEngine whole(o);
+    RunDay(whole, s1, day1, 0);
+    const std::vector<FrameResult> expected = RunDay(whole, s2, day2, 1);
+    whole.Finish();
+
+    CmlEngine first(o);
+    RunDay(first, s1, day1, 0);
+    const fs::path file = dir / "after_day1.omnicml";
+    SaveEngine(first, file.string());
+    const std::unique_ptr<CmlEngine> second = LoadEngine(file.string());
+    const std::vector<FrameResult> got = RunDay(*second, s2, day2, 1);
+    second->Finish();
+
+    ASSERT_EQ(got.size(), expected.size());
+    for (std::size_t i = 0; i < got.size(); ++i) {
+      EXPECT_EQ(got[i].frame, expected[i].frame);
+      ExpectSameEstimate(got[i], expected[i]);
+    }
+    EXPECT_EQ(EncodeEngine(*second), EncodeEngine(whole)) << "threads " << threads;
+  }
+}
+
+// Truncated, corrupted, foreign and future-version files are rejected, naming the file.
+TEST(EngineIo, RejectsDamagedFiles) {
+  const fs::path dir = ScratchDir("damaged");
+  CmlEngine engine(TestOptions());
+  const std::vector<RouteFrame> route = MakeLaps(1, 0.5, 41, 0);
+  RunDay(engine, PanoramaSession("d1", SessionStartMode::kKnownPose, route[0].truth), route, 0);
+  const fs::path good = dir / "good.omnicml";
+  SaveEngine(engine, good.string());
+  const std::vector<std::uint8_t> bytes = ReadAll(good);
+  ASSERT_GT(bytes.size(), 100u);
+
+  const fs::path bad = dir / "bad.omnicml";
+  // Truncated at several places (header, payload, checksum).
+  for (std::size_t keep : {std::size_t{0}, std::size_t{5}, std::size_t{15}, bytes.size() / 2, bytes.size() - 1}) {
+    WriteAll(bad, std::vector<std::uint8_t>(bytes.begin(), bytes.begin() + static_cast<std::ptrdiff_t>(keep)));
+    ExpectErrorWith([&] { LoadEngine(bad.string()); }, {bad.string()});
+  }
+  WriteAll(bad, std::vector<std::uint8_t>(bytes.begin(), bytes.end() - 10));
+  ExpectErrorWith([&] { LoadEngine(bad.string()); }, {bad.string(), "truncated"});
+  // One flipped bit anywhere in the payload breaks the checksum.
+  for (std::size_t pos : {std::size_t{30}, bytes.size() / 3, bytes.size() - 6}) {
+    std::vector<std::uint8_t> flipped = bytes;
+    flipped[pos] ^= 0x10;
+    WriteAll(bad, flipped);
+    ExpectErrorWith([&] { LoadEngine(bad.string()); }, {bad.string(), "checksum"});
+  }
+  // Wrong magic.
+  std::vector<std::uint8_t> foreign = bytes;
+  foreign[0] = 'X';
+  WriteAll(bad, foreign);
+  ExpectErrorWith([&] { LoadEngine(bad.string()); }, {bad.string(), "magic"});
+  // Unknown version.
+  std::vector<std::uint8_t> future = bytes;
+  future[8] = static_cast<std::uint8_t>(kEngineFormatVersion + 1);
+  WriteAll(bad, future);
+  ExpectErrorWith([&] { LoadEngine(bad.string()); }, {bad.string(), "version"});
+  // Trailing garbage.
+  std::vector<std::uint8_t> longer = bytes;
+  longer.push_back(0);
+  WriteAll(bad, longer);
+  ExpectErrorWith([&] { LoadEngine(bad.string()); }, {bad.string()});
+  // Missing file.
+  ExpectErrorWith([&] { LoadEngine((dir / "missing.omnicml").string()); }, {"missing.omnicml"});
+  // The good file still loads.
+  EXPECT_NO_THROW(LoadEngine(good.string()));
+}
+
+// Saving over an existing file replaces it atomically; an unwritable place is an error.
+TEST(EngineIo, AtomicOverwriteAndWriteErrors) {
+  const fs::path dir = ScratchDir("overwrite");
+  const fs::path file = dir / "e.omnicml";
+  WriteAll(file, {1, 2, 3});
+  CmlEngine engine(TestOptions());
+  SaveEngine(engine, file.string());
+  EXPECT_EQ(ReadAll(file), EncodeEngine(engine));
+  ExpectErrorWith([&] { SaveEngine(engine, (dir / "no_such_dir" / "e.omnicml").string()); }, {"no_such_dir"});
+}
+
+}  // namespace
+}  // namespace omnicml

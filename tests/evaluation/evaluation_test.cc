@@ -1,0 +1,225 @@
+// Tests of the run records, error statistics, alignment and evaluation report.
+#include "omnicml/evaluation/evaluation.h"
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <sstream>
+
+#include <gtest/gtest.h>
+
+#include "omnicml/common/common.h"
+
+namespace omnicml {
+namespace {
+namespace fs = std::filesystem;
+
+fs::path TempDir(const std::string& name) {
+  fs::path dir = fs::temp_directory_path() /
+                 ("omnicml_evaluation_test_" + name + "_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  return dir;
+}
+
+// A record with estimate and truth; errors computed by RecomputeErrors.
+FrameRecord MakeRecord(int session, int frame, const Pose2& estimate, const Pose2& truth) {
+  FrameRecord r;
+  r.session = session;
+  r.frame = frame;
+  r.global_frame = session * 1000 + frame;
+  r.stamp_s = 0.1 * frame;
+  r.has_estimate = true;
+  r.estimate = estimate;
+  r.mean_estimate = estimate;
+  r.unimodal = frame % 2 == 0;
+  r.has_truth = true;
+  r.truth = truth;
+  r.views = frame;
+  r.stage_times_us = {10.0, 20.0 + frame};
+  return r;
+}
+
+TEST(ComputeStats, MatchesDirectComputation) {
+  // Mean, median, p95 (linear interpolation) and max of 1..100, NaN ignored.
+  std::vector<double> v;
+  for (int i = 100; i >= 1; --i) v.push_back(i);
+  v.push_back(kNaN);
+  const ErrorStats s = ComputeStats(v);
+  EXPECT_EQ(s.count, 100);
+  EXPECT_DOUBLE_EQ(s.mean, 50.5);
+  EXPECT_DOUBLE_EQ(s.median, 50.5);
+  EXPECT_NEAR(s.p95, 95.05, 1e-12);
+  EXPECT_DOUBLE_EQ(s.max, 100);
+  const ErrorStats empty = ComputeStats({kNaN});
+  EXPECT_EQ(empty.count, 0);
+  EXPECT_TRUE(std::isnan(empty.mean));
+}
+
+TEST(HistogramCounts, KeepsEveryFiniteValue) {
+  // Counts sum to the number of finite values >= the first edge; overflow goes to the last bin.
+  const std::vector<double> edges = {0, 0.5, 1.0, 1.5};
+  const std::vector<double> counts =
+      HistogramCounts({0.0, 0.49, 0.5, 1.2, 1.5, 7.0, kNaN, -1}, edges);
+  ASSERT_EQ(counts.size(), 3u);
+  EXPECT_EQ(counts[0], 2);
+  EXPECT_EQ(counts[1], 1);
+  EXPECT_EQ(counts[2], 3);
+}
+
+TEST(FramesCsv, RoundTripsRecords) {
+  // Writing and reading frames.csv gives back the same values, missing cells as missing.
+  const fs::path dir = TempDir("roundtrip");
+  std::vector<FrameRecord> records;
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> u(-3, 3);
+  for (int i = 0; i < 20; ++i) {
+    records.push_back(MakeRecord(i / 10, i % 10, MakePose(u(rng), u(rng), u(rng)),
+                                 MakePose(u(rng), u(rng), u(rng))));
+  }
+  records[3].has_truth = false;
+  records[4].has_estimate = false;
+  RecomputeErrors(&records);
+  records[5].odometry_error_m = 0.123456789012345;
+  {
+    std::ofstream os(dir / "frames.csv");
+    WriteFramesCsvHeader(os, {"descriptor", "total"});
+    for (const auto& r : records) WriteFramesCsvRow(os, r);
+  }
+  const FramesTable table = ReadFramesCsv(dir / "frames.csv");
+  ASSERT_EQ(table.records.size(), records.size());
+  EXPECT_EQ(table.stage_names, (std::vector<std::string>{"descriptor", "total"}));
+  for (std::size_t i = 0; i < records.size(); ++i) {
+    const FrameRecord& a = records[i];
+    const FrameRecord& b = table.records[i];
+    EXPECT_EQ(a.session, b.session);
+    EXPECT_EQ(a.frame, b.frame);
+    EXPECT_EQ(a.has_estimate, b.has_estimate);
+    EXPECT_EQ(a.has_truth, b.has_truth);
+    if (a.has_estimate) {
+      EXPECT_EQ(a.estimate, b.estimate);
+    }
+    if (a.has_truth) {
+      EXPECT_EQ(a.truth, b.truth);
+    }
+    EXPECT_EQ(std::isnan(a.position_error_m), std::isnan(b.position_error_m));
+    if (!std::isnan(a.position_error_m)) {
+      EXPECT_EQ(a.position_error_m, b.position_error_m);
+    }
+    EXPECT_EQ(a.unimodal, b.unimodal);
+    EXPECT_EQ(a.stage_times_us, b.stage_times_us);
+  }
+  EXPECT_EQ(table.records[5].odometry_error_m, 0.123456789012345);
+  fs::remove_all(dir);
+}
+
+TEST(FramesCsv, ReportsFileAndLineOfABadCell) {
+  // An unparsable number names the file, the line and the column.
+  const fs::path dir = TempDir("bad");
+  {
+    std::ofstream os(dir / "frames.csv");
+    WriteFramesCsvHeader(os, {});
+    WriteFramesCsvRow(os, MakeRecord(0, 0, Pose2(1, 2, 0), Pose2(1, 2, 0)));
+    os << "0,1,1,0.1,abc,2,0,1,2,0,1,1,2,0,0,0,,1,1,1,1\n";
+  }
+  try {
+    ReadFramesCsv(dir / "frames.csv");
+    FAIL() << "expected an error";
+  } catch (const Error& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find("frames.csv:3"), std::string::npos) << what;
+    EXPECT_NE(what.find("est_x_m"), std::string::npos) << what;
+  }
+  {
+    std::ofstream os(dir / "short.csv");
+    os << "session,frame\n0,1\n";
+  }
+  EXPECT_THROW(ReadFramesCsv(dir / "short.csv"), Error);
+  fs::remove_all(dir);
+}
+
+TEST(Evaluate, PerDayStatisticsOfAHandMadeTable) {
+  // Day errors equal the statistics of the hand-made offsets; the change is their difference.
+  FramesTable table;
+  table.stage_names = {"descriptor", "total"};
+  // Day 1: estimates offset by 0.1 .. 1.0 m in x; day 2: by 0.01 .. 0.1 m in y.
+  for (int i = 1; i <= 10; ++i) {
+    table.records.push_back(MakeRecord(0, i, Pose2(i * 0.1, 0, 0), Pose2(0, 0, 0)));
+  }
+  for (int i = 1; i <= 10; ++i) {
+    table.records.push_back(MakeRecord(1, i, Pose2(5, 1 + i * 0.01, 0.1), Pose2(5, 1, 0)));
+  }
+  RecomputeErrors(&table.records);
+  const EvaluationResult result = Evaluate(table, Alignment::kNone, 10);
+  ASSERT_EQ(result.days.size(), 2u);
+  EXPECT_NEAR(result.days[0].position_m.mean, 0.55, 1e-12);
+  EXPECT_NEAR(result.days[0].position_m.median, 0.55, 1e-12);
+  EXPECT_NEAR(result.days[0].position_m.max, 1.0, 1e-12);
+  EXPECT_NEAR(result.days[0].position_m.p95, 0.955, 1e-12);
+  EXPECT_NEAR(result.days[1].position_m.mean, 0.055, 1e-12);
+  EXPECT_NEAR(result.days[1].heading_rad.mean, 0.1, 1e-12);
+  EXPECT_EQ(result.days[0].frames, 10);
+  EXPECT_EQ(result.overall.frames, 20);
+  EXPECT_NEAR(result.days[0].unimodal_fraction, 0.5, 1e-12);
+  EXPECT_NEAR(result.days[0].mean_frame_time_us, 20 + 5.5, 1e-12);
+  // Histograms hold every frame of the day.
+  for (const auto& h : result.position_histograms) {
+    double sum = 0;
+    for (double c : h) sum += c;
+    EXPECT_EQ(sum, 10);
+  }
+  const std::string text = FormatEvaluation(result);
+  EXPECT_NE(text.find("-0.495"), std::string::npos) << text;  // day-to-day change of the mean
+  const std::string html = RenderEvaluationHtml(result, table, "test");
+  EXPECT_NE(html.find("<svg"), std::string::npos);
+  EXPECT_NE(html.find("</html>"), std::string::npos);
+}
+
+TEST(Align, Se2RecoversARigidTransform) {
+  // Estimates that are truth moved by a rigid transform (plus small noise) align back.
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> u(-5, 5);
+  std::normal_distribution<double> noise(0, 0.01);
+  const Pose2 t_est_truth = MakePose(1.5, -2.0, 0.7);  // estimate = T * truth
+  FramesTable table;
+  for (int i = 0; i < 200; ++i) {
+    const Pose2 truth = MakePose(u(rng), u(rng), u(rng));
+    Pose2 est = Compose(t_est_truth, truth);
+    est.x() += noise(rng);
+    est.y() += noise(rng);
+    table.records.push_back(MakeRecord(i / 100, i % 100, est, truth));
+  }
+  RecomputeErrors(&table.records);
+  const EvaluationResult none = Evaluate(table, Alignment::kNone);
+  EXPECT_GT(none.overall.position_m.mean, 1.0);
+  const EvaluationResult se2 = Evaluate(table, Alignment::kSe2);
+  EXPECT_LT(se2.overall.position_m.mean, 0.03);
+  EXPECT_LT(se2.overall.heading_rad.max, 1e-2);
+  const Pose2 inverse = Between(t_est_truth, Pose2::Zero());
+  EXPECT_NEAR(se2.alignment_transform.x(), inverse.x(), 0.01);
+  EXPECT_NEAR(se2.alignment_transform.y(), inverse.y(), 0.01);
+  EXPECT_NEAR(se2.alignment_transform.z(), inverse.z(), 0.01);
+}
+
+TEST(Align, StartRemovesEachSessionsInitialOffset) {
+  // Per-session offsets are removed exactly when the drift-free estimates differ by one rigid
+  // transform.
+  FramesTable table;
+  const Pose2 offsets[2] = {MakePose(1, 2, 0.3), MakePose(-3, 0.5, -1.0)};
+  for (int s = 0; s < 2; ++s) {
+    for (int i = 0; i < 30; ++i) {
+      const Pose2 truth = MakePose(0.2 * i, std::sin(0.3 * i), 0.1 * i);
+      table.records.push_back(MakeRecord(s, i, Compose(offsets[s], truth), truth));
+    }
+  }
+  RecomputeErrors(&table.records);
+  const EvaluationResult start = Evaluate(table, Alignment::kStart);
+  EXPECT_LT(start.days[0].position_m.max, 1e-9);
+  EXPECT_LT(start.days[1].position_m.max, 1e-9);
+  EXPECT_LT(start.overall.heading_rad.max, 1e-9);
+  EXPECT_THROW(AlignmentFromString("affine"), Error);
+}
+
+}  // namespace
+}  // namespace omnicml

@@ -1,0 +1,681 @@
+#include "omnicml/mapping/environment_model.h"
+
+#include <algorithm>
+#include <cmath>
+#include <map>
+#include <random>
+#include <set>
+#include <vector>
+
+#include <gtest/gtest.h>
+#include <Eigen/LU>
+
+#include "testing/fake_descriptor.h"
+
+#include <opencv2/imgproc.hpp>
+
+#include "omnicml/descriptors/descriptor_factory.h"
+
+namespace omnicml {
+namespace {
+
+using testing::FakeDescriptorExtractor;
+using testing::MakeFakeExtractor;
+
+constexpr double kTol = 1e-12;
+
+Gaussian Est(double x, double y, double phi, double sx = 0.1, double sy = 0.1, double sphi = 0.1) {
+  Gaussian g;
+  g.mean = MakePose(x, y, phi);
+  g.covariance = Eigen::Vector3d(sx * sx, sy * sy, sphi * sphi).asDiagonal();
+  return g;
+}
+
+// The component of a view with the largest id (the one added last).
+const ViewComponent& Newest(const ReferenceView& v) {
+  return *std::max_element(
+      v.components.begin(), v.components.end(),
+      [](const ViewComponent& a, const ViewComponent& b) { return a.id < b.id; });
+}
+
+const ReferenceView& ViewById(const EnvironmentModel& m, std::uint64_t id) {
+  const auto index = m.FindView(id);
+  OMNICML_CHECK(index.has_value()) << "no view " << id;
+  return m.views()[*index];
+}
+
+std::vector<std::uint8_t> Bytes(const EnvironmentModel& m) {
+  BinaryWriter w;
+  m.Serialize(w);
+  return w.Release();
+}
+
+// Squared Mahalanobis distance, written out independently of the library.
+double TestSquaredMahalanobis(const Pose2& a, const Pose2& b, const Eigen::Matrix3d& s) {
+  Eigen::Vector3d d = a - b;
+  d.z() = std::remainder(d.z(), kTwoPi);
+  return d.dot(s.inverse() * d);
+}
+
+// Each invalid option is rejected with an Error naming its field.
+TEST(EnvironmentModelOptions, ValidateNamesTheField) {
+  EXPECT_NO_THROW(EnvironmentModelOptions{}.Validate());
+  auto expect_field = [](EnvironmentModelOptions o, const std::string& field) {
+    try {
+      o.Validate();
+      ADD_FAILURE() << field << " accepted";
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find(field), std::string::npos) << e.what();
+    }
+  };
+  EnvironmentModelOptions o;
+  o.e_max = 0;
+  expect_field(o, "e_max");
+  o = {};
+  o.top_k = -1;
+  expect_field(o, "top_k");
+  o = {};
+  o.beta = 1.5;
+  expect_field(o, "beta");
+  o = {};
+  o.d_max = -1;
+  expect_field(o, "d_max");
+  o = {};
+  o.d_for_m = 0;
+  expect_field(o, "d_for_m");
+  o = {};
+  o.beta_for = -0.1;
+  expect_field(o, "beta_for");
+  o = {};
+  o.d_gain_m = std::nan("");
+  expect_field(o, "d_gain_m");
+  o = {};
+  o.w_min = 1.0;
+  expect_field(o, "w_min");
+  o = {};
+  o.merge_delta = -1;
+  expect_field(o, "merge_delta");
+  o = {};
+  o.heading_sigma_no_rotation_rad = 0;
+  expect_field(o, "heading_sigma_no_rotation_rad");
+  o = {};
+  o.spatial_cell_m = 0;
+  expect_field(o, "spatial_cell_m");
+  EXPECT_EQ(ForgettingModeFromString(ToString(ForgettingMode::kPassive)), ForgettingMode::kPassive);
+  EXPECT_EQ(ForgettingModeFromString("static"), ForgettingMode::kStatic);
+  EXPECT_THROW(ForgettingModeFromString("sometimes"), Error);
+}
+
+// Insertion happens exactly when every E >= e_max (boundary E == e_max inserts).
+TEST(EnvironmentModel, InsertionExactlyWhenEveryDistanceAtLeastEmax) {
+  auto fx = MakeFakeExtractor(2);
+  EnvironmentModelOptions o;
+  o.e_max = 1.0;
+  EnvironmentModel m(o, fx);
+  EXPECT_TRUE(m.Update(fx->Make({0, 0}), Est(0, 0, 0), {0, 0}).view_inserted);
+  EXPECT_TRUE(m.Update(fx->Make({1, 0}), Est(1, 0, 0), {1, 0}).view_inserted);  // E = 1 = e_max
+  EXPECT_EQ(m.NumViews(), 2u);
+  EXPECT_FALSE(m.Update(fx->Make({0, 0.9999f}), Est(0, 1, 0), {2, 0}).view_inserted);
+  EXPECT_FALSE(m.Update(fx->Make({0.5f, 0}), Est(0.5, 0, 0), {3, 0}).view_inserted);
+  EXPECT_TRUE(m.Update(fx->Make({-1, 0}), Est(-1, 0, 0), {4, 0}).view_inserted);
+  EXPECT_EQ(m.NumViews(), 3u);
+  ASSERT_FALSE(m.events().empty());
+  EXPECT_EQ(m.events().back().type, MapEventType::kViewInserted);
+  EXPECT_EQ(m.events().back().reason, "no view within e_max");
+  EXPECT_EQ(m.events().back().frame, 4);
+
+  // Random descriptors: insertion iff the brute-force minimum distance is >= e_max.
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<float> u(0.0f, 4.0f);
+  auto f4 = MakeFakeExtractor(4);
+  EnvironmentModelOptions o4;
+  o4.e_max = 1.0;
+  o4.forgetting = ForgettingMode::kPassive;
+  EnvironmentModel r(o4, f4);
+  for (int t = 0; t < 300; ++t) {
+    const Descriptor y = f4->Make({u(rng), u(rng), u(rng), u(rng)});
+    double min_e = std::numeric_limits<double>::infinity();
+    for (const ReferenceView& v : r.views()) min_e = std::min(min_e, f4->Distance(y, v.descriptor));
+    const std::size_t before = r.NumViews();
+    const UpdateStats s = r.Update(y, Est(u(rng), u(rng), 0), {t, 0});
+    EXPECT_EQ(s.view_inserted, min_e >= o4.e_max) << "t=" << t;
+    EXPECT_EQ(r.NumViews(),
+              before + (s.view_inserted ? 1 : 0) - static_cast<std::size_t>(s.views_removed));
+  }
+}
+
+// eta of the new components follows (11): S_i / sum_l S_l over matching views; their
+// weight is raised from 0 by (16) to beta * S_i.
+TEST(EnvironmentModel, EtaFollowsEq11) {
+  auto fx = MakeFakeExtractor(2);
+  EnvironmentModelOptions o;
+  o.e_max = 2.0;
+  EnvironmentModel m(o, fx);
+  m.Update(fx->Make({0, 0}), Est(0, 0, 0), {0, 0});
+  m.Update(fx->Make({3, 0}), Est(5, 0, 0), {1, 0});
+  ASSERT_EQ(m.NumViews(), 2u);
+  const Descriptor y = fx->Make({1.2f, 0});
+  const double s_a = 1.0 - fx->Distance(y, m.views()[0].descriptor) / o.e_max;
+  const double s_b = 1.0 - fx->Distance(y, m.views()[1].descriptor) / o.e_max;
+  ASSERT_GT(s_a, 0);
+  ASSERT_GT(s_b, 0);
+  const UpdateStats st = m.Update(y, Est(20, 20, 0), {2, 0});
+  EXPECT_EQ(st.matching_views, 2);
+  EXPECT_EQ(st.components_added, 2);
+  const ViewComponent& a = Newest(m.views()[0]);
+  const ViewComponent& b = Newest(m.views()[1]);
+  EXPECT_NEAR(a.eta, s_a / (s_a + s_b), kTol);
+  EXPECT_NEAR(b.eta, s_b / (s_a + s_b), kTol);
+  EXPECT_NEAR(a.weight, o.beta * s_a, kTol);
+  EXPECT_NEAR(b.weight, o.beta * s_b, kTol);
+  EXPECT_EQ(m.views()[0].stats.observations, 2);
+  EXPECT_EQ(m.views()[0].stats.last_seen_frame, 2);
+}
+
+// Rule (16): a component within d_max of mu_t moves to beta S + (1 - beta S) w.
+TEST(EnvironmentModel, WeightIncreaseEq16) {
+  auto fx = MakeFakeExtractor(2);
+  EnvironmentModelOptions o;
+  o.merge_delta = 0.0;  // keep components apart so each rule acts on its own component
+  EnvironmentModel m(o, fx);
+  m.Update(fx->Make({0, 0}), Est(0, 0, 0), {0, 0});
+  const double w0 = m.views()[0].components[0].weight;
+  EXPECT_NEAR(w0, o.beta, kTol);
+  const Descriptor y = fx->Make({0.3f, 0});
+  const double bs = o.beta * (1.0 - fx->Distance(y, m.views()[0].descriptor) / o.e_max);
+  const UpdateStats st = m.Update(y, Est(0.1, 0, 0), {1, 0});
+  ASSERT_EQ(m.views()[0].components.size(), 2u);
+  EXPECT_NEAR(m.views()[0].components[0].weight, bs + (1 - bs) * w0, kTol);
+  EXPECT_GT(m.views()[0].components[0].weight, w0);
+  EXPECT_NEAR(m.views()[0].components[1].weight, bs, kTol);
+  EXPECT_EQ(st.components_increased, 2);
+  EXPECT_EQ(st.components_passive_forgotten, 0);
+}
+
+// Rule (17): a component of a matching view farther than d_max from mu_t decays by (1 - beta S).
+TEST(EnvironmentModel, PassiveForgettingEq17) {
+  auto fx = MakeFakeExtractor(2);
+  EnvironmentModelOptions o;
+  o.merge_delta = 0.0;
+  EnvironmentModel m(o, fx);
+  m.Update(fx->Make({0, 0}), Est(0, 0, 0), {0, 0});
+  const double w0 = m.views()[0].components[0].weight;
+  const Descriptor y = fx->Make({0.3f, 0});
+  const double bs = o.beta * (1.0 - fx->Distance(y, m.views()[0].descriptor) / o.e_max);
+  // d = |(0.5, 0)| / sqrt(0.02) = 3.54 > d_max = 3.
+  const Pose2 a = m.views()[0].components[0].mean;
+  const double d =
+      std::sqrt(TestSquaredMahalanobis(MakePose(0.5, 0, 0), a, Est(0, 0, 0).covariance * 2));
+  ASSERT_GT(d, o.d_max);
+  const UpdateStats st = m.Update(y, Est(0.5, 0, 0), {1, 0});
+  EXPECT_NEAR(m.views()[0].components[0].weight, (1 - bs) * w0, kTol);
+  EXPECT_EQ(st.components_passive_forgotten, 1);
+  // Just inside d_max the same update increases instead.
+  EnvironmentModel m2(o, fx);
+  m2.Update(fx->Make({0, 0}), Est(0, 0, 0), {0, 0});
+  m2.Update(y, Est(0.4, 0, 0), {1, 0});  // d = 2.83 <= 3
+  EXPECT_NEAR(m2.views()[0].components[0].weight, bs + (1 - bs) * w0, kTol);
+}
+
+// Rules (18)-(19): components of non-matching views within d_for lose the fraction b;
+// farther ones are untouched; b is clamped to 1 (then the view disappears, logged).
+TEST(EnvironmentModel, ActiveForgettingEq18And19) {
+  auto fx = MakeFakeExtractor(2);
+  EnvironmentModelOptions o;
+  o.d_for_m = 2.0;
+  o.beta_for = 0.5;
+  o.d_gain_m = 0.2;
+  EnvironmentModel m(o, fx);
+  m.Update(fx->Make({0, 0}), Est(0, 0, 0), {0, 0});  // view A at (0, 0)
+  m.Update(fx->Make({0, 5}), Est(3, 0, 0), {1, 0});  // view C at (3, 0), 2.5 m from mu_t below
+  const double w_a = ViewById(m, 1).components[0].weight;
+  const double w_c = ViewById(m, 2).components[0].weight;
+  // Non-matching y at mu_t = (0.5, 0), sigma_x + sigma_y = 0.2 + 0.3.
+  const UpdateStats st = m.Update(fx->Make({5, 0}), Est(0.5, 0, 0, 0.2, 0.3, 0.1), {2, 0});
+  EXPECT_TRUE(st.view_inserted);
+  const double b = 0.5 * (1.0 - 0.5 / 2.0) * 0.2 / (0.2 + 0.3);
+  EXPECT_NEAR(ViewById(m, 1).components[0].weight, (1 - b) * w_a, kTol);
+  EXPECT_EQ(ViewById(m, 2).components[0].weight, w_c);
+  EXPECT_EQ(st.components_active_forgotten, 1);
+
+  // A very confident estimate makes b > 1, clamped to 1: A is gone.
+  m.Update(fx->Make({5, 0}), Est(0.5, 0, 0, 1e-4, 1e-4, 0.1), {3, 0});
+  EXPECT_FALSE(m.FindView(1).has_value());
+  bool saw_component = false, saw_view = false;
+  for (const MapEvent& e : m.events()) {
+    if (e.view_id != 1 || e.frame != 3) continue;
+    if (e.type == MapEventType::kComponentRemoved) {
+      saw_component = true;
+      EXPECT_EQ(e.reason, "active forgetting (18)-(19)");
+      EXPECT_EQ(e.weight, 0.0);
+    }
+    if (e.type == MapEventType::kViewRemoved) {
+      saw_view = true;
+      EXPECT_EQ(e.reason, "view empty");
+    }
+  }
+  EXPECT_TRUE(saw_component);
+  EXPECT_TRUE(saw_view);
+  m.CheckInvariants();
+}
+
+// (12)-(14): a new component within delta merges; eta is summed, the mean and covariance
+// are the eta-weighted moments of the pair (across the +-pi seam), w is summed and then
+// raised by (16).
+TEST(EnvironmentModel, MergeKeepsEtaMeanAndCovariance) {
+  auto fx = MakeFakeExtractor(2);
+  EnvironmentModelOptions o;
+  o.merge_delta = 1.0;
+  EnvironmentModel m(o, fx);
+  const Descriptor y = fx->Make({0, 0});
+  m.Update(y, Est(0, 0, kPi - 0.05, 0.5, 0.5, 0.2), {0, 0});
+  const std::vector<Gaussian> steps = {Est(0.2, -0.1, -kPi + 0.05, 0.4, 0.6, 0.3),
+                                       Est(-0.1, 0.15, kPi - 0.1, 0.5, 0.3, 0.25)};
+  for (std::size_t k = 0; k < steps.size(); ++k) {
+    ASSERT_EQ(m.views()[0].components.size(), 1u);
+    const ViewComponent before = m.views()[0].components[0];
+    const Gaussian& g = steps[k];
+    ASSERT_LT(TestSquaredMahalanobis(g.mean, before.mean, g.covariance + before.covariance),
+              o.merge_delta);
+    const UpdateStats st = m.Update(y, g, {static_cast<std::int64_t>(k) + 1, 0});
+    EXPECT_EQ(st.components_merged, 1);
+    ASSERT_EQ(m.views()[0].components.size(), 1u);
+    const ViewComponent& after = m.views()[0].components[0];
+    EXPECT_EQ(after.id, before.id);
+    // The new component has eta = 1 (single match); the pair's weights are eta-shares.
+    const double eta_new = 1.0;
+    EXPECT_NEAR(after.eta, before.eta + eta_new, kTol);
+    const double a = before.eta / (before.eta + eta_new), b = eta_new / (before.eta + eta_new);
+    Eigen::Vector3d other = g.mean;
+    other.z() = before.mean.z() + std::remainder(g.mean.z() - before.mean.z(), kTwoPi);  // unwrap
+    Eigen::Vector3d mean = a * before.mean + b * other;
+    const Eigen::Vector3d d1 = before.mean - mean, d2 = other - mean;
+    const Eigen::Matrix3d cov =
+        a * (before.covariance + d1 * d1.transpose()) + b * (g.covariance + d2 * d2.transpose());
+    mean.z() = std::remainder(mean.z(), kTwoPi);
+    EXPECT_NEAR(after.mean.x(), mean.x(), kTol);
+    EXPECT_NEAR(after.mean.y(), mean.y(), kTol);
+    EXPECT_NEAR(std::remainder(after.mean.z() - mean.z(), kTwoPi), 0.0, kTol);
+    EXPECT_GT(std::abs(after.mean.z()), 3.0);  // near pi, not averaged to 0
+    EXPECT_TRUE(after.covariance.isApprox(cov, 1e-12)) << after.covariance << "\n" << cov;
+    // w summed (w + 0) then (16) with S = 1 since mu_t is close to the merged mean.
+    EXPECT_NEAR(after.weight, o.beta + (1 - o.beta) * before.weight, kTol);
+  }
+}
+
+// A component created below w_min survives the Update that created it and is removed
+// by a later Update that leaves it below w_min.
+TEST(EnvironmentModel, NewComponentExemptFromRemovalOnce) {
+  auto fx = MakeFakeExtractor(2);
+  EnvironmentModelOptions o;
+  o.w_min = 0.05;
+  o.beta = 0.1;
+  EnvironmentModel m(o, fx);
+  m.Update(fx->Make({0, 0}), Est(0, 0, 0), {0, 0});
+  const Descriptor weak = fx->Make({0.9f, 0});  // S ~ 0.1: beta S ~ 0.01 < w_min
+  m.Update(weak, Est(10, 0, 0), {1, 0});
+  ASSERT_EQ(m.views()[0].components.size(), 2u);
+  const ViewComponent fresh = Newest(m.views()[0]);
+  EXPECT_LT(fresh.weight, o.w_min);
+  m.Update(weak, Est(10, 0, 0), {2, 0});  // merges into it, (16) leaves it below w_min
+  for (const ViewComponent& c : m.views()[0].components) EXPECT_NE(c.id, fresh.id);
+  ASSERT_FALSE(m.events().empty());
+  EXPECT_EQ(m.events().back().type, MapEventType::kComponentRemoved);
+  EXPECT_EQ(m.events().back().component_id, fresh.id);
+  EXPECT_EQ(m.events().back().reason, "weight below w_min");
+}
+
+// Hypothesis: union of the matching views' components, weight w S normalised, headings
+// rotated by the relative heading and wrapped; stored headings are view-relative.
+TEST(EnvironmentModel, HypothesisRotatesHeadingsAndWeighsBySimilarity) {
+  auto fx = MakeFakeExtractor(2);
+  EnvironmentModelOptions o;
+  o.e_max = 2.0;
+  o.merge_delta = 0.0;
+  EnvironmentModel m(o, fx);
+  m.Update(fx->Make({0, 0}, 0.0), Est(1, 2, 3.0), {0, 0});   // view A, stored phi 3.0
+  m.Update(fx->Make({3, 0}, 1.0), Est(-4, 0, 0.2), {1, 0});  // view B
+  // Observed again at orientation 0.5 with heading 1.0: stored as 1.0 - 0.5.
+  m.Update(fx->Make({0, 0}, 0.5), Est(1, 2.1, 1.0), {2, 0});
+  ASSERT_EQ(m.views()[0].components.size(), 2u);
+  EXPECT_NEAR(Newest(m.views()[0]).mean.z(), 0.5, 1e-6);
+
+  const Descriptor q = fx->Make({1.5f, 0}, 0.5);  // E = 1.5 to both; rel to A: +0.5, to B: -0.5
+  const std::vector<ViewMatch> matches = m.FindMatches(q);
+  ASSERT_EQ(matches.size(), 2u);
+  const Mixture h = m.Hypothesis(matches);
+  ASSERT_EQ(h.size(), 3u);
+  double total = 0.0;
+  std::vector<double> expected_w;
+  std::vector<double> expected_phi;
+  for (const ViewMatch& mt : matches) {
+    ASSERT_TRUE(mt.relative_heading_rad.has_value());
+    for (const ViewComponent& c : m.views()[mt.view_index].components) {
+      expected_w.push_back(c.weight * mt.similarity);
+      expected_phi.push_back(WrapAngle(c.mean.z() + *mt.relative_heading_rad));
+      total += c.weight * mt.similarity;
+    }
+  }
+  double sum = 0.0;
+  for (std::size_t k = 0; k < h.size(); ++k) {
+    EXPECT_NEAR(h[k].weight, expected_w[k] / total, kTol);
+    EXPECT_NEAR(h[k].mean.z(), expected_phi[k], 1e-9);
+    EXPECT_GT(h[k].mean.z(), -kPi);
+    EXPECT_LE(h[k].mean.z(), kPi);
+    sum += h[k].weight;
+  }
+  EXPECT_NEAR(sum, 1.0, kTol);
+  // A's first component: 3.0 + 0.5 wraps to 3.5 - 2 pi.
+  EXPECT_NEAR(h[0].mean.z(), 3.5 - kTwoPi, 1e-6);
+  EXPECT_NEAR(h[0].mean.x(), 1.0, kTol);
+  // B's component: 0.2 - 0.5.
+  EXPECT_NEAR(h[2].mean.z(), -0.3, 1e-6);
+  EXPECT_TRUE(m.Hypothesis(fx->Make({50, 50})).empty());
+}
+
+// Descriptors without heading: headings are kept and the heading variance is inflated.
+TEST(EnvironmentModel, HypothesisWithoutHeadingInflatesHeadingVariance) {
+  auto fx = MakeFakeExtractor(2, /*provides_heading=*/false);
+  EnvironmentModelOptions o;
+  o.heading_sigma_no_rotation_rad = 1.5;
+  EnvironmentModel m(o, fx);
+  const Gaussian g = Est(1, 2, 2.5, 0.1, 0.2, 0.3);
+  m.Update(fx->Make({0, 0}), g, {0, 0});
+  const Mixture h = m.Hypothesis(fx->Make({0.1f, 0}));
+  ASSERT_EQ(h.size(), 1u);
+  EXPECT_NEAR(h[0].mean.z(), 2.5, kTol);
+  EXPECT_NEAR(h[0].covariance(2, 2), 0.09 + 2.25, kTol);
+  EXPECT_NEAR(h[0].covariance(0, 0), 0.01, kTol);
+  EXPECT_NEAR(h[0].weight, 1.0, kTol);
+}
+
+// top_k limits the hypothesis to the k most similar views; ties are broken by view id.
+TEST(EnvironmentModel, TopKAndDeterministicOrder) {
+  auto fx = MakeFakeExtractor(2);
+  EnvironmentModelOptions o;
+  o.e_max = 1.5;
+  o.top_k = 2;
+  EnvironmentModel m(o, fx);
+  m.Update(fx->Make({1, 0}), Est(0, 0, 0), {0, 0});
+  m.Update(fx->Make({-1, 0}), Est(5, 0, 0), {1, 0});
+  m.Update(fx->Make({0, 1.2f}), Est(10, 0, 0), {2, 0});
+  ASSERT_EQ(m.NumViews(), 3u);
+  const Descriptor q = fx->Make({0, 0});
+  const auto all = m.FindAllMatches(q);
+  ASSERT_EQ(all.size(), 3u);
+  EXPECT_EQ(all[0].view_id, 1u);  // equal distance 1: lower id first
+  EXPECT_EQ(all[1].view_id, 2u);
+  EXPECT_EQ(all[2].view_id, 3u);
+  const auto top = m.FindMatches(q);
+  ASSERT_EQ(top.size(), 2u);
+  const Mixture h = m.Hypothesis(q);
+  ASSERT_EQ(h.size(), 2u);
+  EXPECT_NEAR(h[0].mean.x(), 0.0, kTol);
+  EXPECT_NEAR(h[1].mean.x(), 5.0, kTol);
+}
+
+// FindAllMatches equals a brute-force scan (E < e_max, sorted by distance then id).
+TEST(EnvironmentModel, FindMatchesEqualsBruteForce) {
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<float> u(0.0f, 3.0f);
+  auto fx = MakeFakeExtractor(3);
+  EnvironmentModelOptions o;
+  o.e_max = 0.8;
+  EnvironmentModel m(o, fx);
+  for (int t = 0; t < 400; ++t)
+    m.Update(fx->Make({u(rng), u(rng), u(rng)}), Est(u(rng), u(rng), 0), {t, 0});
+  for (int q = 0; q < 50; ++q) {
+    const Descriptor y = fx->Make({u(rng), u(rng), u(rng)});
+    std::vector<std::pair<double, std::uint64_t>> expected;
+    for (const ReferenceView& v : m.views()) {
+      const double e = fx->Distance(y, v.descriptor);
+      if (e < o.e_max) expected.emplace_back(e, v.id);
+    }
+    std::sort(expected.begin(), expected.end());
+    const auto got = m.FindAllMatches(y);
+    ASSERT_EQ(got.size(), expected.size());
+    for (std::size_t k = 0; k < got.size(); ++k) {
+      EXPECT_EQ(got[k].view_id, expected[k].second);
+      EXPECT_EQ(got[k].distance, expected[k].first);
+      EXPECT_EQ(m.views()[got[k].view_index].id, got[k].view_id);
+    }
+  }
+}
+
+// Active forgetting removes a view whose place changed for good; passive mode keeps it.
+TEST(EnvironmentModel, ActiveForgetsChangedPlacePassiveKeepsIt) {
+  auto fx = MakeFakeExtractor(2);
+  std::mt19937 rng(11);
+  std::normal_distribution<double> jitter(0.0, 0.05);
+  for (const ForgettingMode mode : {ForgettingMode::kActive, ForgettingMode::kPassive}) {
+    EnvironmentModelOptions o;
+    o.forgetting = mode;
+    EnvironmentModel m(o, fx);
+    const Descriptor before_change = fx->Make({0, 0});
+    const Descriptor after_change = fx->Make({5, 0});  // E = 5 >= e_max: the place looks different
+    for (int t = 0; t < 20; ++t) m.Update(before_change, Est(jitter(rng), jitter(rng), 0), {t, 0});
+    ASSERT_EQ(m.NumViews(), 1u);
+    const std::uint64_t old_view = m.views()[0].id;
+    const double w_old = m.views()[0].TotalWeight();
+    for (int t = 20; t < 220; ++t) m.Update(after_change, Est(jitter(rng), jitter(rng), 0), {t, 1});
+    m.CheckInvariants();
+    if (mode == ForgettingMode::kActive) {
+      EXPECT_FALSE(m.FindView(old_view).has_value());
+      EXPECT_EQ(m.NumViews(), 1u);
+      const auto it = std::find_if(m.events().begin(), m.events().end(), [&](const MapEvent& e) {
+        return e.type == MapEventType::kViewRemoved && e.view_id == old_view;
+      });
+      ASSERT_NE(it, m.events().end());
+      EXPECT_EQ(it->session, 1);
+      EXPECT_NEAR(it->position.x(), 0.0, 0.5);
+      // The log tells the changed place apart from a new one: at the same place, the new
+      // appearance was inserted and the old view's components were forgotten actively.
+      const auto inserted =
+          std::find_if(m.events().begin(), m.events().end(), [&](const MapEvent& e) {
+            return e.type == MapEventType::kViewInserted && e.view_id != old_view;
+          });
+      ASSERT_NE(inserted, m.events().end());
+      EXPECT_EQ(inserted->frame, 20);
+      EXPECT_EQ(inserted->reason, "no view within e_max");
+      EXPECT_NEAR(inserted->position.x(), 0.0, 0.5);
+      for (const MapEvent& e : m.events()) {
+        if (e.type == MapEventType::kComponentRemoved && e.view_id == old_view) {
+          EXPECT_EQ(e.reason, "active forgetting (18)-(19)");
+        }
+      }
+      // Counters of the new view.
+      const ReferenceView& now = m.views()[0];
+      EXPECT_EQ(now.stats.created_frame, 20);
+      EXPECT_EQ(now.stats.created_session, 1);
+      EXPECT_EQ(now.stats.observations, 200);
+      EXPECT_EQ(now.stats.last_seen_frame, 219);
+      EXPECT_EQ(now.stats.last_seen_session, 1);
+      EXPECT_GT(now.TotalWeight(), 0.5);
+    } else {
+      ASSERT_TRUE(m.FindView(old_view).has_value());
+      EXPECT_EQ(ViewById(m, old_view).TotalWeight(), w_old);
+      EXPECT_EQ(m.NumViews(), 2u);
+    }
+  }
+}
+
+// Static mode never changes the model (bytes identical), even when empty.
+TEST(EnvironmentModel, StaticModeNeverChangesTheMap) {
+  auto fx = MakeFakeExtractor(2);
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> u(0.0f, 4.0f);
+  EnvironmentModel m(EnvironmentModelOptions{}, fx);
+  for (int t = 0; t < 50; ++t) m.Update(fx->Make({u(rng), u(rng)}), Est(u(rng), u(rng), 0), {t, 0});
+  const std::vector<std::uint8_t> frozen = Bytes(m);
+  m.SetForgettingMode(ForgettingMode::kStatic);
+  for (int t = 50; t < 150; ++t) {
+    const UpdateStats s = m.Update(fx->Make({u(rng), u(rng)}), Est(u(rng), u(rng), 0), {t, 0});
+    EXPECT_FALSE(s.view_inserted);
+  }
+  EXPECT_EQ(Bytes(m), frozen);
+  EnvironmentModelOptions o;
+  o.forgetting = ForgettingMode::kStatic;
+  EnvironmentModel empty(o, fx);
+  empty.Update(fx->Make({1, 1}), Est(0, 0, 0), {0, 0});
+  EXPECT_EQ(empty.NumViews(), 0u);
+  EXPECT_TRUE(empty.events().empty());
+}
+
+// Over random updates: forgetting never raises a weight (non-matching views only lose
+// weight), invariants hold, weights stay in [0, 1].
+TEST(EnvironmentModel, ForgettingNeverRaisesWeight) {
+  std::mt19937 rng(21);
+  std::uniform_real_distribution<float> u(0.0f, 3.0f);
+  std::uniform_real_distribution<double> p(0.0, 6.0);
+  std::normal_distribution<float> noise(0.0f, 0.15f);
+  auto fx = MakeFakeExtractor(3);
+  std::vector<std::vector<float>> centres;
+  for (int k = 0; k < 12; ++k) centres.push_back({u(rng), u(rng), u(rng)});
+  for (const ForgettingMode mode : {ForgettingMode::kActive, ForgettingMode::kPassive}) {
+    EnvironmentModelOptions o;
+    o.forgetting = mode;
+    o.e_max = 0.6;
+    o.d_for_m = 1.5;
+    o.beta_for = 0.3;
+    EnvironmentModel m(o, fx);
+    int decreases = 0;
+    for (int t = 0; t < 600; ++t) {
+      std::vector<float> f = centres[rng() % centres.size()];
+      for (float& v : f) v += noise(rng);
+      const Descriptor y = fx->Make(f);
+      std::set<std::uint64_t> matched;
+      for (const ViewMatch& mt : m.FindAllMatches(y)) matched.insert(mt.view_id);
+      std::map<std::uint64_t, double> before;
+      for (const ReferenceView& v : m.views()) {
+        if (matched.count(v.id)) continue;
+        for (const ViewComponent& c : v.components) before[c.id] = c.weight;
+      }
+      m.Update(y, Est(p(rng), p(rng), 0, 0.2, 0.2, 0.2), {t, 0});
+      for (const ReferenceView& v : m.views()) {
+        for (const ViewComponent& c : v.components) {
+          EXPECT_GE(c.weight, 0.0);
+          EXPECT_LE(c.weight, 1.0);
+          const auto it = before.find(c.id);
+          if (it == before.end()) continue;
+          EXPECT_LE(c.weight, it->second);
+          if (c.weight < it->second) ++decreases;
+        }
+      }
+      if (t % 50 == 0) m.CheckInvariants();
+    }
+    m.CheckInvariants();
+    if (mode == ForgettingMode::kActive) {
+      EXPECT_GT(decreases, 0);
+    } else {
+      EXPECT_EQ(decreases, 0);  // passive mode never touches non-matching views
+    }
+  }
+}
+
+// Serialize/Deserialize round trip is exact (same views, events, ids, bytes, and the
+// same future), truncated or corrupted bytes and a mismatching extractor throw Error.
+TEST(EnvironmentModel, SerializeRoundTripAndCorruption) {
+  std::mt19937 rng(8);
+  std::uniform_real_distribution<float> u(0.0f, 3.0f);
+  auto fx = MakeFakeExtractor(3);
+  EnvironmentModelOptions o;
+  o.e_max = 0.7;
+  o.log_component_events = true;
+  EnvironmentModel m(o, fx);
+  for (int t = 0; t < 300; ++t) {
+    m.Update(fx->Make({u(rng), u(rng), u(rng)}, u(rng)), Est(u(rng), u(rng), u(rng) - 1.5),
+             {t, t / 100});
+  }
+  ASSERT_GT(m.NumViews(), 10u);
+  const std::vector<std::uint8_t> bytes = Bytes(m);
+  BinaryReader in(bytes, "model");
+  EnvironmentModel copy = EnvironmentModel::Deserialize(in, o, fx);
+  EXPECT_EQ(in.remaining(), 0u);
+  copy.CheckInvariants();
+  EXPECT_EQ(copy.views(), m.views());
+  EXPECT_EQ(copy.events(), m.events());
+  EXPECT_EQ(copy.next_view_id(), m.next_view_id());
+  EXPECT_EQ(copy.next_component_id(), m.next_component_id());
+  EXPECT_EQ(Bytes(copy), bytes);
+  for (int t = 300; t < 350; ++t) {
+    const Descriptor y = fx->Make({u(rng), u(rng), u(rng)}, u(rng));
+    const Gaussian g = Est(u(rng), u(rng), 0);
+    m.Update(y, g, {t, 3});
+    copy.Update(y, g, {t, 3});
+  }
+  EXPECT_EQ(Bytes(copy), Bytes(m));
+
+  for (std::size_t n = 0; n < bytes.size(); n += (n < 200 ? 1 : 997)) {
+    std::vector<std::uint8_t> cut(bytes.begin(), bytes.begin() + static_cast<std::ptrdiff_t>(n));
+    BinaryReader r(cut, "cut");
+    EXPECT_THROW(EnvironmentModel::Deserialize(r, o, fx), Error) << "prefix " << n;
+  }
+  std::vector<std::uint8_t> bad = bytes;
+  bad[0] ^= 0xFF;
+  BinaryReader r1(bad);
+  EXPECT_THROW(EnvironmentModel::Deserialize(r1, o, fx), Error);
+  BinaryReader r2(bytes);
+  EXPECT_THROW(EnvironmentModel::Deserialize(r2, o, MakeFakeExtractor(4)), Error);
+  BinaryReader r3(bytes);
+  EXPECT_THROW(EnvironmentModel::Deserialize(r3, o, MakeFakeExtractor(3, false)), Error);
+}
+
+// Bad input is rejected and leaves the model unchanged.
+TEST(EnvironmentModel, RejectsBadInputWithoutChange) {
+  auto fx = MakeFakeExtractor(2);
+  EnvironmentModel m(EnvironmentModelOptions{}, fx);
+  m.Update(fx->Make({0, 0}), Est(0, 0, 0), {0, 0});
+  const auto bytes = Bytes(m);
+  EXPECT_THROW(m.Update(fx->Make({0, 0, 0}), Est(0, 0, 0), {1, 0}), Error);
+  Gaussian bad = Est(0, 0, 0);
+  bad.covariance(0, 0) = -1;
+  EXPECT_THROW(m.Update(fx->Make({0, 0}), bad, {1, 0}), Error);
+  bad = Est(0, 0, 0);
+  bad.mean.x() = std::nan("");
+  EXPECT_THROW(m.Update(fx->Make({0, 0}), bad, {1, 0}), Error);
+  EXPECT_THROW(m.FindMatches(MakeFakeExtractor(2, false)->Make({0, 0})), Error);
+  EXPECT_EQ(Bytes(m), bytes);
+  EXPECT_THROW(EnvironmentModel(EnvironmentModelOptions{}, nullptr), Error);
+  // Matches from before a change are detected as stale when the view moved away.
+  const auto matches = m.FindMatches(fx->Make({0, 0}));
+  ASSERT_EQ(matches.size(), 1u);
+  std::vector<ViewMatch> stale = matches;
+  stale[0].view_id = 999;
+  EXPECT_THROW(m.Hypothesis(stale), Error);
+}
+
+// With real Fourier signatures: a view learned at heading phi is recognised in a panorama
+// rolled by k columns (the robot turned by k 2 pi / W) with heading phi + k 2 pi / W, and
+// the rolled observation merges into the same stored component.
+TEST(EnvironmentModel, RealFourierSignatureRecoversHeading) {
+  std::shared_ptr<const DescriptorExtractor> fx = MakeDescriptorExtractor(DescriptorOptions{});
+  cv::Mat noise(48, 360, CV_8UC1);
+  cv::RNG cv_rng(17);
+  cv_rng.fill(noise, cv::RNG::UNIFORM, 0, 255);
+  cv::Mat panorama;
+  cv::GaussianBlur(noise, panorama, cv::Size(15, 5), 0, 0, cv::BORDER_REFLECT);
+  const int k = 30;  // after[c] = before[(c + k) mod W]
+  cv::Mat rolled;
+  cv::hconcat(panorama.colRange(k, panorama.cols), panorama.colRange(0, k), rolled);
+  const Descriptor y0 = fx->Compute(panorama);
+  const Descriptor y1 = fx->Compute(rolled);
+  EnvironmentModelOptions o;
+  o.e_max = 1.0;
+  EnvironmentModel m(o, fx);
+  m.Update(y0, Est(1, 2, 0.7), {0, 0});
+  const double turn = k * kTwoPi / panorama.cols;
+  const auto matches = m.FindMatches(y1);
+  ASSERT_EQ(matches.size(), 1u);
+  EXPECT_GT(matches[0].similarity, 0.99);
+  const Mixture h = m.Hypothesis(matches);
+  ASSERT_EQ(h.size(), 1u);
+  EXPECT_NEAR(h[0].mean.z(), 0.7 + turn, 0.01);
+  EXPECT_NEAR(h[0].mean.x(), 1.0, kTol);
+  const UpdateStats s = m.Update(y1, Est(1.05, 2, 0.7 + turn), {1, 0});
+  EXPECT_EQ(s.components_merged, 1);
+  EXPECT_EQ(m.NumComponents(), 1u);
+  EXPECT_NEAR(m.views()[0].components[0].mean.z(), 0.7, 0.01);
+}
+
+}  // namespace
+}  // namespace omnicml

@@ -1,0 +1,175 @@
+// Tests of world descriptions: built-in worlds, YAML errors, event schedule, routes.
+#include "omnicml/sim/world.h"
+
+#include <cmath>
+#include <string>
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include "omnicml/common/common.h"
+#include "omnicml/sim/simulator.h"
+
+namespace omnicml {
+namespace {
+
+using ::testing::HasSubstr;
+
+// A small valid world; tests splice errors into it.
+std::string SmallWorld(const std::string& extra_shelf_key = "",
+                       const std::string& extra_top_key = "") {
+  return "name: small\n"
+         "size_m: [10, 6]\n" +
+         extra_top_key +
+         "walls:\n"
+         "  - {name: outer, polyline_m: [[0, 0], [10, 0], [10, 6], [0, 6], [0, 0]], height_m: 3}\n"
+         "shelves:\n"
+         "  - name: s1\n"
+         "    rectangle_m: [4, 2.5, 6, 3.5]\n"
+         "    height_m: 1.5\n" +
+         extra_shelf_key +
+         "route:\n"
+         "  waypoints_m: [[1, 1], [9, 1], [9, 5], [1, 5]]\n";
+}
+
+std::string ErrorOf(const std::string& yaml, const std::string& source = "test.yaml") {
+  try {
+    ParseWorld(yaml, source);
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return "";
+}
+
+// Every built-in world loads, and its size matches its description.
+TEST(World, BuiltinWorldsLoad) {
+  const auto names = BuiltinWorldNames();
+  ASSERT_EQ(names.size(), 3u);
+  for (const auto& name : names) {
+    const World w = LoadBuiltinWorld(name);
+    EXPECT_EQ(w.name, name);
+    EXPECT_FALSE(w.obstacles.empty()) << name;
+    EXPECT_FALSE(w.lights.empty()) << name;
+  }
+  const World home = LoadBuiltinWorld("home_store");
+  EXPECT_DOUBLE_EQ(home.size_m.x(), 25.0);
+  EXPECT_DOUBLE_EQ(home.size_m.y(), 10.0);
+  const World inst = LoadBuiltinWorld("institute");
+  EXPECT_DOUBLE_EQ(inst.size_m.x(), 10.0);
+  EXPECT_DOUBLE_EQ(inst.size_m.y(), 15.0);
+  const World large = LoadBuiltinWorld("store_large");
+  EXPECT_DOUBLE_EQ(large.size_m.x(), 50.0);
+  EXPECT_DOUBLE_EQ(large.size_m.y(), 80.0);
+  EXPECT_DOUBLE_EQ(large.days_between_sessions, 28.0);
+  const RoutePath route(large.route.waypoints_m, large.route.turn_radius_m);
+  EXPECT_GT(route.length_m(), 270.0);
+  EXPECT_LT(route.length_m(), 320.0);
+  EXPECT_THROW(LoadBuiltinWorld("no_such_world"), Error);
+}
+
+// An unknown top-level key is an error naming the key, the file and the line.
+TEST(World, UnknownTopLevelKeyNamesKeyFileAndLine) {
+  const std::string msg = ErrorOf(SmallWorld("", "shelvs: []\n"), "worlds/bad.yaml");
+  EXPECT_THAT(msg, HasSubstr("worlds/bad.yaml:3"));
+  EXPECT_THAT(msg, HasSubstr("shelvs"));
+  EXPECT_THAT(msg, HasSubstr("unknown key"));
+}
+
+// An unknown nested key names its full path.
+TEST(World, UnknownNestedKeyNamesPath) {
+  const std::string msg = ErrorOf(SmallWorld("    heigth_m: 2\n"));
+  EXPECT_THAT(msg, HasSubstr("test.yaml:"));
+  EXPECT_THAT(msg, HasSubstr("shelves[0].heigth_m"));
+}
+
+// Bad values, missing keys, unknown event targets and blocked routes are reported.
+TEST(World, BadValuesAreReported) {
+  std::string yaml = SmallWorld();
+  const std::string neg = std::string(yaml).replace(yaml.find("height_m: 1.5"), 13, "height_m: -1");
+  EXPECT_THAT(ErrorOf(neg), HasSubstr("shelves[0].height_m"));
+  EXPECT_THAT(ErrorOf(SmallWorld("    texture: {kind: marble}\n")),
+              HasSubstr("unknown texture kind 'marble'"));
+  EXPECT_THAT(ErrorOf(SmallWorld("", "events:\n  - {type: lights_off, day: 2, target: nowhere}\n")),
+              HasSubstr("unknown target 'nowhere'"));
+  EXPECT_THAT(ErrorOf(SmallWorld("", "events:\n  - {type: lights_of, day: 2, target: x}\n")),
+              HasSubstr("unknown event type 'lights_of'"));
+  EXPECT_THAT(ErrorOf(SmallWorld("", "events:\n  - {type: shelf_cleared, target: s1}\n")),
+              HasSubstr("exactly one timing key"));
+  const std::string blocked =
+      std::string(yaml).replace(yaml.find("[9, 5], [1, 5]"), 14, "[9, 5], [5, 3]");
+  EXPECT_THAT(ErrorOf(blocked), HasSubstr("route.waypoints_m"));
+  EXPECT_THAT(ErrorOf("name: x\nsize_m: [10, 6]\n"), HasSubstr("route: missing required key"));
+  EXPECT_THAT(ErrorOf("name: [\n"), HasSubstr("YAML syntax error"));
+  try {
+    LoadWorldFile("/nonexistent/dir/w.yaml");
+    FAIL() << "no error";
+  } catch (const Error& e) {
+    EXPECT_THAT(std::string(e.what()), HasSubstr("/nonexistent/dir/w.yaml"));
+  }
+}
+
+// Day events are applied on their day, and the state at a day's start depends only on
+// the seed and the day.
+TEST(World, DayEventsApplyOnTheirDay) {
+  const World w = LoadBuiltinWorld("store_large");
+  const int s = w.FindObstacle("S1a_2");
+  ASSERT_GE(s, 0);
+  const WorldState day1 = StateAtDayStart(w, 1, 5);
+  const WorldState day2 = StateAtDayStart(w, 2, 5);
+  const WorldState day4 = StateAtDayStart(w, 4, 5);
+  EXPECT_EQ(day1, InitialWorldState(w));
+  EXPECT_DOUBLE_EQ(day2.obstacle_offset_m[s].x(), 0.6);
+  EXPECT_DOUBLE_EQ(day4.obstacle_offset_m[s].x(), 0.0);  // moved back on day 4
+  const int ne = w.FindLight("north_east");
+  EXPECT_TRUE(StateAtDayStart(w, 2, 5).light_on[ne]);
+  EXPECT_FALSE(StateAtDayStart(w, 3, 5).light_on[ne]);
+  EXPECT_TRUE(StateAtDayStart(w, 4, 5).light_on[ne]);
+  EXPECT_EQ(StateAtDayStart(w, 3, 5), StateAtDayStart(w, 3, 5));
+  // About a third of the shelves are restocked per day (probability 0.35 over 60).
+  int restocked = 0;
+  for (std::size_t i = 0; i < w.obstacles.size(); ++i)
+    restocked += day2.texture_seed[i] != day1.texture_seed[i];
+  EXPECT_GT(restocked, 8);
+  EXPECT_LT(restocked, 35);
+  EXPECT_NE(StateAtDayStart(w, 2, 5).texture_seed, StateAtDayStart(w, 2, 6).texture_seed);
+}
+
+// Step events make the institute change continuously within a day.
+TEST(World, StepEventsChangeInstituteContinuously) {
+  const World w = LoadBuiltinWorld("institute");
+  WorldState state = StateAtDayStart(w, 1, 3);
+  int changes = 0;
+  for (int step = 1; step <= 600; ++step)
+    changes += ApplyStepEvents(w, 1, step, 3, &state).any() ? 1 : 0;
+  EXPECT_GT(changes, 5);
+  WorldState again = StateAtDayStart(w, 1, 3);
+  for (int step = 1; step <= 600; ++step) ApplyStepEvents(w, 1, step, 3, &again);
+  EXPECT_EQ(state, again);
+}
+
+// The route runs at constant speed with a continuous heading.
+TEST(RoutePath, ConstantSpeedAndSmoothHeading) {
+  for (const auto& name : BuiltinWorldNames()) {
+    const World w = LoadBuiltinWorld(name);
+    const RoutePath route(w.route.waypoints_m, w.route.turn_radius_m);
+    const double ds = 0.05;
+    Pose2 prev = route.PoseAt(0);
+    for (double s = ds; s <= route.length_m() + 1e-9; s += ds) {
+      const Pose2 p = route.PoseAt(s);
+      const double step = (p.head<2>() - prev.head<2>()).norm();
+      EXPECT_NEAR(step, ds, 1e-3 * ds + 1e-9) << name << " s=" << s;
+      // Heading changes at most by ds / r_min (r_min >= 0.3 m in the built-in worlds).
+      EXPECT_LE(std::abs(WrapAngle(p.z() - prev.z())), ds / 0.3 + 1e-9) << name << " s=" << s;
+      // The position moves along the heading.
+      const Eigen::Vector2d d = (p.head<2>() - prev.head<2>()) / step;
+      const double mid = prev.z() + 0.5 * WrapAngle(p.z() - prev.z());
+      EXPECT_GT(d.dot(Eigen::Vector2d(std::cos(mid), std::sin(mid))), 0.999) << name << " s=" << s;
+      prev = p;
+    }
+    // The loop closes.
+    EXPECT_LT(PoseDifference(route.PoseAt(route.length_m()), route.PoseAt(0)).norm(), 1e-9);
+  }
+}
+
+}  // namespace
+}  // namespace omnicml

@@ -1,0 +1,537 @@
+#include "omnicml/tracking/tracker.h"
+
+#include <cmath>
+#include <limits>
+#include <random>
+#include <vector>
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+#include <Eigen/Eigenvalues>
+#include <Eigen/LU>
+#include <Eigen/QR>
+
+#include "omnicml/common/common.h"
+
+namespace omnicml {
+namespace {
+
+using ::testing::HasSubstr;
+
+Eigen::Matrix3d RandomSpd(std::mt19937_64& rng, double min_eig = 1e-3, double max_eig = 1.0) {
+  std::normal_distribution<double> n(0.0, 1.0);
+  std::uniform_real_distribution<double> log_eig(std::log(min_eig), std::log(max_eig));
+  Eigen::Matrix3d a;
+  for (int i = 0; i < 9; ++i) a(i) = n(rng);
+  const Eigen::Matrix3d q = Eigen::HouseholderQR<Eigen::Matrix3d>(a).householderQ();
+  const Eigen::Vector3d lambda(std::exp(log_eig(rng)), std::exp(log_eig(rng)),
+                               std::exp(log_eig(rng)));
+  const Eigen::Matrix3d c = q * lambda.asDiagonal() * q.transpose();
+  return 0.5 * (c + c.transpose());
+}
+
+Pose2 RandomPose(std::mt19937_64& rng, double extent_m = 10.0) {
+  std::uniform_real_distribution<double> xy(-extent_m, extent_m);
+  std::uniform_real_distribution<double> phi(-kPi, kPi);
+  return MakePose(xy(rng), xy(rng), phi(rng));
+}
+
+Mixture RandomMixture(std::mt19937_64& rng, int n, double extent_m) {
+  std::uniform_real_distribution<double> w(0.05, 1.0);
+  Mixture m;
+  for (int i = 0; i < n; ++i)
+    m.push_back({RandomPose(rng, extent_m), RandomSpd(rng, 1e-2, 1.0), w(rng)});
+  return m;
+}
+
+bool IsSymmetricPositiveDefinite(const Eigen::Matrix3d& c) {
+  if (!c.allFinite() || (c - c.transpose()).cwiseAbs().maxCoeff() > 1e-12 * c.cwiseAbs().maxCoeff())
+    return false;
+  return Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(c).eigenvalues().minCoeff() > 0;
+}
+
+// Invariants of every cleaned-up state mixture: non-empty, weights sum to one and each at
+// least w_min, at most max_components, SPD covariances, wrapped headings.
+void ExpectValidState(const Mixture& m, const TrackerOptions& options) {
+  ASSERT_FALSE(m.empty());
+  EXPECT_NEAR(TotalWeight(m), 1.0, 1e-12);
+  EXPECT_LE(static_cast<int>(m.size()), options.max_components);
+  for (const Gaussian& g : m) {
+    EXPECT_GE(g.weight, options.w_min);
+    EXPECT_TRUE(IsSymmetricPositiveDefinite(g.covariance)) << g.covariance;
+    EXPECT_GT(g.mean.z(), -kPi);
+    EXPECT_LE(g.mean.z(), kPi);
+  }
+}
+
+Eigen::Matrix3d Diag(double a, double b, double c) { return Eigen::Vector3d(a, b, c).asDiagonal(); }
+
+// ---------------------------------------------------------------- options
+
+// The defaults are valid; every invalid field is named in the error.
+TEST(TrackerOptions, ValidateNamesTheField) {
+  EXPECT_NO_THROW(TrackerOptions{}.Validate());
+  EXPECT_NO_THROW(MotionNoise{}.Validate());
+  auto expect_field = [](TrackerOptions o, const char* field) {
+    try {
+      o.Validate();
+      ADD_FAILURE() << "no throw for " << field;
+    } catch (const Error& e) {
+      EXPECT_THAT(e.what(), HasSubstr(field));
+    }
+  };
+  TrackerOptions o;
+  o.gamma = 0;
+  expect_field(o, "gamma");
+  o = {};
+  o.gamma = std::numeric_limits<double>::infinity();
+  expect_field(o, "gamma");
+  o = {};
+  o.w_min = 1.0;
+  expect_field(o, "w_min");
+  o = {};
+  o.w_min = std::numeric_limits<double>::quiet_NaN();
+  expect_field(o, "w_min");
+  o = {};
+  o.delta = -1;
+  expect_field(o, "delta");
+  o = {};
+  o.max_components = 0;
+  expect_field(o, "max_components");
+  o = {};
+  o.unimodal_min_weight = 1.5;
+  expect_field(o, "unimodal_min_weight");
+  o = {};
+  o.min_covariance_eigenvalue = 0;
+  expect_field(o, "min_covariance_eigenvalue");
+  o = {};
+  o.motion.a3 = -0.1;
+  expect_field(o, "motion.a3");
+  MotionNoise n;
+  n.a2 = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_THROW(n.Validate(), Error);
+  EXPECT_THROW(MixtureTracker{o}, Error);
+}
+
+// ---------------------------------------------------------------- motion model
+
+// The analytic Jacobians G and V match central differences at random poses/increments.
+TEST(MotionModel, AnalyticJacobiansMatchNumeric) {
+  std::mt19937_64 rng(10);
+  std::uniform_real_distribution<double> rot(-kPi / 2, kPi / 2), trans(-2.0, 2.0);
+  const double h = 1e-6;
+  for (int trial = 0; trial < 200; ++trial) {
+    const Pose2 mu = RandomPose(rng);
+    const OdometryIncrement u{rot(rng), trans(rng), rot(rng)};
+    Eigen::Matrix3d g_num, v_num;
+    for (int k = 0; k < 3; ++k) {
+      Pose2 plus = mu, minus = mu;
+      plus(k) += h;
+      minus(k) -= h;
+      g_num.col(k) = PoseDifference(ApplyIncrement(plus, u), ApplyIncrement(minus, u)) / (2 * h);
+      OdometryIncrement up = u, um = u;
+      double* fields_p[3] = {&up.rot1_rad, &up.trans_m, &up.rot2_rad};
+      double* fields_m[3] = {&um.rot1_rad, &um.trans_m, &um.rot2_rad};
+      *fields_p[k] += h;
+      *fields_m[k] -= h;
+      v_num.col(k) = PoseDifference(ApplyIncrement(mu, up), ApplyIncrement(mu, um)) / (2 * h);
+    }
+    EXPECT_LT((MotionJacobianState(mu, u) - g_num).cwiseAbs().maxCoeff(), 1e-7)
+        << "trial " << trial;
+    EXPECT_LT((MotionJacobianControl(mu, u) - v_num).cwiseAbs().maxCoeff(), 1e-7)
+        << "trial " << trial;
+  }
+}
+
+// M follows the a1..a4 model of docs/design.md "Motion model".
+TEST(MotionModel, NoiseCovarianceFollowsModel) {
+  const MotionNoise n{0.1, 0.2, 0.3, 0.4};
+  const OdometryIncrement u{0.5, 2.0, -0.25};
+  const Eigen::Matrix3d m = MotionNoiseCovariance(u, n);
+  EXPECT_NEAR(m(0, 0), 0.1 * 0.25 + 0.2 * 4.0, 1e-15);
+  EXPECT_NEAR(m(1, 1), 0.3 * 4.0 + 0.4 * (0.25 + 0.0625), 1e-15);
+  EXPECT_NEAR(m(2, 2), 0.1 * 0.0625 + 0.2 * 4.0, 1e-15);
+  EXPECT_EQ(m(0, 1), 0.0);
+  EXPECT_EQ(m(1, 2), 0.0);
+}
+
+// Driving a closed square returns every component to its start, with weights unchanged
+// and the covariance grown (trace, determinant and the position variances).
+TEST(MotionModel, ClosedSquareReturnsToStartWithGrownCovariance) {
+  const Eigen::Matrix3d c0 = Diag(1e-4, 2e-4, 1e-5);
+  const Mixture start = {{MakePose(1.0, 2.0, 0.3), c0, 0.7},
+                         {MakePose(-4.0, 0.5, kPi - 0.01), c0, 0.3}};
+  Mixture m = start;
+  const OdometryIncrement side{0.0, 2.0, kPi / 2};
+  for (int i = 0; i < 4; ++i) m = Propagate(m, side, MotionNoise{});
+  ASSERT_EQ(m.size(), start.size());
+  for (std::size_t k = 0; k < m.size(); ++k) {
+    EXPECT_LT(PoseDifference(m[k].mean, start[k].mean).norm(), 1e-9);
+    EXPECT_EQ(m[k].weight, start[k].weight);
+    EXPECT_TRUE(IsSymmetricPositiveDefinite(m[k].covariance));
+    EXPECT_GT(m[k].covariance.trace(), 10 * c0.trace());
+    EXPECT_GT(m[k].covariance.determinant(), c0.determinant());
+    EXPECT_GT(m[k].covariance(0, 0), c0(0, 0));
+    EXPECT_GT(m[k].covariance(1, 1), c0(1, 1));
+    EXPECT_GT(m[k].covariance(2, 2), c0(2, 2));
+  }
+}
+
+// Without motion (and so without noise) nothing changes; NaN covariances are rejected.
+TEST(MotionModel, ZeroIncrementAndInvalidInput) {
+  std::mt19937_64 rng(11);
+  const Mixture m = RandomMixture(rng, 5, 5.0);
+  const Mixture p = Propagate(m, OdometryIncrement{}, MotionNoise{});
+  for (std::size_t k = 0; k < m.size(); ++k) {
+    EXPECT_LT(PoseDifference(p[k].mean, m[k].mean).norm(), 1e-15);
+    EXPECT_LT((p[k].covariance - m[k].covariance).cwiseAbs().maxCoeff(), 1e-15);
+  }
+  Mixture bad = m;
+  bad[2].covariance(1, 1) = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_THROW(Propagate(bad, OdometryIncrement{0.1, 1.0, 0.0}, MotionNoise{}), Error);
+  EXPECT_THROW(Propagate(m, OdometryIncrement{0.1, std::numeric_limits<double>::infinity(), 0.0},
+                         MotionNoise{}),
+               Error);
+}
+
+// ---------------------------------------------------------------- covariance intersection
+
+// On random SPD pairs: alpha follows (5), C is symmetric PD, C^-1 equals the alpha-weighted
+// sum of the inverses (3) and the mean satisfies (4).
+TEST(CovarianceIntersection, InformationFormOnRandomSpd) {
+  std::mt19937_64 rng(20);
+  std::uniform_real_distribution<double> w(0.01, 1.0), small(-0.5, 0.5);
+  for (int trial = 0; trial < 500; ++trial) {
+    Gaussian a{RandomPose(rng), RandomSpd(rng), w(rng)};
+    Gaussian b{MakePose(a.mean.x() + small(rng), a.mean.y() + small(rng), a.mean.z() + small(rng)),
+               RandomSpd(rng), w(rng)};
+    const double alpha = CovarianceIntersectionAlpha(a, b);
+    const double det_a = a.covariance.determinant(), det_b = b.covariance.determinant();
+    EXPECT_NEAR(alpha, b.weight * det_a / (b.weight * det_a + a.weight * det_b), 1e-12);  // (5)
+    ASSERT_GE(alpha, 0.0);
+    ASSERT_LE(alpha, 1.0);
+    const Gaussian f = CovarianceIntersection(a, b, alpha);
+    EXPECT_TRUE(IsSymmetricPositiveDefinite(f.covariance));
+    const Eigen::Matrix3d info =
+        (1 - alpha) * a.covariance.inverse() + alpha * b.covariance.inverse();
+    EXPECT_LT((f.covariance.inverse() - info).norm(), 1e-8 * info.norm());  // (3)
+    const Pose2 mu_b = a.mean + PoseDifference(b.mean, a.mean);  // unwrapped next to mu_a
+    const Eigen::Vector3d rhs =
+        (1 - alpha) * a.covariance.inverse() * a.mean + alpha * b.covariance.inverse() * mu_b;
+    const Eigen::Vector3d lhs = info * (a.mean + PoseDifference(f.mean, a.mean));
+    EXPECT_LT((lhs - rhs).norm(), 1e-7 * (1 + rhs.norm()));  // (4)
+    EXPECT_EQ(f.weight, 0.0);
+  }
+}
+
+// alpha = 0 returns a, alpha = 1 returns b; equal covariances give alpha = w_b / (w_a + w_b)
+// and a larger w_b gives a larger alpha.
+TEST(CovarianceIntersection, AlphaFollowsWeights) {
+  const Gaussian a{MakePose(0, 0, 0), Diag(0.2, 0.3, 0.05), 0.25};
+  Gaussian b{MakePose(0.5, -0.2, 0.1), Diag(0.2, 0.3, 0.05), 0.75};
+  EXPECT_NEAR(CovarianceIntersectionAlpha(a, b), 0.75, 1e-12);
+  double previous = 0.0;
+  for (double wb : {0.1, 0.5, 1.0, 5.0}) {
+    b.weight = wb;
+    const double alpha = CovarianceIntersectionAlpha(a, b);
+    EXPECT_GT(alpha, previous);
+    previous = alpha;
+  }
+  EXPECT_LT(PoseDifference(CovarianceIntersection(a, b, 0.0).mean, a.mean).norm(), 1e-12);
+  EXPECT_LT(PoseDifference(CovarianceIntersection(a, b, 1.0).mean, b.mean).norm(), 1e-12);
+  EXPECT_THROW(CovarianceIntersection(a, b, 1.5), Error);
+}
+
+// A far more certain b dominates: the result sits at b with b's covariance.
+TEST(CovarianceIntersection, FarMoreCertainBDominates) {
+  const Gaussian a{MakePose(0, 0, 0), Diag(1.0, 1.0, 0.5), 0.5};
+  const Gaussian b{MakePose(0.8, -0.6, 0.4), Diag(1e-4, 1e-4, 1e-5), 0.5};
+  const double alpha = CovarianceIntersectionAlpha(a, b);
+  EXPECT_GT(alpha, 1.0 - 1e-9);
+  const Gaussian f = CovarianceIntersection(a, b, alpha);
+  EXPECT_LT(PoseDifference(f.mean, b.mean).norm(), 1e-6);
+  EXPECT_LT((f.covariance - b.covariance).cwiseAbs().maxCoeff(), 1e-8);
+}
+
+// Headings either side of +-pi fuse to a heading near pi, not 0.
+TEST(CovarianceIntersection, AcrossPi) {
+  const Gaussian a{MakePose(0, 0, kPi - 0.05), Diag(0.1, 0.1, 0.01), 0.5};
+  const Gaussian b{MakePose(0, 0, -kPi + 0.05), Diag(0.1, 0.1, 0.01), 0.5};
+  const Gaussian f = CovarianceIntersection(a, b, CovarianceIntersectionAlpha(a, b));
+  EXPECT_NEAR(std::abs(f.mean.z()), kPi, 1e-9);
+}
+
+// ---------------------------------------------------------------- fusion (2)-(8)
+
+// The configuration of [G] Fig. 2: a1 in p(x|u) has two counterparts b1, b2 in p(x|y);
+// a2 and b3 have none and are copied. Weights of (8) computed by hand:
+//   hat_w_a1 = w_b1 + w_b2 = 0.8; hat_w_b1 = hat_w_b2 = w_a1 = 0.6 (6)-(7)
+//   w(a1,b1) = 0.6*0.5/0.8 + 0.5*0.6/0.6 = 0.375 + 0.5 = 0.875
+//   w(a1,b2) = 0.6*0.3/0.8 + 0.3*0.6/0.6 = 0.225 + 0.3 = 0.525
+TEST(Fusion, WeightsOfFigure2) {
+  const Eigen::Matrix3d c = Diag(0.01, 0.01, 0.01);
+  const Gaussian a1{MakePose(0, 0, 0), c, 0.6}, a2{MakePose(10, 0, 0), c, 0.4};
+  const Gaussian b1{MakePose(0.3, 0, 0), c, 0.5}, b2{MakePose(-0.3, 0, 0), c, 0.3},
+      b3{MakePose(20, 0, 0), c, 0.2};
+  TrackerOptions options;  // gamma 11.34: a1-b1 and a1-b2 at 0.3^2 / 0.02 = 4.5 are gated in
+  const Mixture out = FuseOnce({a1, a2}, {b1, b2, b3}, options);
+  ASSERT_EQ(out.size(), 4u);
+  // Order: a1's pairs, a2 copied, then the unmatched b3.
+  EXPECT_NEAR(out[0].weight, 0.875, 1e-12);
+  EXPECT_NEAR(out[1].weight, 0.525, 1e-12);
+  EXPECT_DOUBLE_EQ(out[2].weight, 0.4);
+  EXPECT_DOUBLE_EQ(out[3].weight, 0.2);
+  const Gaussian f11 = CovarianceIntersection(a1, b1, CovarianceIntersectionAlpha(a1, b1));
+  EXPECT_LT(PoseDifference(out[0].mean, f11.mean).norm(), 1e-12);
+  EXPECT_LT((out[0].covariance - f11.covariance).norm(), 1e-12);
+  EXPECT_NEAR(out[0].mean.x(), 0.3 * 0.5 / (0.5 + 0.6),
+              1e-12);               // equal C: alpha = w_b / (w_a + w_b)
+  EXPECT_EQ(out[2].mean, a2.mean);  // copied unchanged
+  EXPECT_EQ(out[3].mean, b3.mean);
+  EXPECT_EQ(out[3].covariance, b3.covariance);
+  // After normalisation (total 2.0): 0.4375, 0.2625, 0.2, 0.1.
+  const Mixture fused = Fuse({a1, a2}, {{b1, b2, b3}}, [] {
+    TrackerOptions o;
+    o.delta = 0.0;  // no merging, to see the raw weights
+    return o;
+  }());
+  ASSERT_EQ(fused.size(), 4u);
+  EXPECT_NEAR(fused[0].weight, 0.4375, 1e-12);
+  EXPECT_NEAR(fused[1].weight, 0.2625, 1e-12);
+  EXPECT_NEAR(fused[2].weight, 0.2, 1e-12);
+  EXPECT_NEAR(fused[3].weight, 0.1, 1e-12);
+}
+
+// The mirror case: b1 with two counterparts a1, a2 shares its weight by (7).
+TEST(Fusion, WeightsOfOneBWithTwoCounterparts) {
+  const Eigen::Matrix3d c = Diag(0.01, 0.01, 0.01);
+  const Gaussian a1{MakePose(0.3, 0, 0), c, 0.2}, a2{MakePose(-0.3, 0, 0), c, 0.6};
+  const Gaussian b1{MakePose(0, 0, 0), c, 1.0};
+  const Mixture out = FuseOnce({a1, a2}, {b1}, TrackerOptions{});
+  ASSERT_EQ(out.size(), 2u);
+  // hat_w_a1 = hat_w_a2 = 1.0; hat_w_b1 = 0.8.
+  EXPECT_NEAR(out[0].weight, 0.2 * 1.0 / 1.0 + 1.0 * 0.2 / 0.8, 1e-12);
+  EXPECT_NEAR(out[1].weight, 0.6 * 1.0 / 1.0 + 1.0 * 0.6 / 0.8, 1e-12);
+}
+
+// (8) shares each side's weight among its counterparts, so a single fusion keeps the
+// total weight of both sides; every output covariance is SPD (random, seeded).
+TEST(Fusion, FuseOnceKeepsTotalWeight) {
+  std::mt19937_64 rng(30);
+  for (int trial = 0; trial < 50; ++trial) {
+    const Mixture a = RandomMixture(rng, 1 + trial % 7, 2.0);
+    const Mixture b = RandomMixture(rng, 1 + trial % 5, 2.0);
+    const Mixture out = FuseOnce(a, b, TrackerOptions{});
+    EXPECT_NEAR(TotalWeight(out), TotalWeight(a) + TotalWeight(b), 1e-12);
+    for (const Gaussian& g : out) EXPECT_TRUE(IsSymmetricPositiveDefinite(g.covariance));
+  }
+}
+
+// Several sources are fused one after the other before a single final clean-up, and the
+// result is a valid state mixture.
+TEST(Fusion, SeveralSourcesBeforeNormalisation) {
+  std::mt19937_64 rng(31);
+  const TrackerOptions options;
+  for (int trial = 0; trial < 20; ++trial) {
+    Mixture p = RandomMixture(rng, 6, 3.0);
+    NormalizeWeights(&p);
+    const Mixture s1 = RandomMixture(rng, 4, 3.0), s2 = RandomMixture(rng, 3, 3.0);
+    const Mixture fused = Fuse(p, {s1, Mixture{}, s2}, options);
+    const Mixture expected = Simplify(FuseOnce(FuseOnce(p, s1, options), s2, options), options);
+    ASSERT_EQ(fused.size(), expected.size());
+    for (std::size_t k = 0; k < fused.size(); ++k) {
+      EXPECT_DOUBLE_EQ(fused[k].weight, expected[k].weight);
+      EXPECT_EQ(fused[k].mean, expected[k].mean);
+    }
+    ExpectValidState(fused, options);
+  }
+}
+
+// With no (or only empty) sources the result is the cleaned-up p(x|u).
+TEST(Fusion, EmptySourcesGivePxu) {
+  std::mt19937_64 rng(32);
+  Mixture p = RandomMixture(rng, 5, 10.0);
+  const TrackerOptions options;
+  const Mixture expected = Simplify(p, options);
+  for (const auto& sources : {std::vector<Mixture>{}, std::vector<Mixture>{Mixture{}, Mixture{}}}) {
+    const Mixture fused = Fuse(p, sources, options);
+    ASSERT_EQ(fused.size(), expected.size());
+    for (std::size_t k = 0; k < fused.size(); ++k) EXPECT_EQ(fused[k].mean, expected[k].mean);
+  }
+}
+
+// A NaN in a source's covariance or weight is rejected with an Error naming the side.
+TEST(Fusion, RejectsInvalidSources) {
+  const Mixture p = {{Pose2::Zero(), Eigen::Matrix3d::Identity(), 1.0}};
+  Mixture bad = p;
+  bad[0].covariance(0, 0) = std::numeric_limits<double>::quiet_NaN();
+  try {
+    Fuse(p, {bad}, TrackerOptions{});
+    FAIL() << "no throw";
+  } catch (const Error& e) {
+    EXPECT_THAT(e.what(), HasSubstr("b_side[0]"));
+  }
+  bad = p;
+  bad[0].weight = -1.0;
+  EXPECT_THROW(Fuse(p, {bad}, TrackerOptions{}), Error);
+}
+
+// Random fusions of many components always leave a valid state mixture.
+TEST(Fusion, RandomFusionsStayValid) {
+  std::mt19937_64 rng(33);
+  TrackerOptions options;
+  options.max_components = 10;
+  for (int trial = 0; trial < 30; ++trial) {
+    Mixture p = RandomMixture(rng, 20, 4.0);
+    NormalizeWeights(&p);
+    const Mixture fused = Fuse(p, {RandomMixture(rng, 20, 4.0)}, options);
+    ExpectValidState(fused, options);
+  }
+}
+
+// ---------------------------------------------------------------- simplification
+
+// Simplify normalises, prunes below w_min, merges close components (also across +-pi)
+// and caps by weight.
+TEST(Simplify, PruneMergeCap) {
+  TrackerOptions options;
+  options.w_min = 0.05;
+  const Eigen::Matrix3d c = Diag(0.04, 0.04, 0.01);
+  const Mixture m = {
+      {MakePose(0, 0, kPi - 0.02), c, 4.0},  // merges with the next (across +-pi)
+      {MakePose(0.05, 0, -kPi + 0.02), c, 4.0},
+      {MakePose(5, 0, 0), c, 1.5},
+      {MakePose(-5, 0, 0), c, 0.6},
+      {MakePose(9, 9, 0), c, 0.2},  // 0.2 / 10.3 < w_min: pruned
+  };
+  const Mixture s = Simplify(m, options);
+  ASSERT_EQ(s.size(), 3u);
+  EXPECT_NEAR(TotalWeight(s), 1.0, 1e-12);
+  EXPECT_NEAR(s[0].weight, 8.0 / 10.1, 1e-12);
+  EXPECT_NEAR(std::abs(s[0].mean.z()), kPi, 1e-9);
+  EXPECT_NEAR(s[0].mean.x(), 0.025, 1e-12);
+  EXPECT_NEAR(s[1].weight, 1.5 / 10.1, 1e-12);
+  EXPECT_NEAR(s[2].weight, 0.6 / 10.1, 1e-12);
+
+  options.max_components = 2;
+  const Mixture capped = Simplify(m, options);
+  ASSERT_EQ(capped.size(), 2u);
+  EXPECT_NEAR(capped[0].weight, 8.0 / 9.5, 1e-12);
+  EXPECT_NEAR(capped[1].weight, 1.5 / 9.5, 1e-12);
+  ExpectValidState(capped, options);
+}
+
+// If pruning would empty the mixture, the strongest component is kept; an all-zero
+// weight vector counts as uniform; an empty mixture stays empty.
+TEST(Simplify, NeverEmptiesANonEmptyMixture) {
+  TrackerOptions options;
+  options.w_min = 0.5;
+  options.delta = 0.0;
+  const Eigen::Matrix3d c = Diag(0.01, 0.01, 0.01);
+  const Mixture m = {
+      {MakePose(0, 0, 0), c, 0.3}, {MakePose(5, 0, 0), c, 0.35}, {MakePose(-5, 0, 0), c, 0.35}};
+  const Mixture s = Simplify(m, options);
+  ASSERT_EQ(s.size(), 1u);
+  EXPECT_EQ(s[0].mean, m[1].mean);
+  EXPECT_DOUBLE_EQ(s[0].weight, 1.0);
+  options.w_min = 0.1;
+  Mixture zero = m;
+  for (Gaussian& g : zero) g.weight = 0.0;
+  const Mixture z = Simplify(zero, options);
+  ASSERT_EQ(z.size(), 3u);
+  for (const Gaussian& g : z) EXPECT_NEAR(g.weight, 1.0 / 3.0, 1e-12);
+  EXPECT_TRUE(Simplify(Mixture{}, options).empty());
+}
+
+// ---------------------------------------------------------------- unimodality, summary
+
+// Unimodal iff all components of non-negligible weight lie within gamma of the strongest.
+TEST(Summary, UnimodalityAndEstimate) {
+  const TrackerOptions options;
+  const Eigen::Matrix3d c = Diag(0.04, 0.04, 0.01);
+  Mixture m = {
+      {MakePose(0, 0, 0), c, 0.6}, {MakePose(0.2, 0, 0.05), c, 0.3}, {MakePose(6, 0, 0), c, 0.1}};
+  EXPECT_FALSE(IsUnimodal(m, options));  // the far one has weight 0.1 >= 0.05
+  m[2].weight = 0.01;
+  EXPECT_TRUE(IsUnimodal(m, options));  // now negligible
+  EXPECT_FALSE(IsUnimodal(Mixture{}, options));
+
+  const Estimate e = Summarize(m, options);
+  EXPECT_TRUE(e.unimodal);
+  EXPECT_EQ(e.num_components, 3);
+  EXPECT_EQ(e.strongest.mean, m[0].mean);
+  EXPECT_NEAR(e.strongest.weight, 0.6 / 0.91, 1e-12);
+  EXPECT_NEAR(e.mean.weight, 1.0, 1e-12);
+  EXPECT_NEAR(e.mean.mean.x(), (0.3 * 0.2 + 0.01 * 6) / 0.91, 1e-12);
+  EXPECT_TRUE(IsSymmetricPositiveDefinite(e.mean.covariance));
+  EXPECT_GT(e.mean.covariance(0, 0), c(0, 0));  // spread of the means adds to C_t
+  EXPECT_THROW(Summarize(Mixture{}, options), Error);
+}
+
+// ---------------------------------------------------------------- tracker
+
+// Reset / ResetUnknown / Step: a known start propagates by odometry; an unknown state
+// stays unknown until a non-empty source seeds it (odometry ignored for the seed).
+TEST(MixtureTracker, ResetAndStepSemantics) {
+  MixtureTracker tracker{TrackerOptions{}};
+  EXPECT_FALSE(tracker.HasState());
+  EXPECT_FALSE(tracker.Step(OdometryIncrement{0, 1, 0}, {}).has_value());
+  EXPECT_FALSE(tracker.Step(OdometryIncrement{0, 1, 0}, {Mixture{}}).has_value());
+
+  const Gaussian start{MakePose(1, 2, 0), Diag(0.01, 0.01, 0.001), 0.3};
+  tracker.Reset(start);
+  ASSERT_EQ(tracker.state().size(), 1u);
+  EXPECT_DOUBLE_EQ(tracker.state()[0].weight, 1.0);
+  const std::optional<Estimate> e = tracker.Step(OdometryIncrement{0, 1, 0}, {});
+  ASSERT_TRUE(e.has_value());
+  EXPECT_LT(PoseDifference(e->strongest.mean, MakePose(2, 2, 0)).norm(), 1e-12);
+  EXPECT_GT(e->strongest.covariance(0, 0), 0.01);
+  EXPECT_TRUE(e->unimodal);
+
+  tracker.ResetUnknown();
+  EXPECT_FALSE(tracker.HasState());
+  const Mixture seed = {{MakePose(5, 5, 1), Diag(0.1, 0.1, 0.01), 2.0},
+                        {MakePose(-5, 5, 1), Diag(0.1, 0.1, 0.01), 2.0}};
+  const std::optional<Estimate> seeded =
+      tracker.Step(OdometryIncrement{0, 3, 0}, {Mixture{}, seed});
+  ASSERT_TRUE(seeded.has_value());
+  ASSERT_EQ(tracker.state().size(), 2u);
+  EXPECT_EQ(tracker.state()[0].mean, seed[0].mean);  // not moved by the odometry
+  EXPECT_DOUBLE_EQ(tracker.state()[0].weight, 0.5);
+  EXPECT_FALSE(seeded->unimodal);
+  EXPECT_EQ(seeded->num_components, 2);
+
+  Gaussian bad = start;
+  bad.covariance(0, 0) = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_THROW(tracker.Reset(bad), Error);
+}
+
+// Kidnapping: the tracker is confident at A while p(x|y) keeps pointing at a far place B
+// with a fixed covariance and weight 0.3. One observation must not override the track,
+// but B's component gains weight every step (its weight b follows b' = (b + 0.3) / 1.3)
+// and becomes the strongest after a bounded number of fusions.
+TEST(MixtureTracker, RecoversFromKidnapping) {
+  TrackerOptions options;
+  MixtureTracker tracker(options);
+  tracker.Reset({MakePose(0, 0, 0), Diag(0.01, 0.01, 0.001), 1.0});
+  const Pose2 b = MakePose(8, 5, 1.0);
+  const Mixture p_x_y = {{b, Diag(0.25, 0.25, 0.05), 0.3}};
+  // The robot stands still (odometry says so); the place it sees is B.
+  int fusions = 0;
+  for (; fusions < 50; ++fusions) {
+    const std::optional<Estimate> e = tracker.Step(OdometryIncrement{}, {p_x_y});
+    ASSERT_TRUE(e.has_value());
+    ExpectValidState(tracker.state(), options);
+    if (PoseDifference(e->strongest.mean, b).head<2>().norm() < 0.5) break;
+  }
+  ++fusions;  // count of fusions performed
+  // Measured: 3 fusions (weights of B: 0.23, 0.41, 0.55). Bound slightly above that.
+  EXPECT_GE(fusions, 2) << "a single observation overrode a confident track";
+  EXPECT_LE(fusions, 4);
+  // The estimate at B is at least as certain as p(x|y) (CI never inflates).
+  const Gaussian& strongest = tracker.state()[StrongestComponent(tracker.state())];
+  EXPECT_LE(strongest.covariance.determinant(), p_x_y[0].covariance.determinant() * (1 + 1e-9));
+}
+
+}  // namespace
+}  // namespace omnicml

@@ -1,72 +1,13 @@
 #include "omnicml/report/report.h"
 
-#include <unistd.h>
-
 #include <algorithm>
-#include <atomic>
 #include <sstream>
-#include <system_error>
 
 #include "omnicml/common/common.h"
 #include "omnicml/report/svg_plot.h"
 
 namespace omnicml {
 namespace fs = std::filesystem;
-
-namespace {
-std::atomic<int> temp_counter{0};
-}  // namespace
-
-AtomicFile::AtomicFile(fs::path target) : target_(std::move(target)) {
-  temp_ = target_;
-  temp_ += StrCat(".tmp-", ::getpid(), "-", temp_counter.fetch_add(1));
-  out_.open(temp_, std::ios::binary | std::ios::trunc);
-  if (!out_) {
-    throw Error(StrCat("cannot create '", target_.string(), "' (does its directory exist?)"));
-  }
-}
-
-AtomicFile::~AtomicFile() { Discard(); }
-
-void AtomicFile::Commit() {
-  if (done_) return;
-  out_.flush();
-  const bool ok = static_cast<bool>(out_);
-  out_.close();
-  if (!ok) {
-    Discard();
-    throw Error(StrCat("write error on '", target_.string(), "'"));
-  }
-  std::error_code ec;
-  fs::rename(temp_, target_, ec);
-  if (ec) {
-    Discard();
-    throw Error(StrCat("cannot rename onto '", target_.string(), "': ", ec.message()));
-  }
-  done_ = true;
-}
-
-void AtomicFile::Discard() {
-  if (done_) return;
-  done_ = true;
-  if (out_.is_open()) out_.close();
-  std::error_code ec;
-  fs::remove(temp_, ec);
-}
-
-void WriteFileAtomic(const fs::path& path, std::string_view content) {
-  AtomicFile file(path);
-  file.stream().write(content.data(), static_cast<std::streamsize>(content.size()));
-  file.Commit();
-}
-
-std::string ReadTextFile(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw Error(StrCat("cannot read '", path.string(), "'"));
-  std::ostringstream os;
-  os << in.rdbuf();
-  return os.str();
-}
 
 HtmlReport::HtmlReport(std::string title) : title_(std::move(title)) {}
 

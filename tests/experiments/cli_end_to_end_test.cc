@@ -52,7 +52,9 @@ std::vector<std::string> TemporaryFiles(const fs::path& dir) {
   std::vector<std::string> out;
   if (!fs::exists(dir)) return out;
   for (const auto& e : fs::recursive_directory_iterator(dir)) {
-    if (e.path().filename().string().find(".tmp-") != std::string::npos)
+    const std::string name = e.path().filename().string();
+    if (name.find(".tmp-") != std::string::npos || name.find("omnicml-tmp-") != std::string::npos ||
+        name.find(".partial-") != std::string::npos)
       out.push_back(e.path().string());
   }
   return out;

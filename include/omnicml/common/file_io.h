@@ -1,0 +1,160 @@
+// File input and output shared by every module: the one atomic writer and the bounded,
+// regular-file-only readers.
+//
+// Writing. Every output file goes through AtomicFile (or WriteFileAtomic, which wraps it):
+// the bytes go to a temporary file in the target's directory named
+//   ".<name>.omnicml-tmp-<pid>-<n>"            (TempPathFor(target, pid, n))
+// which is flushed, fsync'ed, renamed over the target, and then the directory is
+// fsync'ed. A reader therefore sees either the old file or the complete new one, and
+// after a crash the target is one of the two. On any failure, or when the AtomicFile is
+// destroyed without Commit() (an exception unwound the stack), the temporary is removed
+// and the target is untouched. Temporaries left by a process killed with SIGKILL are
+// recognisable by IsAtomicTempName(); the next AtomicFile for the same target removes
+// those whose pid is no longer alive. Readers open files by their exact names, so they
+// never pick a temporary up.
+//
+// Reading. Inputs are read only when they are regular files: OpenRegularFile() opens
+// without blocking (a FIFO does not hang), then rejects directories, FIFOs, sockets,
+// devices (/dev/zero, also through a symbolic link) and symbolic-link loops with an
+// omnicml::Error naming the path; apps map that Error to exit code 2. Reads are bounded:
+// a whole file by a byte limit checked against its size before anything is allocated,
+// a line-oriented file (CSV) by a per-line limit.
+//
+// Error messages are one line: "<what> '<path>': <reason>".
+//
+// Thread-safety: the free functions are thread-safe; AtomicFile and LineReader are
+// thread-compatible (one thread at a time per object).
+#ifndef OMNICML_COMMON_FILE_IO_H_
+#define OMNICML_COMMON_FILE_IO_H_
+
+#include <sys/types.h>
+
+#include <cstddef>
+#include <cstdint>
+#include <filesystem>
+#include <fstream>
+#include <span>
+#include <string>
+#include <string_view>
+
+namespace omnicml {
+
+// Limits of the bounded readers.
+inline constexpr std::uintmax_t kMaxTextFileBytes = 16u << 20;  // YAML and config files
+inline constexpr std::size_t kMaxCsvLineBytes = 64u << 10;      // one line of a CSV file
+inline constexpr std::uintmax_t kMaxMapFileBytes = 4ull << 30;  // a saved engine/map
+inline constexpr std::uint64_t kMaxImagePixels = 100'000'000;   // width * height of an image
+
+// ---------------------------------------------------------------------------------------
+// Writing
+
+// A file written under a temporary name and renamed into place on Commit().
+// Lifecycle: open (constructor) -> write through stream() -> Commit() or Discard();
+// the destructor discards an uncommitted file.
+class AtomicFile {
+ public:
+  // Creates the temporary (binary mode, exclusive create, mode 0666 & ~umask) after
+  // removing stale temporaries of the same target left by dead processes. Throws
+  // omnicml::Error naming the target when it cannot be created (missing directory, no
+  // permission).
+  explicit AtomicFile(std::filesystem::path target);
+  ~AtomicFile();  // removes the temporary unless committed
+  AtomicFile(const AtomicFile&) = delete;
+  AtomicFile& operator=(const AtomicFile&) = delete;
+
+  std::ofstream& stream() { return out_; }
+  const std::filesystem::path& target() const { return target_; }
+  const std::filesystem::path& temp_path() const { return temp_; }
+
+  // Flushes, closes, fsyncs and renames onto the target, then fsyncs the directory.
+  // Throws omnicml::Error naming the target on a write, fsync or rename failure (the
+  // temporary is then removed, the target untouched). Idempotent.
+  void Commit();
+  // Closes and removes the temporary without touching the target. Idempotent.
+  void Discard();
+
+ private:
+  std::filesystem::path target_;
+  std::filesystem::path temp_;
+  std::ofstream out_;
+  bool done_ = false;
+};
+
+// Writes `content` to `path` atomically (AtomicFile + Commit). Throws omnicml::Error.
+void WriteFileAtomic(const std::filesystem::path& path, std::string_view content);
+void WriteFileAtomic(const std::filesystem::path& path, std::span<const std::uint8_t> bytes);
+
+// The temporary name AtomicFile uses for `target` in process `pid`, n-th file.
+std::filesystem::path TempPathFor(const std::filesystem::path& target, pid_t pid,
+                                  std::uint64_t n);
+// True for a file name (no directory) of the form ".<name>.omnicml-tmp-<pid>-<n>";
+// when `name` is non-empty, only for temporaries of a target with that file name.
+// Stores the pid in *pid when given.
+bool IsAtomicTempName(std::string_view file_name, std::string_view name = {},
+                      pid_t* pid = nullptr);
+// Removes temporaries of `target` (same directory, same name) whose process is dead.
+// Returns how many were removed; never throws.
+int RemoveStaleTemporaries(const std::filesystem::path& target);
+
+// fsyncs a directory so that a rename or a new entry in it is durable. Best effort.
+void SyncDirectory(const std::filesystem::path& dir);
+
+// ---------------------------------------------------------------------------------------
+// Reading
+
+// Throws omnicml::Error ("<what> '<path>': not a regular file (FIFO)", "... does not
+// exist", "... too many levels of symbolic links", ...) unless `path` is, after
+// following symbolic links, a readable regular file. Returns its size in bytes. Never
+// blocks (FIFOs are opened non-blocking). `what` names the file's role ("log frames").
+std::uintmax_t CheckRegularFile(const std::filesystem::path& path, std::string_view what = "file");
+
+// Opens a regular file for reading as a file descriptor (O_CLOEXEC, blocking mode),
+// after the checks of CheckRegularFile done on the opened descriptor itself (no race
+// between check and open). *size receives the size. The caller closes the descriptor.
+int OpenRegularFile(const std::filesystem::path& path, std::string_view what,
+                    std::uintmax_t* size = nullptr);
+
+// Reads a whole regular file; throws omnicml::Error naming the path when it cannot be
+// read, is not a regular file or is larger than `max_bytes` (checked before reading).
+std::string ReadTextFile(const std::filesystem::path& path,
+                         std::uintmax_t max_bytes = kMaxTextFileBytes,
+                         std::string_view what = "file");
+
+// Cuts `text` to at most `max_chars` characters (appending "...") and replaces control
+// characters by '?', so that an excerpt of a bad input fits in a one-line message.
+std::string Excerpt(std::string_view text, std::size_t max_chars = 80);
+
+// Reads a regular text file line by line with a bound on the line length. Line endings
+// "\n" and "\r\n" are stripped. Not copyable.
+class LineReader {
+ public:
+  // Opens `path` (OpenRegularFile). Throws omnicml::Error.
+  LineReader(const std::filesystem::path& path, std::string_view what = "file",
+             std::size_t max_line_bytes = kMaxCsvLineBytes);
+  ~LineReader();
+  LineReader(const LineReader&) = delete;
+  LineReader& operator=(const LineReader&) = delete;
+
+  // Reads the next line into *line; false at the end of the file. Throws omnicml::Error
+  // "<what> '<path>' line N: longer than M bytes" or on a read error.
+  bool Next(std::string* line);
+  // 1-based number of the line returned last (0 before the first).
+  std::size_t line_number() const { return line_number_; }
+  const std::filesystem::path& path() const { return path_; }
+
+ private:
+  bool Fill();
+
+  std::filesystem::path path_;
+  std::string what_;
+  std::size_t max_line_bytes_;
+  int fd_ = -1;
+  std::string buffer_;
+  std::size_t pos_ = 0;
+  bool eof_ = false;
+  std::size_t line_number_ = 0;
+};
+
+}  // namespace omnicml
+
+#endif  // OMNICML_COMMON_FILE_IO_H_

@@ -1,4 +1,4 @@
-# Helpers shared by the module files under cmake/modules/.
+# Helpers shared by the modules' CMakeLists.txt files (src/<module>/, tests/<module>/, bench/).
 
 # Warnings and sanitizers, per target (no global flag changes).
 function(omnicml_target_defaults target)

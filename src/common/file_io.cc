@@ -5,6 +5,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <cerrno>
 #include <cstring>
@@ -25,8 +26,14 @@ std::atomic<std::uint64_t> temp_counter{0};
 
 std::string ErrnoText(int err) { return std::error_code(err, std::generic_category()).message(); }
 
+// Writing errors: "<path>: <what>: <reason>".
 [[noreturn]] void Fail(std::string_view what, const fs::path& path, std::string_view reason) {
-  throw Error(StrCat(what, " '", path.string(), "': ", reason));
+  throw Error(StrCat(path.string(), ": ", what, ": ", reason));
+}
+
+// Reading errors: "<path>: cannot read <what>: <reason>".
+[[noreturn]] void ReadFail(std::string_view what, const fs::path& path, std::string_view reason) {
+  throw Error(StrCat(path.string(), ": cannot read ", what, ": ", reason));
 }
 
 const char* FileTypeName(mode_t mode) {
@@ -39,7 +46,9 @@ const char* FileTypeName(mode_t mode) {
 }
 
 void CheckMode(std::string_view what, const fs::path& path, mode_t mode) {
-  if (!S_ISREG(mode)) Fail(what, path, StrCat("not a regular file (", FileTypeName(mode), ")"));
+  if (!S_ISREG(mode)) {
+    ReadFail(what, path, StrCat("not a regular file (", FileTypeName(mode), ")"));
+  }
 }
 
 bool AllDigits(std::string_view s) {
@@ -119,6 +128,35 @@ int RemoveStaleTemporaries(const fs::path& target) {
   return removed;
 }
 
+fs::path StagingDirFor(const fs::path& target, pid_t pid) {
+  fs::path t = target.lexically_normal();
+  if (!t.has_filename()) t = t.parent_path();
+  return fs::path(StrCat(t.string(), ".partial-", static_cast<long>(pid)));
+}
+
+int RemoveStaleStagingDirs(const fs::path& target) {
+  fs::path t = target.lexically_normal();
+  if (!t.has_filename()) t = t.parent_path();
+  const std::string name = t.filename().string();
+  if (name.empty()) return 0;
+  int removed = 0;
+  std::error_code ec;
+  for (fs::directory_iterator it(DirectoryOf(t), ec), end; !ec && it != end; it.increment(ec)) {
+    const std::string entry = it->path().filename().string();
+    for (const std::string_view suffix : {".partial-", ".old-"}) {
+      const std::string prefix = StrCat(name, suffix);
+      if (entry.size() <= prefix.size() || entry.compare(0, prefix.size(), prefix) != 0) continue;
+      const std::string pid_text = entry.substr(prefix.size());
+      if (!AllDigits(pid_text) || pid_text.size() > 9) continue;
+      const auto pid = static_cast<pid_t>(std::stol(pid_text));
+      if (pid != ::getpid() && !ProcessIsDead(pid)) continue;
+      std::error_code rm;
+      if (fs::remove_all(it->path(), rm) > 0 && !rm) ++removed;
+    }
+  }
+  return removed;
+}
+
 void SyncDirectory(const fs::path& dir) {
   const int fd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
   if (fd < 0) return;
@@ -161,7 +199,7 @@ void AtomicFile::Commit() {
   ok = ok && !out_.fail();
   if (!ok) {
     Discard();
-    Fail("write error on", target_, "the data could not be written (disk full?)");
+    Fail("write error", target_, "the data could not be written (disk full?)");
   }
   // Make the data durable before the rename makes it visible under the target name.
   const int fd = ::open(temp_.c_str(), O_RDONLY | O_CLOEXEC);
@@ -175,7 +213,7 @@ void AtomicFile::Commit() {
   if (::rename(temp_.c_str(), target_.c_str()) != 0) {
     const int err = errno;
     Discard();
-    Fail("cannot rename onto", target_, ErrnoText(err));
+    Fail("cannot rename the temporary file onto it", target_, ErrnoText(err));
   }
   done_ = true;
   SyncDirectory(DirectoryOf(target_));
@@ -207,18 +245,19 @@ int OpenRegularFile(const fs::path& path, std::string_view what, std::uintmax_t*
   struct stat st {};
   if (::stat(path.c_str(), &st) != 0) {
     const int err = errno;
-    Fail(what, path, err == ENOENT ? std::string("does not exist") : ErrnoText(err));
+    ReadFail(what, path,
+             err == ENOENT ? std::string("does not exist (missing file)") : ErrnoText(err));
   }
   CheckMode(what, path, st.st_mode);
   // O_NONBLOCK: should a FIFO have been swapped in meanwhile, open() does not wait for
   // a writer; the fstat() below then rejects it.
   const int fd = ::open(path.c_str(), O_RDONLY | O_NONBLOCK | O_CLOEXEC | O_NOCTTY);
-  if (fd < 0) Fail(what, path, ErrnoText(errno));
+  if (fd < 0) ReadFail(what, path, ErrnoText(errno));
   if (::fstat(fd, &st) != 0 || !S_ISREG(st.st_mode)) {
     const mode_t mode = st.st_mode;
     ::close(fd);
     CheckMode(what, path, mode);
-    Fail(what, path, "cannot be examined");
+    ReadFail(what, path, "cannot be examined");
   }
   const int flags = ::fcntl(fd, F_GETFL);
   if (flags >= 0) ::fcntl(fd, F_SETFL, flags & ~O_NONBLOCK);
@@ -232,13 +271,17 @@ std::uintmax_t CheckRegularFile(const fs::path& path, std::string_view what) {
   return size;
 }
 
-std::string ReadTextFile(const fs::path& path, std::uintmax_t max_bytes, std::string_view what) {
+namespace {
+
+// Reads all of a regular file into a std::string or std::vector<std::uint8_t>.
+template <typename Buffer>
+Buffer ReadAll(const fs::path& path, std::uintmax_t max_bytes, std::string_view what) {
   std::uintmax_t size = 0;
   const int fd = OpenRegularFile(path, what, &size);
-  std::string out;
+  Buffer out;
   try {
     if (size > max_bytes) {
-      Fail(what, path, StrCat("too large (", size, " bytes; the limit is ", max_bytes, ")"));
+      ReadFail(what, path, StrCat("too large (", size, " bytes; the limit is ", max_bytes, ")"));
     }
     out.resize(static_cast<std::size_t>(size));
     std::size_t used = 0;
@@ -249,16 +292,16 @@ std::string ReadTextFile(const fs::path& path, std::uintmax_t max_bytes, std::st
         out.resize(static_cast<std::size_t>(
             std::min<std::uintmax_t>(max_bytes + 1, std::max<std::size_t>(4096, 2 * out.size()))));
       }
-      const ssize_t n = ::read(fd, out.data() + used, out.size() - used);
+      const ssize_t n = ::read(fd, reinterpret_cast<char*>(out.data()) + used, out.size() - used);
       if (n < 0) {
         if (errno == EINTR) continue;
-        Fail(what, path, StrCat("read error: ", ErrnoText(errno)));
+        ReadFail(what, path, StrCat("read error: ", ErrnoText(errno)));
       }
       if (n == 0) break;
       used += static_cast<std::size_t>(n);
     }
     if (used > max_bytes) {
-      Fail(what, path, StrCat("too large (more than ", max_bytes, " bytes)"));
+      ReadFail(what, path, StrCat("too large (more than ", max_bytes, " bytes)"));
     }
     out.resize(used);
   } catch (...) {
@@ -267,6 +310,17 @@ std::string ReadTextFile(const fs::path& path, std::uintmax_t max_bytes, std::st
   }
   ::close(fd);
   return out;
+}
+
+}  // namespace
+
+std::string ReadTextFile(const fs::path& path, std::uintmax_t max_bytes, std::string_view what) {
+  return ReadAll<std::string>(path, max_bytes, what);
+}
+
+std::vector<std::uint8_t> ReadBinaryFile(const fs::path& path, std::uintmax_t max_bytes,
+                                         std::string_view what) {
+  return ReadAll<std::vector<std::uint8_t>>(path, max_bytes, what);
 }
 
 std::string Excerpt(std::string_view text, std::size_t max_chars) {
@@ -303,7 +357,7 @@ bool LineReader::Fill() {
     if (n < 0) {
       const int err = errno;
       buffer_.resize(old);
-      Fail(what_, path_, StrCat("read error: ", ErrnoText(err)));
+      ReadFail(what_, path_, StrCat("read error: ", ErrnoText(err)));
     }
     buffer_.resize(old + static_cast<std::size_t>(n));
     if (n == 0) eof_ = true;
@@ -332,7 +386,8 @@ bool LineReader::Next(std::string* line) {
     if (stop > pos_ && buffer_[stop - 1] == '\r') --stop;
     ++line_number_;
     if (stop - pos_ > max_line_bytes_) {
-      Fail(what_, path_, StrCat("line ", line_number_, ": longer than ", max_line_bytes_, " bytes"));
+      throw Error(StrCat(path_.string(), ":", line_number_, ": line longer than ", max_line_bytes_,
+                         " bytes (", what_, ")"));
     }
     line->assign(buffer_, pos_, stop - pos_);
     pos_ = (nl == std::string::npos) ? buffer_.size() : nl + 1;

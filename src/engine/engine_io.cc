@@ -12,6 +12,7 @@
 #include <unistd.h>
 
 #include "omnicml/common/common.h"
+#include "omnicml/common/file_io.h"
 
 namespace omnicml {
 
@@ -483,55 +484,14 @@ std::unique_ptr<CmlEngine> DecodeEngine(const std::vector<std::uint8_t>& bytes, 
 }
 
 void WriteFileAtomically(const std::string& path, const std::vector<std::uint8_t>& bytes) {
-  namespace fs = std::filesystem;
-  const fs::path target(path);
-  const fs::path dir = target.has_parent_path() ? target.parent_path() : fs::path(".");
-  std::string tmpl = (dir / (target.filename().string() + ".tmp.XXXXXX")).string();
-  const int fd = ::mkstemp(tmpl.data());
-  if (fd < 0) FailFile(path, StrCat("cannot create a temporary file in ", dir.string(), ": ", std::strerror(errno)));
-  auto fail = [&](const char* what) {
-    const std::string reason = std::strerror(errno);
-    ::close(fd);
-    ::unlink(tmpl.c_str());
-    FailFile(path, StrCat(what, ": ", reason));
-  };
-  std::size_t written = 0;
-  while (written < bytes.size()) {
-    const ssize_t n = ::write(fd, bytes.data() + written, bytes.size() - written);
-    if (n < 0) {
-      if (errno == EINTR) continue;
-      fail("write failed");
-    }
-    written += static_cast<std::size_t>(n);
-  }
-  if (::fchmod(fd, 0644) != 0) fail("chmod failed");
-  if (::fsync(fd) != 0) fail("fsync failed");
-  if (::close(fd) != 0) {
-    const std::string reason = std::strerror(errno);
-    ::unlink(tmpl.c_str());
-    FailFile(path, StrCat("close failed: ", reason));
-  }
-  if (::rename(tmpl.c_str(), path.c_str()) != 0) {
-    const std::string reason = std::strerror(errno);
-    ::unlink(tmpl.c_str());
-    FailFile(path, StrCat("rename failed: ", reason));
-  }
-  // Make the rename itself durable.
-  const int dfd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY);
-  if (dfd >= 0) {
-    ::fsync(dfd);
-    ::close(dfd);
-  }
+  WriteFileAtomic(path, bytes);
 }
 
 void SaveEngine(const CmlEngine& engine, const std::string& path) { WriteFileAtomically(path, EncodeEngine(engine)); }
 
 std::unique_ptr<CmlEngine> LoadEngine(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) FailFile(path, "cannot open engine file");
-  std::vector<std::uint8_t> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  if (in.bad()) FailFile(path, "read error");
-  return DecodeEngine(bytes, path);
+  // A regular file no larger than kMaxMapFileBytes, checked before allocating.
+  return DecodeEngine(ReadBinaryFile(path, kMaxMapFileBytes, "engine file"), path);
 }
 
 }  // namespace omnicml

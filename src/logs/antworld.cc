@@ -7,6 +7,7 @@
 
 #include "logs/internal/csv_util.h"
 #include "omnicml/common/common.h"
+#include "omnicml/common/file_io.h"
 #include "omnicml/logs/log_format.h"
 #include "omnicml/unwrap/omni_unwrapper.h"
 
@@ -104,27 +105,26 @@ OdometryIncrement SampleOdometryIncrement(const OdometryIncrement& u, const Moti
 }
 
 std::vector<AntWorldRow> ReadAntWorldCsv(const std::string& csv) {
-  std::ifstream in(csv, std::ios::binary);
-  if (!in) throw Error(StrCat(csv, ": missing or unreadable file"));
+  // A regular file with lines of at most kMaxCsvLineBytes (a FIFO or /dev/zero is an
+  // error, not a hang).
+  LineReader in(csv, "AntWorld route", kMaxCsvLineBytes);
   std::string line;
-  if (!std::getline(in, line)) throw Error(StrCat(csv, ":1: empty file"));
-  internal::StripCarriageReturn(&line);
+  if (!in.Next(&line)) throw Error(StrCat(csv, ":1: empty file"));
   {
     const auto fields = internal::SplitCsv(line);
     const char* expected[] = {"x[mm]", "y[mm]", "z[mm]", "heading[degrees]", "filename"};
     bool ok = fields.size() == 5;
     for (std::size_t i = 0; ok && i < 5; ++i) ok = NormalizeHeader(fields[i]) == expected[i];
     if (!ok) {
-      throw Error(StrCat(csv, ":1: header is '", line,
+      throw Error(StrCat(csv, ":1: header is '", Excerpt(line),
                          "', expected 'X [mm], Y [mm], Z [mm], Heading [degrees], Filename'"));
     }
   }
   const fs::path dir = fs::path(csv).parent_path();
   std::vector<AntWorldRow> rows;
   std::int64_t line_number = 1;
-  while (std::getline(in, line)) {
+  while (in.Next(&line)) {
     ++line_number;
-    internal::StripCarriageReturn(&line);
     if (internal::Trim(line).empty()) continue;  // tolerate blank lines (e.g. at the end)
     const auto fail = [&](const std::string& what) {
       throw Error(StrCat(csv, ":", line_number, ": ", what));
@@ -146,8 +146,7 @@ std::vector<AntWorldRow> ReadAntWorldCsv(const std::string& csv) {
         MakePose(values[0] / 1000.0, values[1] / 1000.0, AntWorldHeadingToPhi(values[3]));
     rows.push_back(std::move(row));
   }
-  if (in.bad()) throw Error(StrCat(csv, ":", line_number + 1, ": read error"));
-  return rows;
+  return rows;  // LineReader::Next throws on a read error
 }
 
 AntWorldReader::AntWorldReader(const std::string& csv, const AntWorldOptions& options)

@@ -18,6 +18,7 @@
 
 #include "logs/internal/csv_util.h"
 #include "omnicml/common/common.h"
+#include "omnicml/common/file_io.h"
 #include "omnicml/unwrap/omni_unwrapper.h"
 
 namespace omnicml {
@@ -212,16 +213,17 @@ std::vector<std::string> ListSessionDirs(const std::string& log_dir) {
   return dirs;
 }
 
-void CheckFramesHeader(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw Error(StrCat(path, ": missing or unreadable file"));
+// Opens frames.csv (a regular file, lines of at most kMaxCsvLineBytes: a link to
+// /dev/zero or a FIFO is an error, not a hang) and checks its header line.
+std::unique_ptr<LineReader> OpenFramesCsv(const std::string& path) {
+  auto in = std::make_unique<LineReader>(path, "log frames", kMaxCsvLineBytes);
   std::string header;
-  if (!std::getline(in, header))
-    throw Error(StrCat(path, ":1: empty file (expected the header line)"));
-  internal::StripCarriageReturn(&header);
+  if (!in->Next(&header)) throw Error(StrCat(path, ":1: empty file (expected the header line)"));
   if (header != kFramesCsvHeader) {
-    throw Error(StrCat(path, ":1: header is '", header, "', expected '", kFramesCsvHeader, "'"));
+    throw Error(StrCat(path, ":1: header is '", Excerpt(header), "', expected '", kFramesCsvHeader,
+                       "'"));
   }
+  return in;
 }
 
 }  // namespace
@@ -236,11 +238,11 @@ std::string FormatRoundTrip(double value) {
 
 SessionInfo ReadSessionYaml(const std::string& path) {
   YamlFile file(path);
+  // A regular file of at most kMaxTextFileBytes (no FIFO, device or directory).
+  const std::string text = ReadTextFile(path, kMaxTextFileBytes, "session file");
   YAML::Node root;
   try {
-    root = YAML::LoadFile(path);
-  } catch (const YAML::BadFile&) {
-    throw Error(StrCat(path, ": missing or unreadable file"));
+    root = YAML::Load(text);
   } catch (const YAML::Exception& e) {
     throw Error(StrCat(path, ":", e.mark.line + 1, ": YAML syntax error: ", e.msg));
   }
@@ -357,7 +359,7 @@ LogReader::LogReader(const std::vector<std::string>& log_dirs, LogReaderOptions 
       SessionInfo info = ReadSessionYaml((fs::path(dir) / "session.yaml").string());
       info.name = fs::path(dir).filename().string();
       if (info.name.empty()) info.name = fs::path(dir).parent_path().filename().string();
-      CheckFramesHeader((fs::path(dir) / "frames.csv").string());
+      OpenFramesCsv((fs::path(dir) / "frames.csv").string());
       sessions_.push_back(std::move(info));
       session_dirs_.push_back(dir);
     }
@@ -381,16 +383,7 @@ const std::string& LogReader::SessionDirectory(int index) const {
 bool LogReader::OpenSession() {
   if (session_ >= NumSessions()) return false;
   csv_path_ = (fs::path(session_dirs_[session_]) / "frames.csv").string();
-  csv_ = std::ifstream(csv_path_, std::ios::binary);
-  if (!csv_) throw Error(StrCat(csv_path_, ": missing or unreadable file"));
-  std::string header;
-  if (!std::getline(csv_, header))
-    throw Error(StrCat(csv_path_, ":1: empty file (expected the header line)"));
-  internal::StripCarriageReturn(&header);
-  if (header != kFramesCsvHeader) {
-    throw Error(
-        StrCat(csv_path_, ":1: header is '", header, "', expected '", kFramesCsvHeader, "'"));
-  }
+  csv_ = OpenFramesCsv(csv_path_);
   line_number_ = 1;
   index_in_session_ = 0;
   have_last_stamp_ = false;
@@ -401,7 +394,7 @@ bool LogReader::OpenSession() {
 bool LogReader::Next(Frame* frame) {
   OMNICML_CHECK(frame != nullptr);
   while (true) {
-    if (session_ < 0 || !csv_.is_open()) {
+    if (session_ < 0 || csv_ == nullptr) {
       ++session_;
       if (session_ >= NumSessions()) {
         session_ = NumSessions();
@@ -410,13 +403,11 @@ bool LogReader::Next(Frame* frame) {
       OpenSession();
     }
     std::string line;
-    if (!std::getline(csv_, line)) {
-      if (csv_.bad()) throw Error(StrCat(csv_path_, ":", line_number_ + 1, ": read error"));
-      csv_.close();
+    if (!csv_->Next(&line)) {  // throws on a read error or an overlong line
+      csv_.reset();
       continue;
     }
     ++line_number_;
-    internal::StripCarriageReturn(&line);
     try {
       ParseRow(line, frame);
     } catch (const Error& e) {
@@ -445,7 +436,8 @@ void LogReader::ParseRow(const std::string& line, Frame* frame) {
   const auto number = [&](int column) {
     const auto value = internal::ParseFiniteDouble(internal::Trim(fields[column]));
     if (!value) {
-      fail(StrCat("column ", kNames[column], ": '", fields[column], "' is not a finite number"));
+      fail(StrCat("column ", kNames[column], ": '", Excerpt(fields[column]),
+                  "' is not a finite number"));
     }
     return *value;
   };
@@ -533,25 +525,24 @@ LogWriter::LogWriter(const std::string& log_dir, bool overwrite) : overwrite_(ov
   if (fs::exists(log_dir_, ec) && !overwrite_) {
     throw Error(StrCat(log_dir_, ": already exists (remove it or ask to overwrite)"));
   }
-  partial_dir_ = StrCat(log_dir_, ".partial-", ::getpid());
-  fs::remove_all(partial_dir_, ec);  // a stale one of a crashed process with our pid
+  // Staging directories of killed writers of the same log (dead pid, or ours recycled).
+  RemoveStaleStagingDirs(log_dir_);
+  partial_dir_ = StagingDirFor(log_dir_, ::getpid()).string();
   fs::create_directories(partial_dir_, ec);
   if (ec) throw Error(StrCat(partial_dir_, ": cannot create directory: ", ec.message()));
 }
 
 LogWriter::~LogWriter() {
   if (finished_) return;
-  csv_.close();
+  csv_.reset();  // discards the uncommitted frames.csv
   std::error_code ec;
   fs::remove_all(partial_dir_, ec);
 }
 
 void LogWriter::CloseSession() {
-  if (!csv_.is_open()) return;
-  csv_.flush();
-  const bool ok = csv_.good();
-  csv_.close();
-  if (!ok) throw Error(StrCat(session_dir_, "/frames.csv: write error"));
+  if (csv_ == nullptr) return;
+  std::unique_ptr<AtomicFile> csv = std::move(csv_);
+  csv->Commit();  // throws "<path>: write error: ..."
 }
 
 void LogWriter::BeginSession(const SessionInfo& info) {
@@ -578,15 +569,10 @@ void LogWriter::BeginSession(const SessionInfo& info) {
   std::error_code ec;
   fs::create_directory(session_dir_, ec);
   if (ec) throw Error(StrCat(session_dir_, ": cannot create directory: ", ec.message()));
-  {
-    std::ofstream out((fs::path(session_dir_) / "session.yaml").string(), std::ios::binary);
-    out << yaml;
-    out.flush();
-    if (!out) throw Error(StrCat(session_dir_, "/session.yaml: write error"));
-  }
-  csv_ = std::ofstream((fs::path(session_dir_) / "frames.csv").string(), std::ios::binary);
-  csv_ << kFramesCsvHeader << "\n";
-  if (!csv_) throw Error(StrCat(session_dir_, "/frames.csv: cannot write"));
+  WriteFileAtomic(fs::path(session_dir_) / "session.yaml", yaml);
+  csv_ = std::make_unique<AtomicFile>(fs::path(session_dir_) / "frames.csv");
+  csv_->stream() << kFramesCsvHeader << "\n";
+  if (!csv_->stream()) throw Error(StrCat(session_dir_, "/frames.csv: cannot write"));
   session_names_.push_back(name);
   session_ = info;
   frames_in_session_ = 0;
@@ -595,7 +581,7 @@ void LogWriter::BeginSession(const SessionInfo& info) {
 
 void LogWriter::Write(const Frame& frame) {
   if (finished_) throw Error("LogWriter: Write after Finish");
-  if (!csv_.is_open()) throw Error("LogWriter: Write before BeginSession");
+  if (csv_ == nullptr) throw Error("LogWriter: Write before BeginSession");
   const auto fail = [&](const std::string& what) {
     throw Error(
         StrCat("LogWriter: session '", session_.name, "' frame ", frames_in_session_, ": ", what));
@@ -624,30 +610,33 @@ void LogWriter::Write(const Frame& frame) {
   const std::string path = (fs::path(session_dir_) / name).string();
   // Lossless PNG with fixed settings, so the bytes are deterministic. Run-length deflate
   // after PNG's row filters was as small as level 3-6 and faster on rendered rings and on
-  // AntWorld panoramas. (The partial directory already makes the whole log atomic, so no
-  // per-image temporary file.)
-  bool written = false;
+  // AntWorld panoramas. Written like every file (WriteFileAtomic: fsync'ed, so the log is
+  // durable once Finish() renames the staging directory).
+  std::vector<std::uint8_t> png;
+  bool encoded = false;
   try {
-    written = cv::imwrite(
-        path, image,
+    encoded = cv::imencode(
+        ".png", image, png,
         {cv::IMWRITE_PNG_COMPRESSION, 1, cv::IMWRITE_PNG_STRATEGY, cv::IMWRITE_PNG_STRATEGY_RLE});
   } catch (const cv::Exception& e) {
-    throw Error(StrCat(path, ": cannot write image: ", e.what()));
+    throw Error(StrCat(path, ": cannot encode image: ", e.what()));
   }
-  if (!written) throw Error(StrCat(path, ": cannot write image"));
+  if (!encoded) throw Error(StrCat(path, ": cannot encode image"));
+  WriteFileAtomic(path, png);
+  std::ostream& csv = csv_->stream();
 
   const Pose2& o = frame.odom_T_robot;
-  csv_ << FormatRoundTrip(frame.stamp_s) << ',' << name << ',' << FormatRoundTrip(o.x()) << ','
+  csv << FormatRoundTrip(frame.stamp_s) << ',' << name << ',' << FormatRoundTrip(o.x()) << ','
        << FormatRoundTrip(o.y()) << ',' << FormatRoundTrip(WrapAngle(o.z())) << ',';
   if (frame.map_T_robot_truth) {
     const Pose2& t = *frame.map_T_robot_truth;
-    csv_ << FormatRoundTrip(t.x()) << ',' << FormatRoundTrip(t.y()) << ','
+    csv << FormatRoundTrip(t.x()) << ',' << FormatRoundTrip(t.y()) << ','
          << FormatRoundTrip(WrapAngle(t.z()));
   } else {
-    csv_ << ",,";
+    csv << ",,";
   }
-  csv_ << '\n';
-  if (!csv_) throw Error(StrCat(session_dir_, "/frames.csv: write error"));
+  csv << '\n';
+  if (!csv) throw Error(StrCat(session_dir_, "/frames.csv: write error"));
   if (session_channels_ == 0) session_channels_ = image.channels();
   last_stamp_s_ = frame.stamp_s;
   ++frames_in_session_;
@@ -662,10 +651,7 @@ void LogWriter::AddFile(const std::string& file_name, const std::string& content
   const std::string path = (fs::path(partial_dir_) / file_name).string();
   std::error_code ec;
   if (fs::is_directory(path, ec)) throw Error(StrCat(path, ": a session has that name"));
-  std::ofstream out(path, std::ios::binary | std::ios::trunc);
-  out << contents;
-  out.flush();
-  if (!out) throw Error(StrCat(path, ": write error"));
+  WriteFileAtomic(path, contents);
 }
 
 void LogWriter::Finish() {
@@ -688,7 +674,11 @@ void LogWriter::Finish() {
     fs::rename(log_dir_, old_dir, ec);
     if (ec) throw Error(StrCat(log_dir_, ": cannot move the old log aside: ", ec.message()));
     fs::rename(partial_dir_, log_dir_, ec);
-    if (ec) throw Error(StrCat(log_dir_, ": cannot rename ", partial_dir_, ": ", ec.message()));
+    if (ec) {
+      std::error_code back;
+      fs::rename(old_dir, log_dir_, back);  // keep the old log where it was
+      throw Error(StrCat(log_dir_, ": cannot rename ", partial_dir_, ": ", ec.message()));
+    }
     fs::remove_all(old_dir, ec);
     finished_ = true;
     return;

@@ -16,6 +16,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "omnicml/common/common.h"
+#include "omnicml/common/file_io.h"
 #include "omnicml/report/svg_plot.h"
 
 namespace omnicml {
@@ -89,12 +90,12 @@ std::string DescribeSession(int session) { return session < 0 ? "-" : std::to_st
 }  // namespace
 
 std::vector<TimedPose> ReadTumTrajectory(const fs::path& path) {
-  std::ifstream in(path);
-  if (!in) throw Error(StrCat("cannot read trajectory '", path.string(), "'"));
+  // A regular file with lines of at most kMaxCsvLineBytes (no FIFO or device).
+  LineReader in(path, "trajectory", kMaxCsvLineBytes);
   std::vector<TimedPose> out;
   std::string line;
   int line_no = 0;
-  while (std::getline(in, line)) {
+  while (in.Next(&line)) {
     ++line_no;
     const auto first = line.find_first_not_of(" \t\r");
     if (first == std::string::npos || line[first] == '#') continue;

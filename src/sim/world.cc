@@ -12,6 +12,7 @@
 #include "sim/internal/sim_builtin_worlds.h"
 #include "omnicml/geometry/planar_geometry.h"
 #include "omnicml/common/common.h"
+#include "omnicml/common/file_io.h"
 
 namespace omnicml {
 namespace {
@@ -607,11 +608,8 @@ World ParseWorld(const std::string& yaml_text, const std::string& source) {
 }
 
 World LoadWorldFile(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) throw Error(StrCat(path, ": cannot open world file"));
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ParseWorld(ss.str(), path);
+  // A regular file of at most kMaxTextFileBytes (no FIFO, device or directory).
+  return ParseWorld(ReadTextFile(path, kMaxTextFileBytes, "world file"), path);
 }
 
 std::vector<std::string> BuiltinWorldNames() {
@@ -637,8 +635,11 @@ World LoadWorld(const std::string& name_or_path) {
   for (const auto& n : BuiltinWorldNames()) {
     if (n == name_or_path) return LoadBuiltinWorld(n);
   }
-  std::ifstream probe(name_or_path);
-  if (!probe) {
+  // Not opened here: opening a FIFO would block. LoadWorldFile rejects what is there but
+  // is not a regular file (directory, FIFO, device, symbolic-link loop).
+  std::error_code ec;
+  if (std::filesystem::symlink_status(name_or_path, ec).type() ==
+      std::filesystem::file_type::not_found) {
     std::string list;
     for (const auto& n : BuiltinWorldNames()) list += (list.empty() ? "" : ", ") + n;
     throw Error(StrCat("world '", name_or_path, "' is neither a built-in world (", list,

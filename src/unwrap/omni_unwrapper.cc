@@ -16,7 +16,9 @@
 #include <opencv2/imgproc.hpp>
 
 #include "unwrap/internal/circle_fit.h"
+#include "omnicml/common/binary_io.h"
 #include "omnicml/common/common.h"
+#include "omnicml/common/file_io.h"
 
 namespace omnicml {
 namespace {
@@ -137,21 +139,68 @@ std::string TypeName(const cv::Mat& image) {
                 cv::depthToString(image.depth()));
 }
 
-// A fresh temporary name beside `path` that keeps the extension (OpenCV picks the
-// encoder from it): <path>.tmp-<pid>-<n><ext>.
-fs::path TemporaryPathFor(const fs::path& path) {
-  static std::atomic<int> counter{0};
-  const int n = counter.fetch_add(1);
-  return fs::path(StrCat(path.string(), ".tmp-", ::getpid(), "-", n, path.extension().string()));
+// Checks the chunk structure of a PNG file (lengths within the file, CRC of every chunk,
+// IHDR first, IEND present) so that a truncated or corrupted file is reported here in
+// one line instead of by libpng's default error handler, which prints its own line to
+// stderr before OpenCV returns an empty image. Returns "" when the structure is sound or
+// the bytes are not a PNG file.
+std::string PngStructureProblem(const std::vector<std::uint8_t>& b) {
+  static constexpr std::uint8_t kPng[8] = {0x89, 'P', 'N', 'G', 0x0D, 0x0A, 0x1A, 0x0A};
+  if (b.size() < 8 || !std::equal(kPng, kPng + 8, b.begin())) return "";
+  const auto be32 = [&](std::size_t i) {
+    return (std::uint32_t{b[i]} << 24) | (std::uint32_t{b[i + 1]} << 16) |
+           (std::uint32_t{b[i + 2]} << 8) | std::uint32_t{b[i + 3]};
+  };
+  std::size_t i = 8;
+  for (int chunk = 0;; ++chunk) {
+    if (i + 12 > b.size()) return StrCat("truncated PNG (no IEND chunk; ", b.size(), " bytes)");
+    const std::uint64_t length = be32(i);
+    if (length > b.size() - i - 12) {
+      return StrCat("truncated PNG (chunk at byte ", i, " runs past the end of the file)");
+    }
+    const std::string type(b.begin() + static_cast<std::ptrdiff_t>(i + 4),
+                           b.begin() + static_cast<std::ptrdiff_t>(i + 8));
+    if (chunk == 0 && type != "IHDR") return "corrupted PNG (the first chunk is not IHDR)";
+    const std::span<const std::uint8_t> covered(b.data() + i + 4, length + 4);
+    if (Crc32(covered) != be32(i + 8 + length)) {
+      return StrCat("corrupted PNG (CRC mismatch in the chunk at byte ", i, ")");
+    }
+    if (type == "IEND") return "";
+    i += 12 + length;
+  }
 }
 
-void RenameOrThrow(const fs::path& from, const fs::path& to) {
-  std::error_code ec;
-  fs::rename(from, to, ec);
-  if (ec) {
-    fs::remove(from, ec);
-    throw Error(StrCat("cannot write '", to.string(), "': rename of the temporary file failed"));
+// Width and height declared by a PNG (IHDR) or baseline/progressive JPEG (SOFn) header;
+// {0, 0} for other formats or a header too short to tell. Lets ReadImage refuse a huge
+// image before the decoder allocates it.
+std::pair<std::uint64_t, std::uint64_t> DeclaredImageSize(const std::vector<std::uint8_t>& b) {
+  const auto be16 = [&](std::size_t i) { return (std::uint64_t{b[i]} << 8) | b[i + 1]; };
+  const auto be32 = [&](std::size_t i) { return (be16(i) << 16) | be16(i + 2); };
+  static constexpr std::uint8_t kPng[8] = {0x89, 'P', 'N', 'G', 0x0D, 0x0A, 0x1A, 0x0A};
+  if (b.size() >= 24 && std::equal(kPng, kPng + 8, b.begin()) &&
+      std::equal(b.begin() + 12, b.begin() + 16, "IHDR")) {
+    return {be32(16), be32(20)};
   }
+  if (b.size() < 4 || b[0] != 0xFF || b[1] != 0xD8) return {0, 0};
+  std::size_t i = 2;  // at the 0xFF of a marker
+  while (i + 3 < b.size()) {
+    if (b[i] != 0xFF) return {0, 0};
+    const std::uint8_t m = b[i + 1];
+    if (m == 0xFF) {  // fill byte
+      ++i;
+      continue;
+    }
+    if (m == 0x01 || (m >= 0xD0 && m <= 0xD8)) {  // markers without a length
+      i += 2;
+      continue;
+    }
+    if (m == 0xD9 || m == 0xDA) return {0, 0};  // end of image / start of scan
+    const std::uint64_t length = be16(i + 2);
+    const bool sof = m >= 0xC0 && m <= 0xCF && m != 0xC4 && m != 0xC8 && m != 0xCC;
+    if (sof && i + 8 < b.size()) return {be16(i + 7), be16(i + 5)};  // width, height
+    i += 2 + length;
+  }
+  return {0, 0};
 }
 
 const std::set<std::string>& CalibrationKeys() {
@@ -264,13 +313,11 @@ void OmniCalibration::ValidateFor(int image_width, int image_height) const {
 }
 
 OmniCalibration OmniCalibration::FromYamlFile(const std::string& path) {
-  std::error_code ec;
-  if (!fs::exists(path, ec)) throw Error(StrCat("calibration file '", path, "' does not exist"));
-  if (!fs::is_regular_file(path, ec))
-    throw Error(StrCat("calibration file '", path, "' is not a regular file"));
+  // A regular file of at most kMaxTextFileBytes ("does not exist", "not a regular file").
+  const std::string text = ReadTextFile(path, kMaxTextFileBytes, "calibration file");
   YAML::Node root;
   try {
-    root = YAML::LoadFile(path);
+    root = YAML::Load(text);
   } catch (const YAML::ParserException& e) {
     throw Error(StrCat(path, ":", e.mark.line + 1, ": YAML syntax error: ", e.msg));
   } catch (const YAML::Exception& e) {
@@ -310,22 +357,7 @@ void OmniCalibration::ToYamlFile(const std::string& path) const {
   out << YAML::Key << "panorama_height" << YAML::Value << panorama_height;
   out << YAML::EndMap;
 
-  const fs::path target(path);
-  const fs::path temp = TemporaryPathFor(target);
-  {
-    std::ofstream file(temp, std::ios::out | std::ios::trunc);
-    if (!file)
-      throw Error(
-          StrCat("cannot write calibration file '", path, "' (cannot create a file there)"));
-    file << out.c_str() << "\n";
-    file.flush();
-    if (!file) {
-      std::error_code ec;
-      fs::remove(temp, ec);
-      throw Error(StrCat("cannot write calibration file '", path, "'"));
-    }
-  }
-  RenameOrThrow(temp, target);
+  WriteFileAtomic(path, StrCat(out.c_str(), "\n"));
 }
 
 // ---------------------------------------------------------------------------------------
@@ -710,15 +742,23 @@ cv::Mat PreparePanorama(const cv::Mat& panorama, int width, int height) {
 }
 
 cv::Mat ReadImage(const std::string& path) {
-  std::error_code ec;
-  if (!fs::exists(path, ec)) throw Error(StrCat("image file '", path, "' does not exist"));
-  if (!fs::is_regular_file(path, ec))
-    throw Error(StrCat("image file '", path, "' is not a regular file"));
-  if (fs::file_size(path, ec) == 0)
-    throw Error(StrCat("image file '", path, "' is empty (0 bytes)"));
+  // Only a regular file (not a FIFO or device), read once: decoding from memory checks
+  // the same bytes that were checked here.
+  const std::vector<std::uint8_t> bytes = ReadBinaryFile(path, kMaxImageFileBytes, "image file");
+  if (bytes.empty()) throw Error(StrCat("image file '", path, "' is empty (0 bytes)"));
+  const auto [declared_width, declared_height] = DeclaredImageSize(bytes);
+  if (declared_width * declared_height > kMaxImagePixels) {
+    throw Error(StrCat("image file '", path, "' declares ", declared_width, "x", declared_height,
+                       " pixels (more than the limit of ", kMaxImagePixels, ")"));
+  }
+  if (const std::string problem = PngStructureProblem(bytes); !problem.empty()) {
+    throw Error(StrCat("image file '", path, "' is unreadable: ", problem));
+  }
   cv::Mat image;
   try {
-    image = cv::imread(path, cv::IMREAD_UNCHANGED);
+    // Decoder warnings (libpng, libjpeg) go to OpenCV's logger, which stays quiet below
+    // its error level; failures surface here as an empty image.
+    image = cv::imdecode(bytes, cv::IMREAD_UNCHANGED);
   } catch (const cv::Exception& e) {
     throw Error(StrCat("image file '", path, "' is unreadable: ", e.what()));
   }
@@ -750,22 +790,19 @@ void WriteImage(const std::string& path, const cv::Mat& image) {
   if (target.extension().empty()) {
     throw Error(StrCat("cannot write image '", path, "': no file extension to choose the format"));
   }
-  const fs::path temp = TemporaryPathFor(target);
+  std::vector<std::uint8_t> encoded;
   bool ok = false;
   std::string reason;
   try {
-    ok = cv::imwrite(temp.string(), image);
+    ok = cv::imencode(target.extension().string(), image, encoded);
   } catch (const cv::Exception& e) {
     reason = StrCat(": ", e.what());
   }
   if (!ok) {
-    std::error_code ec;
-    fs::remove(temp, ec);
-    throw Error(StrCat(
-        "cannot write image '", path, "' (", TypeName(image), ")",
-        reason.empty() ? " (missing directory, no permission or unsupported format)" : reason));
+    throw Error(StrCat("cannot write image '", path, "' (", TypeName(image), ")",
+                       reason.empty() ? " (format unable to store the image)" : reason));
   }
-  RenameOrThrow(temp, target);
+  WriteFileAtomic(target, encoded);  // temporary file, fsync, rename; names the path
 }
 
 }  // namespace omnicml

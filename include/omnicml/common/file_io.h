@@ -20,7 +20,14 @@
 // a whole file by a byte limit checked against its size before anything is allocated,
 // a line-oriented file (CSV) by a per-line limit.
 //
-// Error messages are one line: "<what> '<path>': <reason>".
+// Directory outputs (a log, a run directory) are assembled in a staging directory
+// "<target>.partial-<pid>" (StagingDirFor) next to the target and renamed onto it when
+// complete; the writer removes it on failure, and RemoveStaleStagingDirs() removes the
+// staging (and ".old-<pid>") directories of the same target left by killed processes.
+//
+// Error messages are one line and start with the path: "<path>: cannot read <what>:
+// <reason>", "<path>:<line>: line longer than N bytes (<what>)", "<path>: cannot
+// create: <reason>". Excerpt() shortens a quoted piece of bad input.
 //
 // Thread-safety: the free functions are thread-safe; AtomicFile and LineReader are
 // thread-compatible (one thread at a time per object).
@@ -36,6 +43,7 @@
 #include <span>
 #include <string>
 #include <string_view>
+#include <vector>
 
 namespace omnicml {
 
@@ -43,6 +51,7 @@ namespace omnicml {
 inline constexpr std::uintmax_t kMaxTextFileBytes = 16u << 20;  // YAML and config files
 inline constexpr std::size_t kMaxCsvLineBytes = 64u << 10;      // one line of a CSV file
 inline constexpr std::uintmax_t kMaxMapFileBytes = 4ull << 30;  // a saved engine/map
+inline constexpr std::uintmax_t kMaxImageFileBytes = 512u << 20;  // one image file
 inline constexpr std::uint64_t kMaxImagePixels = 100'000'000;   // width * height of an image
 
 // ---------------------------------------------------------------------------------------
@@ -96,14 +105,21 @@ bool IsAtomicTempName(std::string_view file_name, std::string_view name = {},
 // Returns how many were removed; never throws.
 int RemoveStaleTemporaries(const std::filesystem::path& target);
 
+// "<target>.partial-<pid>": where a directory output is assembled before the rename.
+std::filesystem::path StagingDirFor(const std::filesystem::path& target, pid_t pid);
+// Removes "<target>.partial-<pid>" and "<target>.old-<pid>" directories (siblings of
+// `target`) whose process is dead or is this process (a leftover of an earlier writer
+// with a recycled pid). Returns how many were removed; never throws.
+int RemoveStaleStagingDirs(const std::filesystem::path& target);
+
 // fsyncs a directory so that a rename or a new entry in it is durable. Best effort.
 void SyncDirectory(const std::filesystem::path& dir);
 
 // ---------------------------------------------------------------------------------------
 // Reading
 
-// Throws omnicml::Error ("<what> '<path>': not a regular file (FIFO)", "... does not
-// exist", "... too many levels of symbolic links", ...) unless `path` is, after
+// Throws omnicml::Error ("<path>: cannot read <what>: not a regular file (a FIFO)",
+// "...: does not exist", "...: Too many levels of symbolic links", ...) unless `path` is, after
 // following symbolic links, a readable regular file. Returns its size in bytes. Never
 // blocks (FIFOs are opened non-blocking). `what` names the file's role ("log frames").
 std::uintmax_t CheckRegularFile(const std::filesystem::path& path, std::string_view what = "file");
@@ -119,6 +135,12 @@ int OpenRegularFile(const std::filesystem::path& path, std::string_view what,
 std::string ReadTextFile(const std::filesystem::path& path,
                          std::uintmax_t max_bytes = kMaxTextFileBytes,
                          std::string_view what = "file");
+
+// The same for binary data (a saved map): the size is checked against `max_bytes`
+// before the buffer is allocated.
+std::vector<std::uint8_t> ReadBinaryFile(const std::filesystem::path& path,
+                                         std::uintmax_t max_bytes = kMaxMapFileBytes,
+                                         std::string_view what = "file");
 
 // Cuts `text` to at most `max_chars` characters (appending "...") and replaces control
 // characters by '?', so that an excerpt of a bad input fits in a one-line message.
@@ -136,7 +158,7 @@ class LineReader {
   LineReader& operator=(const LineReader&) = delete;
 
   // Reads the next line into *line; false at the end of the file. Throws omnicml::Error
-  // "<what> '<path>' line N: longer than M bytes" or on a read error.
+  // "<path>:<N>: line longer than M bytes (<what>)" or on a read error.
   bool Next(std::string* line);
   // 1-based number of the line returned last (0 before the first).
   std::size_t line_number() const { return line_number_; }

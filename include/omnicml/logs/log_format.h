@@ -40,6 +40,7 @@
 #include <string>
 #include <vector>
 
+#include "omnicml/common/file_io.h"
 #include "omnicml/unwrap/frame.h"
 
 namespace omnicml {
@@ -106,7 +107,7 @@ class LogReader : public FrameSource {
   std::vector<SessionInfo> sessions_;
   std::vector<std::string> session_dirs_;
   int session_ = -1;  // session being read; -1 before the first
-  std::ifstream csv_;
+  std::unique_ptr<LineReader> csv_;  // frames.csv of session_; null between sessions
   std::string csv_path_;
   std::int64_t line_number_ = 0;  // of the last line read from csv_
   std::int64_t index_in_session_ = 0;
@@ -145,8 +146,10 @@ SessionInfo ReadSessionYaml(const std::string& path);
 std::string SessionYamlText(const SessionInfo& info);
 
 // Writes a log. Lifecycle: construct -> BeginSession -> Write... -> BeginSession -> ...
-// -> Finish. Everything is written into "<log_dir>.partial-<pid>" and renamed to log_dir
-// in Finish(), so a crash never leaves a half log under log_dir. Deterministic: the same
+// -> Finish. Everything is written into "<log_dir>.partial-<pid>" (StagingDirFor) with
+// WriteFileAtomic and renamed to log_dir in Finish(), so a crash never leaves a half log
+// under log_dir; the destructor removes the staging directory after a failure, and the
+// next writer of the same log removes one left by a killed process. Deterministic: the same
 // calls give byte-identical files. Not thread-safe.
 class LogWriter {
  public:
@@ -190,7 +193,7 @@ class LogWriter {
   std::vector<std::string> session_names_;
   std::string session_dir_;
   SessionInfo session_;
-  std::ofstream csv_;
+  std::unique_ptr<AtomicFile> csv_;  // frames.csv of the open session, committed on close
   std::int64_t frames_in_session_ = 0;
   double last_stamp_s_ = 0.0;
   int session_channels_ = 0;

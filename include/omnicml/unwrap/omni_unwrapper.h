@@ -118,14 +118,16 @@ AutoCalibrationResult AutoCalibrate(const cv::Mat& raw, const OmniCalibration& i
 cv::Mat PreparePanorama(const cv::Mat& panorama, int width = 0, int height = 0);
 
 // Reads an image file as 8-bit grey or BGR. Throws omnicml::Error naming the file when
-// it is missing, unreadable, empty, 1x1, or has a channel count other than 1, 3 or 4
+// it is missing, not a regular file (directory, FIFO, device), larger than
+// kMaxImageFileBytes, declares more than kMaxImagePixels in its PNG/JPEG header (checked
+// before decoding), unreadable, empty, 1x1, or has a channel count other than 1, 3 or 4
 // (4 is converted to 3). 16-bit images are scaled to 8 bit (v * 255 / 65535); other
 // depths are an error.
 cv::Mat ReadImage(const std::string& path);
 
-// Writes an image atomically: encodes to <path>.tmp-<pid>-<n><ext> in the same directory
-// (keeping the extension, from which OpenCV picks the format), then renames it over
-// `path`; readers never see a partial file. Throws omnicml::Error naming the file on an
+// Writes an image atomically: encodes it in memory in the format of the extension, then
+// WriteFileAtomic (common/file_io.h: temporary file, fsync, rename over `path`); readers
+// never see a partial file. Throws omnicml::Error naming the file on an
 // empty image, a path without extension or a failed write (missing directory, no
 // permission, format unable to store the image); no temporary file is left behind.
 void WriteImage(const std::string& path, const cv::Mat& image);

@@ -11,6 +11,7 @@
 #include <yaml-cpp/yaml.h>
 
 #include "omnicml/common/common.h"
+#include "omnicml/common/file_io.h"
 
 namespace omnicml {
 namespace {
@@ -74,8 +75,8 @@ struct Pgm {
 };
 
 Pgm ReadPgm(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw Error(StrCat(path, ": cannot open image"));
+  // A regular file of bounded size, read once (no FIFO or device).
+  std::istringstream in(ReadTextFile(path, kMaxImageFileBytes, "PGM image"));
   std::string magic, w, h, m;
   if (!NextPgmToken(in, &magic) || (magic != "P5" && magic != "P2")) {
     throw Error(StrCat(path, ": not a PGM image (expected magic P5 or P2)"));
@@ -95,6 +96,10 @@ Pgm ReadPgm(const std::string& path) {
     throw Error(StrCat(path, ": unsupported PGM size or maxval (need 8-bit grey, maxval <= 255)"));
   }
   const std::size_t n = static_cast<std::size_t>(pgm.width) * pgm.height;
+  if (n > kMaxImagePixels) {
+    throw Error(StrCat(path, ": PGM of ", pgm.width, "x", pgm.height, " pixels is larger than ",
+                       kMaxImagePixels));
+  }
   pgm.pixels.resize(n);
   if (magic == "P5") {
     in.read(reinterpret_cast<char*>(pgm.pixels.data()), static_cast<std::streamsize>(n));
@@ -284,8 +289,8 @@ void SaveOccupancyGrid(const OccupancyGrid& grid, const std::string& yaml_path) 
   const fs::path yaml(yaml_path);
   const fs::path pgm = fs::path(yaml).replace_extension(".pgm");
   {
-    std::ofstream out(pgm, std::ios::binary);
-    if (!out) throw Error(StrCat(pgm.string(), ": cannot write"));
+    AtomicFile file(pgm);  // temporary, fsync, rename (common/file_io.h)
+    std::ofstream& out = file.stream();
     out << "P5\n# omnicml occupancy grid\n" << grid.width() << " " << grid.height() << "\n255\n";
     std::vector<std::uint8_t> row(grid.width());
     for (int r = 0; r < grid.height(); ++r) {
@@ -299,10 +304,9 @@ void SaveOccupancyGrid(const OccupancyGrid& grid, const std::string& yaml_path) 
       }
       out.write(reinterpret_cast<const char*>(row.data()), static_cast<std::streamsize>(row.size()));
     }
-    if (!out) throw Error(StrCat(pgm.string(), ": write failed"));
+    file.Commit();  // throws "<path>: write error: ..."
   }
-  std::ofstream out(yaml);
-  if (!out) throw Error(StrCat(yaml_path, ": cannot write"));
+  std::ostringstream out;
   out << "image: " << pgm.filename().string() << "\n"
       << "resolution: " << Fmt(grid.resolution_m()) << "\n"
       << "origin: [" << Fmt(grid.origin_m().x()) << ", " << Fmt(grid.origin_m().y()) << ", 0.0]\n"
@@ -310,14 +314,14 @@ void SaveOccupancyGrid(const OccupancyGrid& grid, const std::string& yaml_path) 
       << "occupied_thresh: 0.65\n"
       << "free_thresh: 0.196\n"
       << "mode: trinary\n";
-  if (!out) throw Error(StrCat(yaml_path, ": write failed"));
+  WriteFileAtomic(yaml, out.str());
 }
 
 OccupancyGrid LoadOccupancyGrid(const std::string& yaml_path) {
-  if (!fs::exists(yaml_path)) throw Error(StrCat(yaml_path, ": no such file"));
+  const std::string text = ReadTextFile(yaml_path, kMaxTextFileBytes, "occupancy grid");
   YAML::Node root;
   try {
-    root = YAML::LoadFile(yaml_path);
+    root = YAML::Load(text);
   } catch (const YAML::Exception& e) {
     throw Error(StrCat(yaml_path, ":", e.mark.line + 1, ": YAML error: ", e.msg));
   }

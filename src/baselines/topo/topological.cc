@@ -16,6 +16,7 @@
 
 #include "omnicml/geometry/planar_geometry.h"
 #include "omnicml/common/common.h"
+#include "omnicml/common/file_io.h"
 #include "omnicml/logs/log_format.h"
 #include "omnicml/unwrap/omni_unwrapper.h"
 
@@ -269,11 +270,8 @@ AdjacencyMap ParseAdjacencyMap(const std::string& yaml_text, const std::string& 
 }
 
 AdjacencyMap LoadAdjacencyMap(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) throw Error(StrCat(path, ": cannot open the adjacency map"));
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ParseAdjacencyMap(ss.str(), path);
+  // A regular file of at most kMaxTextFileBytes (no FIFO, device or directory).
+  return ParseAdjacencyMap(ReadTextFile(path, kMaxTextFileBytes, "places file"), path);
 }
 
 std::string AdjacencyMapYaml(const AdjacencyMap& map) {

@@ -1,0 +1,303 @@
+#include "omnicml/common/file_io.h"
+
+#include <sys/stat.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <sstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include "omnicml/common/common.h"
+
+namespace omnicml {
+namespace {
+namespace fs = std::filesystem;
+using ::testing::HasSubstr;
+
+fs::path FreshDir(const std::string& name) {
+  const fs::path dir = fs::path(OMNICML_BINARY_DIR) / "test_output" / "file_io" / name;
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  return dir;
+}
+
+std::vector<std::string> Entries(const fs::path& dir) {
+  std::vector<std::string> out;
+  for (const auto& e : fs::directory_iterator(dir)) out.push_back(e.path().filename().string());
+  std::sort(out.begin(), out.end());
+  return out;
+}
+
+std::string Slurp(const fs::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::ostringstream os;
+  os << in.rdbuf();
+  return os.str();
+}
+
+// The message of the omnicml::Error `f` throws ("" when it throws nothing).
+template <typename F>
+std::string ErrorOf(F&& f) {
+  try {
+    f();
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return "";
+}
+
+// A pid that belonged to a process which has exited (a reaped child).
+pid_t DeadPid() {
+  const pid_t child = ::fork();
+  if (child == 0) ::_exit(0);
+  int status = 0;
+  ::waitpid(child, &status, 0);
+  return child;
+}
+
+// A successful write replaces the content and leaves nothing but the target.
+TEST(AtomicFile, SuccessLeavesOnlyTheTarget) {
+  const fs::path dir = FreshDir("success");
+  const fs::path target = dir / "out.txt";
+  WriteFileAtomic(target, "first");
+  WriteFileAtomic(target, std::string("second\0bytes", 12));
+  EXPECT_EQ(Slurp(target), std::string("second\0bytes", 12));
+  const std::vector<std::uint8_t> bytes = {1, 2, 3, 0, 255};
+  WriteFileAtomic(dir / "bin", bytes);
+  EXPECT_EQ(Slurp(dir / "bin"), std::string("\x01\x02\x03\x00\xff", 5));
+  EXPECT_EQ(Entries(dir), (std::vector<std::string>{"bin", "out.txt"}));
+}
+
+// An exception between open and Commit leaves the old target untouched and no temporary;
+// so do Discard() and a second Commit().
+TEST(AtomicFile, ExceptionBeforeCommitLeavesTargetAndNoTemporary) {
+  const fs::path dir = FreshDir("throw");
+  const fs::path target = dir / "out.txt";
+  WriteFileAtomic(target, "old");
+  fs::path temp;
+  try {
+    AtomicFile file(target);
+    temp = file.temp_path();
+    EXPECT_TRUE(fs::exists(temp));
+    EXPECT_EQ(temp.parent_path(), target.parent_path());
+    file.stream() << "half written";
+    throw std::runtime_error("simulated failure");
+  } catch (const std::runtime_error&) {
+  }
+  EXPECT_FALSE(fs::exists(temp));
+  EXPECT_EQ(Slurp(target), "old");
+  {
+    AtomicFile file(target);
+    file.stream() << "discarded";
+    file.Discard();
+    file.Commit();  // no-op after Discard
+  }
+  EXPECT_EQ(Slurp(target), "old");
+  EXPECT_EQ(Entries(dir), (std::vector<std::string>{"out.txt"}));
+}
+
+// Failures name the path, leave no temporary and do not touch the target: a missing
+// directory, a target that is a non-empty directory (rename fails), and (when not root)
+// a directory without write permission.
+TEST(AtomicFile, FailuresNamePathAndLeaveNoTemporary) {
+  const fs::path dir = FreshDir("fail");
+  const fs::path missing = dir / "no" / "such" / "out.txt";
+  EXPECT_THAT(ErrorOf([&] { WriteFileAtomic(missing, "x"); }), HasSubstr(missing.string()));
+
+  const fs::path busy = dir / "busy";
+  fs::create_directories(busy / "inside");
+  const std::string message = ErrorOf([&] { WriteFileAtomic(busy, "x"); });
+  EXPECT_THAT(message, HasSubstr(busy.string()));
+  EXPECT_THAT(message, HasSubstr("rename"));
+  EXPECT_TRUE(fs::is_directory(busy / "inside"));
+  EXPECT_EQ(Entries(dir), (std::vector<std::string>{"busy"}));
+  EXPECT_EQ(Entries(busy), (std::vector<std::string>{"inside"}));
+
+  if (::geteuid() != 0) {
+    const fs::path locked = dir / "locked";
+    fs::create_directories(locked);
+    WriteFileAtomic(locked / "out.txt", "old");
+    fs::permissions(locked, fs::perms::owner_read | fs::perms::owner_exec);
+    EXPECT_THAT(ErrorOf([&] { WriteFileAtomic(locked / "out.txt", "new"); }),
+                HasSubstr((locked / "out.txt").string()));
+    fs::permissions(locked, fs::perms::owner_all);
+    EXPECT_EQ(Slurp(locked / "out.txt"), "old");
+    EXPECT_EQ(Entries(locked), (std::vector<std::string>{"out.txt"}));
+  }
+}
+
+// A reader running while the target is rewritten sees the old or the new content in
+// full, never a partial or missing file.
+TEST(AtomicFile, ConcurrentReaderSeesOldOrNew) {
+  const fs::path dir = FreshDir("concurrent");
+  const fs::path target = dir / "out.txt";
+  const std::string a(100000, 'a');
+  const std::string b(150000, 'b');
+  WriteFileAtomic(target, a);
+  std::atomic<bool> done{false};
+  std::atomic<int> reads{0};
+  std::atomic<int> bad{0};
+  std::thread reader([&] {
+    while (!done.load()) {
+      const std::string text = ReadTextFile(target);
+      if (text != a && text != b) ++bad;
+      ++reads;
+    }
+  });
+  for (int i = 0; i < 60; ++i) WriteFileAtomic(target, i % 2 == 0 ? b : a);
+  done = true;
+  reader.join();
+  EXPECT_EQ(bad.load(), 0);
+  EXPECT_GT(reads.load(), 0);
+  EXPECT_EQ(Entries(dir), (std::vector<std::string>{"out.txt"}));
+}
+
+// Temporary names are recognisable; a writer of a target removes the temporaries of dead
+// processes and keeps those of live ones.
+TEST(AtomicFile, StaleTemporariesOfDeadProcessesAreRemoved) {
+  const fs::path dir = FreshDir("stale");
+  const fs::path target = dir / "map.omnicml";
+  pid_t pid = 0;
+  EXPECT_TRUE(IsAtomicTempName(TempPathFor(target, 1234, 7).filename().string(), "map.omnicml",
+                               &pid));
+  EXPECT_EQ(pid, 1234);
+  EXPECT_FALSE(IsAtomicTempName(".map.omnicml.omnicml-tmp-12x-7"));
+  EXPECT_FALSE(IsAtomicTempName("map.omnicml"));
+  EXPECT_FALSE(IsAtomicTempName(TempPathFor(target, 1, 0).filename().string(), "other"));
+
+  const pid_t dead = DeadPid();
+  const fs::path stale = TempPathFor(target, dead, 3);
+  const fs::path live = TempPathFor(target, 1, 3);  // init is alive
+  std::ofstream(stale) << "leftover of a killed run";
+  std::ofstream(live) << "in flight elsewhere";
+  EXPECT_EQ(RemoveStaleTemporaries(target), 1);
+  EXPECT_FALSE(fs::exists(stale));
+  EXPECT_TRUE(fs::exists(live));
+
+  // The first write into a directory sweeps it.
+  const fs::path dir2 = FreshDir("stale_sweep");
+  const fs::path stale2 = TempPathFor(dir2 / "a.csv", dead, 0);
+  std::ofstream(stale2) << "x";
+  WriteFileAtomic(dir2 / "a.csv", "new");
+  EXPECT_EQ(Entries(dir2), (std::vector<std::string>{"a.csv"}));
+}
+
+// Staging directories of dead writers (and of this pid) are removed; live ones are kept.
+TEST(StagingDir, StaleOnesAreRemoved) {
+  const fs::path dir = FreshDir("staging");
+  const fs::path target = dir / "log";
+  const pid_t dead = DeadPid();
+  fs::create_directories(StagingDirFor(target, dead) / "day_01");
+  fs::create_directories(dir / StrCat("log.old-", dead));
+  fs::create_directories(StagingDirFor(target, 1));  // a live process
+  fs::create_directories(StagingDirFor(dir / "other", dead));
+  EXPECT_EQ(StagingDirFor(dir / "log/", 42).filename(), "log.partial-42");
+  EXPECT_EQ(RemoveStaleStagingDirs(target), 2);
+  EXPECT_EQ(Entries(dir), (std::vector<std::string>{"log.partial-1", StrCat("other.partial-", dead)}));
+}
+
+// Directories, FIFOs, devices (also behind a symbolic link), symbolic-link loops and
+// missing files are rejected with an Error naming the path, without blocking.
+TEST(ReadFile, OnlyRegularFiles) {
+  const fs::path dir = FreshDir("regular");
+  const fs::path fifo = dir / "fifo";
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
+  const fs::path zero = dir / "zero";
+  fs::create_symlink("/dev/zero", zero);
+  const fs::path loop = dir / "loop";
+  fs::create_symlink(loop, loop);
+  const fs::path missing = dir / "missing.yaml";
+  const struct {
+    fs::path path;
+    const char* reason;
+  } cases[] = {{dir, "directory"},
+               {fifo, "FIFO"},
+               {zero, "character device"},
+               {loop, "symbolic links"},
+               {missing, "does not exist"}};
+  for (const auto& c : cases) {
+    SCOPED_TRACE(c.path.string());
+    for (const std::string& message :
+         {ErrorOf([&] { ReadTextFile(c.path); }), ErrorOf([&] { CheckRegularFile(c.path); }),
+          ErrorOf([&] { ReadBinaryFile(c.path); }), ErrorOf([&] { LineReader r(c.path); })}) {
+      EXPECT_THAT(message, HasSubstr(c.path.string()));
+      EXPECT_THAT(message, HasSubstr(c.reason));
+      EXPECT_EQ(message.find('\n'), std::string::npos);
+    }
+  }
+  const fs::path good = dir / "good.yaml";
+  std::ofstream(good) << "a: 1\n";
+  const fs::path link = dir / "link.yaml";
+  fs::create_symlink(good, link);
+  EXPECT_EQ(ReadTextFile(link), "a: 1\n");  // a link to a regular file is fine
+  EXPECT_EQ(CheckRegularFile(good, "config"), 5u);
+}
+
+// Reads are bounded: a file over the limit is refused before it is read.
+TEST(ReadFile, SizeLimit) {
+  const fs::path dir = FreshDir("limit");
+  const fs::path big = dir / "big.yaml";
+  std::ofstream(big) << std::string(1000, 'x');
+  EXPECT_EQ(ReadTextFile(big, 1000).size(), 1000u);
+  const std::string message = ErrorOf([&] { ReadTextFile(big, 999, "world file"); });
+  EXPECT_THAT(message, HasSubstr(big.string()));
+  EXPECT_THAT(message, HasSubstr("too large"));
+  EXPECT_THAT(message, HasSubstr("world file"));
+  EXPECT_THAT(ErrorOf([&] { ReadBinaryFile(big, 10); }), HasSubstr("too large"));
+}
+
+// LineReader returns the lines std::getline would (without "\r"), across its internal
+// buffer boundaries, and rejects an overlong line with its number.
+TEST(LineReader, MatchesGetlineAndBoundsLines) {
+  const fs::path dir = FreshDir("lines");
+  std::mt19937 rng(7);
+  std::vector<std::string> lines;
+  std::string text;
+  for (int i = 0; i < 3000; ++i) {
+    std::string line(std::uniform_int_distribution<int>(0, 300)(rng), 'a' + i % 26);
+    lines.push_back(line);
+    text += line + (i % 3 == 0 ? "\r\n" : "\n");
+  }
+  lines.push_back("last line without a break");
+  text += lines.back();
+  const fs::path path = dir / "frames.csv";
+  std::ofstream(path, std::ios::binary) << text;
+  LineReader reader(path, "frames", 300);
+  std::string line;
+  std::size_t n = 0;
+  while (reader.Next(&line)) {
+    ASSERT_LT(n, lines.size());
+    EXPECT_EQ(line, lines[n]) << "line " << n + 1;
+    ++n;
+    EXPECT_EQ(reader.line_number(), n);
+  }
+  EXPECT_EQ(n, lines.size());
+
+  const fs::path longer = dir / "long.csv";
+  std::ofstream(longer, std::ios::binary) << "header\n" << std::string(200000, 'z') << "\nend\n";
+  LineReader bad(longer, "frames", kMaxCsvLineBytes);
+  ASSERT_TRUE(bad.Next(&line));
+  const std::string message = ErrorOf([&] { bad.Next(&line); });
+  EXPECT_THAT(message, HasSubstr(longer.string() + ":2:"));
+  EXPECT_THAT(message, HasSubstr("longer than 65536 bytes"));
+  EXPECT_LT(message.size(), 300u);
+}
+
+// Excerpt keeps messages on one short line.
+TEST(Excerpt, CutsAndEscapes) {
+  EXPECT_EQ(Excerpt("short"), "short");
+  EXPECT_EQ(Excerpt(std::string(200, 'x')), std::string(80, 'x') + "...");
+  EXPECT_EQ(Excerpt("a\nb\tc"), "a?b?c");
+}
+
+}  // namespace
+}  // namespace omnicml

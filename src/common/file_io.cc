@@ -164,7 +164,16 @@ void SyncDirectory(const fs::path& dir) {
   ::close(fd);
 }
 
-AtomicFile::AtomicFile(fs::path target) : target_(std::move(target)) {
+void SyncFileSystem(const fs::path& path) {
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) Fail("cannot sync", path, ErrnoText(errno));
+  const int rc = ::syncfs(fd);
+  const int err = errno;
+  ::close(fd);
+  if (rc != 0) Fail("cannot sync", path, ErrnoText(err));
+}
+
+AtomicFile::AtomicFile(fs::path target, FileSync sync) : target_(std::move(target)), sync_(sync) {
   SweepDirectoryOnce(DirectoryOf(target_));
   int err = 0;
   for (int attempt = 0; attempt < 100; ++attempt) {
@@ -202,21 +211,23 @@ void AtomicFile::Commit() {
     Fail("write error", target_, "the data could not be written (disk full?)");
   }
   // Make the data durable before the rename makes it visible under the target name.
-  const int fd = ::open(temp_.c_str(), O_RDONLY | O_CLOEXEC);
-  if (fd < 0 || ::fsync(fd) != 0) {
-    const int err = errno;
-    if (fd >= 0) ::close(fd);
-    Discard();
-    Fail("cannot write", target_, StrCat("fsync failed: ", ErrnoText(err)));
+  if (sync_ == FileSync::kFsync) {
+    const int fd = ::open(temp_.c_str(), O_RDONLY | O_CLOEXEC);
+    if (fd < 0 || ::fsync(fd) != 0) {
+      const int err = errno;
+      if (fd >= 0) ::close(fd);
+      Discard();
+      Fail("cannot write", target_, StrCat("fsync failed: ", ErrnoText(err)));
+    }
+    ::close(fd);
   }
-  ::close(fd);
   if (::rename(temp_.c_str(), target_.c_str()) != 0) {
     const int err = errno;
     Discard();
     Fail("cannot rename the temporary file onto it", target_, ErrnoText(err));
   }
   done_ = true;
-  SyncDirectory(DirectoryOf(target_));
+  if (sync_ == FileSync::kFsync) SyncDirectory(DirectoryOf(target_));
 }
 
 void AtomicFile::Discard() {
@@ -226,15 +237,15 @@ void AtomicFile::Discard() {
   ::unlink(temp_.c_str());
 }
 
-void WriteFileAtomic(const fs::path& path, std::string_view content) {
-  AtomicFile file(path);
+void WriteFileAtomic(const fs::path& path, std::string_view content, FileSync sync) {
+  AtomicFile file(path, sync);
   file.stream().write(content.data(), static_cast<std::streamsize>(content.size()));
   file.Commit();
 }
 
-void WriteFileAtomic(const fs::path& path, std::span<const std::uint8_t> bytes) {
-  WriteFileAtomic(path,
-                  std::string_view(reinterpret_cast<const char*>(bytes.data()), bytes.size()));
+void WriteFileAtomic(const fs::path& path, std::span<const std::uint8_t> bytes, FileSync sync) {
+  WriteFileAtomic(
+      path, std::string_view(reinterpret_cast<const char*>(bytes.data()), bytes.size()), sync);
 }
 
 // ---------------------------------------------------------------------------------------

@@ -569,8 +569,8 @@ void LogWriter::BeginSession(const SessionInfo& info) {
   std::error_code ec;
   fs::create_directory(session_dir_, ec);
   if (ec) throw Error(StrCat(session_dir_, ": cannot create directory: ", ec.message()));
-  WriteFileAtomic(fs::path(session_dir_) / "session.yaml", yaml);
-  csv_ = std::make_unique<AtomicFile>(fs::path(session_dir_) / "frames.csv");
+  WriteFileAtomic(fs::path(session_dir_) / "session.yaml", yaml, FileSync::kDeferred);
+  csv_ = std::make_unique<AtomicFile>(fs::path(session_dir_) / "frames.csv", FileSync::kDeferred);
   csv_->stream() << kFramesCsvHeader << "\n";
   if (!csv_->stream()) throw Error(StrCat(session_dir_, "/frames.csv: cannot write"));
   session_names_.push_back(name);
@@ -610,8 +610,8 @@ void LogWriter::Write(const Frame& frame) {
   const std::string path = (fs::path(session_dir_) / name).string();
   // Lossless PNG with fixed settings, so the bytes are deterministic. Run-length deflate
   // after PNG's row filters was as small as level 3-6 and faster on rendered rings and on
-  // AntWorld panoramas. Written like every file (WriteFileAtomic: fsync'ed, so the log is
-  // durable once Finish() renames the staging directory).
+  // AntWorld panoramas. Written like every file (WriteFileAtomic); made durable all at
+  // once by Finish() (SyncFileSystem) before it renames the staging directory.
   std::vector<std::uint8_t> png;
   bool encoded = false;
   try {
@@ -622,7 +622,7 @@ void LogWriter::Write(const Frame& frame) {
     throw Error(StrCat(path, ": cannot encode image: ", e.what()));
   }
   if (!encoded) throw Error(StrCat(path, ": cannot encode image"));
-  WriteFileAtomic(path, png);
+  WriteFileAtomic(path, png, FileSync::kDeferred);
   std::ostream& csv = csv_->stream();
 
   const Pose2& o = frame.odom_T_robot;
@@ -651,14 +651,21 @@ void LogWriter::AddFile(const std::string& file_name, const std::string& content
   const std::string path = (fs::path(partial_dir_) / file_name).string();
   std::error_code ec;
   if (fs::is_directory(path, ec)) throw Error(StrCat(path, ": a session has that name"));
-  WriteFileAtomic(path, contents);
+  WriteFileAtomic(path, contents, FileSync::kDeferred);
 }
 
 void LogWriter::Finish() {
   if (finished_) throw Error("LogWriter: Finish called twice");
   if (session_names_.empty()) throw Error(StrCat(log_dir_, ": no session was written"));
   CloseSession();
+  SyncFileSystem(partial_dir_);  // every file durable before the log appears under its name
   std::error_code ec;
+  const fs::path parent = fs::path(log_dir_).has_parent_path() ? fs::path(log_dir_).parent_path()
+                                                                : fs::path(".");
+  struct SyncParentOnReturn {
+    const fs::path& dir;
+    ~SyncParentOnReturn() { SyncDirectory(dir); }
+  } sync_parent{parent};
   if (fs::exists(log_dir_, ec)) {
     if (!overwrite_) throw Error(StrCat(log_dir_, ": appeared while writing; not replaced"));
     // Swap the new log in atomically, then delete the old one (now under the partial name).

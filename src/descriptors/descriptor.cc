@@ -87,6 +87,47 @@ std::vector<std::uint8_t> Serialize(const Descriptor& d) {
   return out;
 }
 
+void WriteDescriptorRecord(BinaryWriter& out, const Descriptor& d) {
+  out.Write(d.kind);
+  out.WriteVector(d.features);
+  out.Write<std::uint64_t>(d.coefficients.size());
+  for (const std::complex<float>& c : d.coefficients) {
+    out.Write(c.real());
+    out.Write(c.imag());
+  }
+  out.Write<std::int32_t>(d.panorama_width);
+}
+
+Descriptor ReadDescriptorRecord(BinaryReader& in) {
+  Descriptor d;
+  const auto kind = in.Read<std::uint8_t>("descriptor kind");
+  if (!IsKnownKind(kind)) in.Fail("descriptor kind", StrCat("invalid descriptor kind ", int{kind}));
+  d.kind = static_cast<DescriptorKind>(kind);
+  d.features = in.ReadVector<float>("descriptor features");
+  for (const float f : d.features) {
+    if (!std::isfinite(f)) in.Fail("descriptor features", "non-finite feature value");
+  }
+  const std::size_t n = in.ReadCount("descriptor coefficients", 8);
+  if (n != 0 && d.kind != DescriptorKind::kFourier) {
+    in.Fail("descriptor coefficients",
+            StrCat("a ", ToString(d.kind), " descriptor cannot carry coefficients"));
+  }
+  d.coefficients.reserve(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    const float re = in.Read<float>("descriptor coefficient");
+    const float im = in.Read<float>("descriptor coefficient");
+    if (!std::isfinite(re) || !std::isfinite(im)) {
+      in.Fail("descriptor coefficient", "non-finite coefficient");
+    }
+    d.coefficients.emplace_back(re, im);
+  }
+  d.panorama_width = in.Read<std::int32_t>("descriptor panorama width");
+  if (d.panorama_width < 0) {
+    in.Fail("descriptor panorama width", StrCat("negative panorama width ", d.panorama_width));
+  }
+  return d;
+}
+
 Descriptor Deserialize(std::span<const std::uint8_t> bytes) {
   const std::size_t n = bytes.size();
   if (n < kHeaderBytes + kChecksumBytes) {

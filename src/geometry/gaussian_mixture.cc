@@ -56,7 +56,7 @@ Eigen::Matrix3d RepairCovariance(const Eigen::Matrix3d& c, double min_eigenvalue
   return 0.5 * (repaired + repaired.transpose());
 }
 
-Gaussian MomentMatch(std::span<const Gaussian> components) {
+Gaussian MomentMatch(std::span<const Gaussian> components, HeadingMean heading) {
   if (components.empty()) throw Error("MomentMatch: no components");
   if (components.size() == 1) return components.front();
   double total = 0.0, sum_x = 0.0, sum_y = 0.0, sum_sin = 0.0, sum_cos = 0.0;
@@ -73,8 +73,19 @@ Gaussian MomentMatch(std::span<const Gaussian> components) {
   if (!(total > 0)) throw Error("MomentMatch: the weights sum to zero");
   Gaussian out;
   out.weight = total;
-  // [G] (13) with the circular mean for the heading: either side of +-pi averages to pi.
-  out.mean = MakePose(sum_x / total, sum_y / total, std::atan2(sum_sin, sum_cos));
+  if (heading == HeadingMean::kCircular) {
+    // [G] (13) with the circular mean for the heading: either side of +-pi averages to pi.
+    out.mean = MakePose(sum_x / total, sum_y / total, std::atan2(sum_sin, sum_cos));
+  } else {
+    // [G] (13) anchored at the first mean: mean_0 + sum_i (w_i / total) (mean_i - mean_0),
+    // differences wrapped.
+    const Pose2& anchor = components.front().mean;
+    Eigen::Vector3d step = Eigen::Vector3d::Zero();
+    for (std::size_t i = 1; i < components.size(); ++i) {
+      step += (components[i].weight / total) * PoseDifference(components[i].mean, anchor);
+    }
+    out.mean = MakePose(anchor.x() + step.x(), anchor.y() + step.y(), anchor.z() + step.z());
+  }
   // [G] (14): C = sum_i w_i (C_i + d_i d_i^T) / sum_i w_i with d_i wrapped.
   Eigen::Matrix3d c = Eigen::Matrix3d::Zero();
   for (const Gaussian& g : components) {

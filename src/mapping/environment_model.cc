@@ -13,14 +13,6 @@ namespace {
 constexpr std::uint32_t kModelMagic = 0x4D45434Fu;  // "OCEM" little-endian
 constexpr std::uint32_t kModelVersion = 1;
 
-// (a - b)^T s^-1 (a - b) with the angle difference wrapped. s is a sum of SPD matrices.
-double SquaredMahalanobisSum(const Pose2& a, const Pose2& b, const Eigen::Matrix3d& s) {
-  const Eigen::Vector3d d = PoseDifference(a, b);
-  const Eigen::LLT<Eigen::Matrix3d> llt(s);
-  OMNICML_CHECK(llt.info() == Eigen::Success) << "covariance sum is not positive definite";
-  return d.dot(llt.solve(d));
-}
-
 // mu_t with its angle expressed relative to view i's panorama: phi_t minus the relative
 // heading RelativeHeading(y_t, y_i) (docs/design.md "Environment model", phase 2). Without a
 // relative heading (histograms) the heading is stored as it is.
@@ -40,24 +32,17 @@ Eigen::Matrix3d EffectiveCovariance(const Eigen::Matrix3d& c,
   return out;
 }
 
-// [G] eqs. (13)-(14): merges `other` into `keep` with weights eta_n / (eta_n + eta_m) and
-// eta_m / (eta_n + eta_m); the angle of the mean is averaged through the wrapped
-// difference, spread terms use wrapped differences to the merged mean. eta and w are
-// summed (w clamped to 1 to stay a weight).
+// [G] eqs. (13)-(14): merges `other` into `keep` by MomentMatch with weights eta_n and
+// eta_m (so the shares are eta_n / (eta_n + eta_m) and eta_m / (eta_n + eta_m)); the
+// heading mean is anchored at `keep`'s (the wrapped difference, not the circular mean).
+// eta and w are summed (w clamped to 1 to stay a weight).
 void MergeInto(ViewComponent& keep, const ViewComponent& other) {
-  const double eta = keep.eta + other.eta;
-  const double a = keep.eta / eta;
-  const double b = other.eta / eta;
-  const Eigen::Vector3d step = PoseDifference(other.mean, keep.mean);
-  const Pose2 mean = MakePose(keep.mean.x() + b * step.x(), keep.mean.y() + b * step.y(),
-                              keep.mean.z() + b * step.z());
-  const Eigen::Vector3d dk = PoseDifference(keep.mean, mean);
-  const Eigen::Vector3d dm = PoseDifference(other.mean, mean);
-  Eigen::Matrix3d c =
-      a * (keep.covariance + dk * dk.transpose()) + b * (other.covariance + dm * dm.transpose());
-  keep.covariance = 0.5 * (c + c.transpose());
-  keep.mean = mean;
-  keep.eta = eta;
+  const Gaussian pair[2] = {Gaussian{keep.mean, keep.covariance, keep.eta},
+                            Gaussian{other.mean, other.covariance, other.eta}};
+  const Gaussian merged = MomentMatch(pair, HeadingMean::kAnchored);
+  keep.covariance = merged.covariance;
+  keep.mean = merged.mean;
+  keep.eta = merged.weight;
   keep.weight = std::min(1.0, keep.weight + other.weight);
 }
 
@@ -73,35 +58,6 @@ const char* RemovalReason(Touch t) {
     default:
       return "weight below w_min";
   }
-}
-
-void WriteDescriptor(BinaryWriter& out, const Descriptor& d) {
-  out.Write(d.kind);
-  out.WriteVector(d.features);
-  out.Write<std::uint64_t>(d.coefficients.size());
-  for (const std::complex<float>& c : d.coefficients) {
-    out.Write(c.real());
-    out.Write(c.imag());
-  }
-  out.Write<std::int32_t>(d.panorama_width);
-}
-
-Descriptor ReadDescriptor(BinaryReader& in) {
-  Descriptor d;
-  const auto kind = in.Read<std::uint8_t>("descriptor kind");
-  if (kind < 1 || kind > 3)
-    in.Fail("descriptor kind", StrCat("invalid descriptor kind ", int{kind}));
-  d.kind = static_cast<DescriptorKind>(kind);
-  d.features = in.ReadVector<float>("descriptor features");
-  const std::size_t n = in.ReadCount("descriptor coefficients", 8);
-  d.coefficients.reserve(n);
-  for (std::size_t i = 0; i < n; ++i) {
-    const float re = in.Read<float>("descriptor coefficient");
-    const float im = in.Read<float>("descriptor coefficient");
-    d.coefficients.emplace_back(re, im);
-  }
-  d.panorama_width = in.Read<std::int32_t>("descriptor panorama width");
-  return d;
 }
 
 void WritePose(BinaryWriter& out, const Pose2& p) {
@@ -193,9 +149,8 @@ EnvironmentModel::EnvironmentModel(const EnvironmentModelOptions& options,
 
 void EnvironmentModel::CheckDescriptor(const Descriptor& y, const char* where) const {
   if (y.kind != extractor_->kind()) {
-    // (Kinds printed as numbers: this module does not link the descriptor library.)
-    throw Error(StrCat("EnvironmentModel::", where, ": descriptor kind ", static_cast<int>(y.kind),
-                       " differs from the model's kind ", static_cast<int>(extractor_->kind())));
+    throw Error(StrCat("EnvironmentModel::", where, ": descriptor kind ", ToString(y.kind),
+                       " differs from the model's kind ", ToString(extractor_->kind())));
   }
   if (y.features.size() != feature_size_) {
     throw Error(StrCat("EnvironmentModel::", where, ": descriptor has ", y.features.size(),
@@ -412,7 +367,7 @@ UpdateStats EnvironmentModel::Update(const Descriptor& y, const Gaussian& estima
         if (j == skip) continue;
         // [G] (12): merge when closer than delta.
         const double d2 =
-            SquaredMahalanobisSum(c.mean, comps[j].mean, c.covariance + comps[j].covariance);
+            SquaredMahalanobis(c.mean, comps[j].mean, c.covariance + comps[j].covariance);
         if (d2 < best_d2) {
           best_d2 = d2;
           best = j;
@@ -483,7 +438,7 @@ UpdateStats EnvironmentModel::Update(const Descriptor& y, const Gaussian& estima
       const Eigen::Matrix3d s = c_t + EffectiveCovariance(c.covariance, m.relative_heading_rad,
                                                           options_.heading_sigma_no_rotation_rad);
       // [G] eq. (15): Mahalanobis distance of mu_t to the component.
-      const double d = std::sqrt(SquaredMahalanobisSum(mu_view, c.mean, s));
+      const double d = std::sqrt(SquaredMahalanobis(mu_view, c.mean, s));
       if (d <= options_.d_max) {
         // [G] eq. (16): weight increase.
         c.weight = beta_s + (1.0 - beta_s) * c.weight;
@@ -595,7 +550,7 @@ void EnvironmentModel::Serialize(BinaryWriter& out) const {
   out.Write<std::uint64_t>(views_.size());
   for (const ReferenceView& v : views_) {
     out.Write(v.id);
-    WriteDescriptor(out, v.descriptor);
+    WriteDescriptorRecord(out, v.descriptor);
     out.Write(v.stats.created_frame);
     out.Write<std::int32_t>(v.stats.created_session);
     out.Write(v.stats.observations);
@@ -652,7 +607,7 @@ EnvironmentModel EnvironmentModel::Deserialize(
   for (std::size_t i = 0; i < num_views; ++i) {
     ReferenceView v;
     v.id = in.Read<std::uint64_t>("view id");
-    v.descriptor = ReadDescriptor(in);
+    v.descriptor = ReadDescriptorRecord(in);
     if (v.descriptor.kind != model.extractor_->kind() ||
         v.descriptor.features.size() != model.feature_size_) {
       in.Fail("view descriptor",

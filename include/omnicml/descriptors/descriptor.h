@@ -22,6 +22,8 @@
 
 #include <opencv2/core.hpp>
 
+#include "omnicml/common/binary_io.h"
+
 namespace omnicml {
 
 enum class DescriptorKind : std::uint8_t {
@@ -57,6 +59,16 @@ struct Descriptor {
 // kind or version, inconsistent sizes, trailing bytes) or otherwise malformed buffer.
 std::vector<std::uint8_t> Serialize(const Descriptor& d);
 Descriptor Deserialize(std::span<const std::uint8_t> bytes);
+
+// Record encoding for descriptors inside a larger binary container (the environment
+// model's map file), which carries its own magic, version and checksum:
+//   u8 kind | u64 feature count | f32 features... | u64 coefficient count |
+//   (f32 re, f32 im)... | i32 panorama_width
+// (BinaryWriter's little-endian encoding). ReadDescriptor reports a truncated record, an
+// unknown kind, non-finite values, coefficients on a histogram or a negative width
+// through BinaryReader::Fail (omnicml::Error naming `what` and the offset).
+void WriteDescriptorRecord(BinaryWriter& out, const Descriptor& d);
+Descriptor ReadDescriptorRecord(BinaryReader& in);
 
 class DescriptorExtractor {
  public:

@@ -38,10 +38,23 @@ double SquaredMahalanobis(const Pose2& a, const Pose2& b, const Eigen::Matrix3d&
 Eigen::Matrix3d RepairCovariance(const Eigen::Matrix3d& c, double min_eigenvalue = 1e-12,
                                  const std::string& what = "covariance");
 
+// How MomentMatch averages the heading.
+enum class HeadingMean {
+  // atan2 of the weighted sums of sin and cos (the circular mean).
+  kCircular,
+  // The first component's mean plus the weighted mean of the wrapped differences
+  // PoseDifference(mean_i, mean_0) (all three coordinates): for a pair, the first mean
+  // moves toward the second by its weight share along the shorter arc, [G] (13) read
+  // literally. The environment model's component merge (12)-(14) uses it.
+  kAnchored,
+};
+
 // Moment-matched single Gaussian of weighted components (weights need not sum to one,
-// must have a positive sum). The angle mean is the circular mean; spread terms use
-// wrapped differences to that mean. [G] eqs. (13)-(14) for a pair.
-Gaussian MomentMatch(std::span<const Gaussian> components);
+// must have a positive sum; the result's weight is their sum). The heading mean follows
+// `heading`; spread terms use wrapped differences to the merged mean. [G] eqs. (13)-(14)
+// for a pair.
+Gaussian MomentMatch(std::span<const Gaussian> components,
+                     HeadingMean heading = HeadingMean::kCircular);
 
 // Sum of weights.
 double TotalWeight(const Mixture& m);

@@ -11,6 +11,7 @@
 #include <CLI/CLI.hpp>
 #include <opencv2/imgcodecs.hpp>
 
+#include "cli_common.h"
 #include "command_registry.h"
 #include "omnicml/common/common.h"
 #include "omnicml/engine/engine_io.h"
@@ -18,16 +19,6 @@
 #include "omnicml/report/report.h"
 
 namespace omnicml::app {
-
-// Loads a map file for reading (cmd_inspect.cc uses it too): every queued update is
-// applied (CmlEngine::Finish on the in-memory copy), so what is shown is the whole map.
-std::unique_ptr<CmlEngine> LoadMapForReading(const std::string& path) {
-  if (!std::filesystem::is_regular_file(path))
-    throw Error(StrCat("map file '", path, "' does not exist"));
-  std::unique_ptr<CmlEngine> engine = LoadEngine(path);
-  engine->Finish();
-  return engine;
-}
 
 namespace {
 

@@ -6,14 +6,13 @@
 
 #include <CLI/CLI.hpp>
 
+#include "cli_common.h"
 #include "command_registry.h"
 #include "omnicml/common/common.h"
 #include "omnicml/report/map_export.h"
 
 namespace omnicml::app {
 
-// Defined in cmd_export.cc.
-std::unique_ptr<CmlEngine> LoadMapForReading(const std::string& path);
 
 namespace {
 

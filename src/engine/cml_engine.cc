@@ -111,19 +111,36 @@ CmlEngine::CmlEngine(const CmlEngineOptions& options) : options_(options), track
   options_.reconstruction.motion = options_.tracker.motion;
   extractor_ = MakeDescriptorExtractor(options_.descriptor);
   model_ = std::make_unique<EnvironmentModel>(options_.model, extractor_);
-  MakeUpdater();
+  updater_ = MakeUpdater(options_.threads);
 }
 
 CmlEngine::~CmlEngine() = default;
 
-void CmlEngine::MakeUpdater() {
+std::unique_ptr<MapUpdater> CmlEngine::MakeUpdater(int threads) {
   // The worker only ever touches model_ through this function, between Schedule and the
   // barrier of a frame (see map_updater.h).
-  updater_ = std::make_unique<MapUpdater>(
+  return std::make_unique<MapUpdater>(
       [this](const MapUpdate& u) {
         model_->Update(u.descriptor, u.state, UpdateContext{u.frame, u.session_index});
       },
-      options_.update_delay_frames, options_.threads >= 2);
+      options_.update_delay_frames, threads >= 2);
+}
+
+void CmlEngine::SetThreads(int threads) {
+  if (threads < 1) throw Error(StrCat("CmlEngineOptions.threads must be >= 1, got ", threads));
+  if (threads == options_.threads) return;
+  // Between calls the worker holds no batch (every call ends at a barrier or a flush), so
+  // the queue is all the work not yet applied. Build the new updater first: a failure to
+  // start its worker leaves the engine unchanged.
+  std::unique_ptr<MapUpdater> updater = MakeUpdater(threads);
+  for (const MapUpdate& u : updater_->queued()) updater->PushRaw(u);
+  updater_ = std::move(updater);  // the old one joins its (idle) worker
+  options_.threads = threads;
+}
+
+void CmlEngine::SetForgettingMode(ForgettingMode mode) {
+  options_.model.forgetting = mode;
+  model_->SetForgettingMode(mode);
 }
 
 void CmlEngine::MakeUnwrapper() {

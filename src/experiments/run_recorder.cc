@@ -6,19 +6,14 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
-#include <cstring>
 #include <iostream>
-#include <map>
 #include <sstream>
 #include <system_error>
 
-#include "omnicml/common/binary_io.h"
 #include "omnicml/common/common.h"
-#include "omnicml/engine/engine_io.h"
 #include "omnicml/evaluation/evaluation.h"
+#include "omnicml/experiments/run_report.h"
 #include "omnicml/report/map_export.h"
-#include "omnicml/experiments/run_config.h"
-#include "omnicml/report/svg_plot.h"
 
 namespace omnicml {
 namespace fs = std::filesystem;
@@ -36,25 +31,6 @@ std::vector<double> StageTimes(const FrameStats& s) {
 
 namespace {
 
-std::string Fixed(double v, int decimals) {
-  if (!std::isfinite(v)) return "-";
-  char buf[48];
-  std::snprintf(buf, sizeof buf, "%.*f", decimals, v);
-  return buf;
-}
-
-
-std::string CsvText(std::string s) {
-  // Event reasons are plain text; keep the CSV simple by quoting when needed.
-  if (s.find_first_of(",\"\n") == std::string::npos) return s;
-  std::string out = "\"";
-  for (char c : s) {
-    if (c == '"') out += '"';
-    out += c;
-  }
-  return out + "\"";
-}
-
 std::string FormatDuration(double seconds) {
   if (!std::isfinite(seconds) || seconds < 0) return "--:--";
   const long s = std::lround(seconds);
@@ -65,115 +41,6 @@ std::string FormatDuration(double seconds) {
     std::snprintf(buf, sizeof buf, "%ld:%02ld", s / 60, s % 60);
   }
   return buf;
-}
-
-struct SessionEvents {
-  int views_inserted = 0;
-  int views_removed = 0;
-  int components_removed = 0;
-};
-
-std::map<int, SessionEvents> EventsBySession(const EnvironmentModel& model) {
-  std::map<int, SessionEvents> out;
-  for (const MapEvent& e : model.events()) {
-    SessionEvents& s = out[e.session];
-    if (e.type == MapEventType::kViewInserted) ++s.views_inserted;
-    if (e.type == MapEventType::kViewRemoved) ++s.views_removed;
-    if (e.type == MapEventType::kComponentRemoved) ++s.components_removed;
-  }
-  return out;
-}
-
-std::string RenderRunReport(const std::string& title, const std::string& input,
-                            const std::vector<FrameRecord>& records, const CmlEngine& engine,
-                            const std::vector<std::pair<std::string, std::string>>& notes) {
-  HtmlReport report(title);
-  FramesTable table;
-  table.stage_names = StageNames();
-  table.records = records;
-  const EvaluationResult eval = Evaluate(table, Alignment::kNone);
-  const EnvironmentModel& model = engine.model();
-  std::vector<std::pair<std::string, std::string>> summary = {
-      {"input", input},
-      {"frames", std::to_string(records.size())},
-      {"sessions (days)", std::to_string(eval.days.size())},
-      {"descriptor", ToString(engine.options().descriptor.kind)},
-      {"forgetting", ToString(model.options().forgetting)},
-      {"reference views at the end", std::to_string(model.NumViews())},
-      {"map components at the end", std::to_string(model.NumComponents())},
-      {"map memory", Fixed(model.MemoryBytes() / 1024.0, 1) + " KiB"},
-      {"unimodal frames", Fixed(eval.overall.unimodal_fraction * 100, 1) + " %"},
-      {"position error mean / p95 / max", Fixed(eval.overall.position_m.mean, 3) + " / " +
-                                              Fixed(eval.overall.position_m.p95, 3) + " / " +
-                                              Fixed(eval.overall.position_m.max, 3) + " m"},
-      {"odometry-only error mean", Fixed(eval.overall.odometry_m.mean, 3) + " m"},
-      {"mean time per frame", Fixed(eval.overall.mean_frame_time_us / 1000.0, 2) + " ms"},
-  };
-  for (const auto& n : notes) summary.push_back(n);
-  report.AddHeading("Summary");
-  report.AddKeyValues(summary);
-
-  report.AddHeading("Per day");
-  const auto events = EventsBySession(model);
-  std::vector<std::vector<std::string>> rows;
-  for (const DayEvaluation& d : eval.days) {
-    const auto it = events.find(d.session);
-    const SessionEvents ev = it == events.end() ? SessionEvents{} : it->second;
-    rows.push_back({std::to_string(d.session + 1), std::to_string(d.frames),
-                    Fixed(d.unimodal_fraction * 100, 1), Fixed(d.position_m.mean, 3),
-                    Fixed(d.position_m.median, 3), Fixed(d.position_m.p95, 3),
-                    Fixed(d.position_m.max, 3), Fixed(d.heading_rad.mean * 180 / kPi, 2),
-                    Fixed(d.odometry_m.mean, 3), std::to_string(d.views_at_end),
-                    std::to_string(ev.views_inserted), std::to_string(ev.views_removed),
-                    std::to_string(ev.components_removed)});
-  }
-  report.AddTable(
-      {"day", "frames", "unimodal %", "mean m", "median m", "p95 m", "max m", "heading mean deg",
-       "odometry mean m", "views at end", "views inserted", "views removed", "components removed"},
-      rows);
-
-  std::vector<double> x, err, odo, views, comps;
-  std::vector<Pose2> trajectory;
-  for (const FrameRecord& r : records) {
-    x.push_back(static_cast<double>(r.global_frame));
-    err.push_back(r.position_error_m);
-    odo.push_back(r.odometry_error_m);
-    views.push_back(r.views);
-    comps.push_back(r.map_components);
-    if (r.has_estimate) trajectory.push_back(r.estimate);
-  }
-  report.AddHeading("Plots");
-  SvgPlot err_plot("Position error", "frame", "error [m]", 960, 300);
-  err_plot.AddLine("estimate (strongest)", x, err);
-  err_plot.AddLine("odometry only", x, odo);
-  report.AddSvg(err_plot.Render());
-  SvgPlot map_plot("Map growth", "frame", "count", 960, 260);
-  map_plot.AddLine("reference views", x, views);
-  map_plot.AddLine("components", x, comps);
-  report.AddSvg(map_plot.Render());
-  report.AddSvg(RenderPositionHistogramSvg(eval));
-
-  report.AddHeading("Time per stage (mean over frames)");
-  std::vector<std::vector<std::string>> stage_rows;
-  for (std::size_t s = 0; s < StageNames().size(); ++s) {
-    std::vector<double> v;
-    for (const FrameRecord& r : records) {
-      if (s < r.stage_times_us.size()) v.push_back(r.stage_times_us[s]);
-    }
-    const ErrorStats st = ComputeStats(v);
-    stage_rows.push_back({StageNames()[s], Fixed(st.mean, 1), Fixed(st.median, 1), Fixed(st.p95, 1),
-                          Fixed(st.max, 1)});
-  }
-  report.AddTable({"stage", "mean us", "median us", "p95 us", "max us"}, stage_rows);
-
-  report.AddHeading("Map over the estimated trajectory");
-  MapPictureOptions pic;
-  pic.width_px = 900;
-  report.AddSvg(MapToSvg(model, trajectory, pic));
-
-  report.AddHeading("Effective configuration");
-  report.AddPreformatted(EngineOptionsToYaml(engine.options()));
-  return report.Render();
 }
 
 }  // namespace
@@ -258,32 +125,16 @@ void RunRecorder::Commit(const CmlEngine& engine,
   std::vector<std::unique_ptr<AtomicFile>> files;
   if (!options_.run_dir.empty()) {
     auto config = std::make_unique<AtomicFile>(options_.run_dir / "config.yaml");
-    config->stream() << "# omnicml effective configuration (load with --config)\n# input: "
-                     << options_.input_description << "\n"
-                     << EngineOptionsToYaml(engine.options());
+    config->stream() << RunConfigYaml(options_.input_description, engine.options());
     files.push_back(std::move(config));
 
     auto days = std::make_unique<AtomicFile>(options_.run_dir / "days.csv");
-    const auto events = EventsBySession(engine.model());
-    WriteDaysCsv(days->stream(), records_, StageNames(),
-                 {"views_inserted", "views_removed", "components_removed"}, [&](int session) {
-                   const auto it = events.find(session);
-                   const SessionEvents ev = it == events.end() ? SessionEvents{} : it->second;
-                   return std::vector<std::string>{std::to_string(ev.views_inserted),
-                                                   std::to_string(ev.views_removed),
-                                                   std::to_string(ev.components_removed)};
-                 });
+    WriteRunDaysCsv(days->stream(), records_, engine.model());
     files.push_back(std::move(days));
 
-    auto ev = std::make_unique<AtomicFile>(options_.run_dir / "events.csv");
-    ev->stream() << "type,frame,session,view_id,component_id,x_m,y_m,phi_rad,weight,reason\n";
-    for (const MapEvent& e : engine.model().events()) {
-      ev->stream() << ToString(e.type) << ',' << e.frame << ',' << e.session << ',' << e.view_id
-                   << ',' << e.component_id << ',' << ShortestDouble(e.position.x()) << ','
-                   << ShortestDouble(e.position.y()) << ',' << ShortestDouble(e.position.z()) << ','
-                   << ShortestDouble(e.weight) << ',' << CsvText(e.reason) << '\n';
-    }
-    files.push_back(std::move(ev));
+    auto events = std::make_unique<AtomicFile>(options_.run_dir / "events.csv");
+    WriteEventsCsv(events->stream(), engine.model());
+    files.push_back(std::move(events));
 
     if (options_.write_report) {
       auto html = std::make_unique<AtomicFile>(options_.run_dir / "report.html");
@@ -301,8 +152,8 @@ void RunRecorder::Commit(const CmlEngine& engine,
 
 bool StderrIsTerminal() { return ::isatty(STDERR_FILENO) == 1; }
 
-RunSummary RunEngineOverSource(std::unique_ptr<CmlEngine>& engine, FrameSource& source,
-                               RunRecorder* recorder, const ProgressOptions& progress,
+RunSummary RunEngineOverSource(CmlEngine& engine, FrameSource& source, RunRecorder* recorder,
+                               const ProgressOptions& progress,
                                const SessionEndHook& on_session_end) {
   using Clock = std::chrono::steady_clock;
   const auto start = Clock::now();
@@ -319,10 +170,10 @@ RunSummary RunEngineOverSource(std::unique_ptr<CmlEngine>& engine, FrameSource& 
     std::ostringstream os;
     os << summary.frames;
     if (progress.total_frames) os << "/" << *progress.total_frames;
-    os << " frames, day " << current_session + 1 << ", " << Fixed(fps, 1) << " frames/s, "
+    os << " frames, day " << current_session + 1 << ", " << FormatFixed(fps, 1) << " frames/s, "
        << r.stats.num_views << " views";
     if (error_count > 0)
-      os << ", mean error " << Fixed(error_sum / static_cast<double>(error_count), 2) << " m";
+      os << ", mean error " << FormatFixed(error_sum / static_cast<double>(error_count), 2) << " m";
     if (progress.total_frames && fps > 0) {
       os << ", ETA "
          << FormatDuration(static_cast<double>(*progress.total_frames - summary.frames) / fps);
@@ -334,12 +185,12 @@ RunSummary RunEngineOverSource(std::unique_ptr<CmlEngine>& engine, FrameSource& 
       // One write per line, so runs in parallel threads (compare) never split a line.
       std::ostringstream line;
       if (progress.progress_bar) line << "\r\033[K";
-      line << prefix << "day " << current_session + 1 << " done: " << session_frames
-           << " frames, " << last->stats.num_views << " views, "
-           << engine->model().NumComponents() << " components";
+      line << prefix << "day " << current_session + 1 << " done: " << session_frames << " frames, "
+           << last->stats.num_views << " views, " << engine.model().NumComponents()
+           << " components";
       if (error_count > 0)
-        line << ", mean error so far " << Fixed(error_sum / static_cast<double>(error_count), 3)
-             << " m";
+        line << ", mean error so far "
+             << FormatFixed(error_sum / static_cast<double>(error_count), 3) << " m";
       line << "\n";
       std::cerr << line.str();
     }
@@ -351,17 +202,14 @@ RunSummary RunEngineOverSource(std::unique_ptr<CmlEngine>& engine, FrameSource& 
     if (frame.session_index != current_session) {
       if (current_session >= 0) {
         end_session(have_last ? &last : nullptr);
-        if (on_session_end) {
-          if (auto replacement = on_session_end(*engine, current_session))
-            engine = std::move(replacement);
-        }
+        if (on_session_end) on_session_end(engine, current_session);
       }
       current_session = frame.session_index;
       session_frames = 0;
-      engine->BeginSession(source.Session(current_session));
+      engine.BeginSession(source.Session(current_session));
       ++summary.sessions;
     }
-    last = engine->ProcessFrame(frame);
+    last = engine.ProcessFrame(frame);
     have_last = true;
     ++summary.frames;
     ++session_frames;
@@ -382,7 +230,7 @@ RunSummary RunEngineOverSource(std::unique_ptr<CmlEngine>& engine, FrameSource& 
                                              static_cast<double>(*progress.total_frames));
           const int filled = static_cast<int>(f * 30);
           bar = "[" + std::string(filled, '#') + std::string(30 - filled, '.') + "] " +
-                Fixed(f * 100, 0) + "% ";
+                FormatFixed(f * 100, 0) + "% ";
         }
         std::cerr << "\r\033[K" << prefix << bar << status(last) << std::flush;
       }
@@ -393,42 +241,6 @@ RunSummary RunEngineOverSource(std::unique_ptr<CmlEngine>& engine, FrameSource& 
   if (current_session >= 0) end_session(have_last ? &last : nullptr);
   summary.wall_s = elapsed();
   return summary;
-}
-
-std::unique_ptr<CmlEngine> RebuildEngineWithOptions(const CmlEngine& engine,
-                                                    const CmlEngineOptions& options) {
-  CmlEngineOptions allowed = engine.options();
-  allowed.threads = options.threads;
-  allowed.model.forgetting = options.model.forgetting;
-  if (!SameEngineOptions(allowed, options)) {
-    throw Error(
-        "a saved engine's options can only change in threads and model.forgetting (the rest is "
-        "part of its "
-        "state); drop --config, --e-max, --update-delay and --descriptor with --map-in");
-  }
-  options.Validate();
-  // The engine file's payload starts with the options (engine_io.h); replace them and
-  // re-checksum. EncodeEngine/DecodeEngine are bit-exact, so the state is unchanged.
-  const std::vector<std::uint8_t> bytes = EncodeEngine(engine);
-  constexpr std::size_t kHeader = 8 + 4 + 8, kTrailer = 4;
-  BinaryWriter old_options, new_options;
-  WriteEngineOptions(old_options, engine.options());
-  WriteEngineOptions(new_options, options);
-  const auto& old_bytes = old_options.bytes();
-  OMNICML_CHECK(bytes.size() >= kHeader + old_bytes.size() + kTrailer &&
-                std::equal(old_bytes.begin(), old_bytes.end(), bytes.begin() + kHeader))
-      << "engine file layout: the payload does not start with the options";
-  std::vector<std::uint8_t> payload(new_options.bytes());
-  payload.insert(payload.end(),
-                 bytes.begin() + static_cast<std::ptrdiff_t>(kHeader + old_bytes.size()),
-                 bytes.end() - static_cast<std::ptrdiff_t>(kTrailer));
-  BinaryWriter file;
-  for (char ch : kEngineMagic) file.Write<std::uint8_t>(static_cast<std::uint8_t>(ch));
-  file.Write<std::uint32_t>(kEngineFormatVersion);
-  file.Write<std::uint64_t>(payload.size());
-  file.WriteBytes(payload);
-  file.Write<std::uint32_t>(Crc32(payload));
-  return DecodeEngine(file.Release(), "rebuilt engine");
 }
 
 }  // namespace omnicml

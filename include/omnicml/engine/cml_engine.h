@@ -276,10 +276,28 @@ class CmlEngine {
   // Throws omnicml::Error if the model's extractor is a different object.
   void ReplaceModel(EnvironmentModel model);
 
+  // Mode changes of a running engine: the options that do not change the meaning of the
+  // stored state (everything else is fixed at construction). Call between frames, from
+  // the engine's thread: after construction, BeginSession, ProcessFrame or Finish (the
+  // map-update worker is then idle). The result is bit-identical to saving the engine
+  // with EncodeEngine, changing the option in the stored options and decoding it again:
+  // map, tracker, queued updates, pending frames and counters are kept, and the engine
+  // goes on as one constructed with the new option and fed the same frames would.
+  //
+  // options().threads := threads (>= 1, else omnicml::Error and no change). The
+  // map-update worker is stopped (joined) and a new updater (with a worker when
+  // threads >= 2) takes over the queued updates in order; its applied-updates count
+  // restarts at 0, as after LoadEngine. Results do not depend on threads.
+  void SetThreads(int threads);
+  // options().model.forgetting := mode, for the map's next updates (e.g. learn day 1 in
+  // kActive, then freeze the map with kStatic). Queued updates apply under the new mode.
+  void SetForgettingMode(ForgettingMode mode);
+
  private:
   friend class EngineStateAccess;  // engine_io.cc restores the state
 
-  void MakeUpdater();
+  // A map updater applying to model_ with `threads` (>= 2: background worker).
+  std::unique_ptr<MapUpdater> MakeUpdater(int threads);
   void MakeUnwrapper();
   cv::Mat PreparePanoramaOf(const Frame& frame) const;
   void QueueUnimodal(std::int64_t frame, const Descriptor& y, const Estimate& estimate, FrameResult* result);

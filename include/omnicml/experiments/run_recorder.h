@@ -2,16 +2,9 @@
 // a frame source with progress output.
 //
 // RUNDIR layout (all files written atomically: temporary name, renamed on Commit()):
-//   config.yaml      the effective engine configuration (run_config.h format; loadable
-//                    with --config) preceded by comment lines naming the input
-//   frames.csv       one row per frame (schema in evaluation.h)
-//   days.csv         one row per session: frames, unimodal fraction, position error
-//                    mean/median/p95/max, heading error mean, odometry-only mean, views
-//                    and components at the end of the day, map events of the day
-//   events.csv       the map's event log (environment_model.h MapEvent): type, frame,
-//                    session, view_id, component_id, x_m, y_m, phi_rad, weight, reason
-//   report.html      self-contained report: summary, per-day table, plots of error and
-//                    map growth, stage timings, a drawing of the map over the trajectory
+//   frames.csv       one row per frame (schema in evaluation.h), written as frames come
+//   config.yaml, days.csv, events.csv, report.html
+//                    written at Commit from the engine's final state (run_report.h)
 // and, when asked, a trajectory in TUM format (stamp x y z qx qy qz qw; z = 0; the
 // strongest estimate; frames without estimate are left out).
 //
@@ -26,15 +19,14 @@
 #include <cstdint>
 #include <filesystem>
 #include <functional>
-#include <memory>
 #include <optional>
 #include <string>
 #include <vector>
 
 #include "omnicml/engine/cml_engine.h"
 #include "omnicml/evaluation/evaluation.h"
-#include "omnicml/unwrap/frame.h"
 #include "omnicml/report/report.h"
+#include "omnicml/unwrap/frame.h"
 
 namespace omnicml {
 
@@ -108,23 +100,15 @@ struct RunSummary {
 };
 
 // Drives `engine` over every frame of `source`: BeginSession at each new session,
-// ProcessFrame, recorder->Record (when not null), progress; engine.Finish() at the end.
+// ProcessFrame, recorder->Record (when not null), progress. Does not call Finish.
 // `on_session_end(engine, session_index)` (optional) runs after the last frame of each
-// session, before the next BeginSession — it may return a replacement engine (e.g. with
-// other options), or nullptr to keep the current one. Throws what the engine, the
-// source or the recorder throw.
-using SessionEndHook =
-    std::function<std::unique_ptr<CmlEngine>(const CmlEngine&, int session_index)>;
-RunSummary RunEngineOverSource(std::unique_ptr<CmlEngine>& engine, FrameSource& source,
-                               RunRecorder* recorder, const ProgressOptions& progress,
+// session but the last, before the next BeginSession, e.g. to change the engine's mode
+// (CmlEngine::SetForgettingMode; the engine is between frames there). Throws what the
+// engine, the source, the recorder or the hook throw.
+using SessionEndHook = std::function<void(CmlEngine& engine, int session_index)>;
+RunSummary RunEngineOverSource(CmlEngine& engine, FrameSource& source, RunRecorder* recorder,
+                               const ProgressOptions& progress,
                                const SessionEndHook& on_session_end = {});
-
-// A copy of `engine` (bit-identical state: map, tracker, queues, counters) with other
-// options. Only options that do not change the meaning of the stored state may differ:
-// threads and model.forgetting (throws omnicml::Error if anything else differs). Used to
-// resume a saved map with --threads or to freeze it (--forgetting static).
-std::unique_ptr<CmlEngine> RebuildEngineWithOptions(const CmlEngine& engine,
-                                                    const CmlEngineOptions& options);
 
 }  // namespace omnicml
 

@@ -1,0 +1,65 @@
+#include "cli_common.h"
+
+#include <filesystem>
+#include <string>
+
+#include "omnicml/common/common.h"
+#include "omnicml/engine/engine_io.h"
+
+namespace omnicml::app {
+
+void AddRunInputFlags(CLI::App* cmd, RunSettings* f, bool with_forgetting) {
+  cmd->add_option(
+      "logdirs", f->input.log_dirs,
+      "Multi-day log directories (or single sessions), their sessions processed in order");
+  cmd->add_option("--world", f->input.world,
+                  "Built-in simulated world (home_store, institute, store_large) "
+                  "or a world YAML file, instead of LOGDIR");
+  cmd->add_option("--days", f->input.days, "Simulated days (with --world)")->capture_default_str();
+  cmd->add_option("--first-day", f->input.first_day,
+                  "First simulated day, 0-based (with --world; resume with --map-in)")
+      ->capture_default_str();
+  cmd->add_option("--frames-per-day", f->input.frames_per_day,
+                  "Simulated frames per day (0 = the simulator default, 300; one lap is about 285 "
+                  "on home_store, 180 on institute, 1425 on store_large)")
+      ->capture_default_str();
+  cmd->add_option("--seed", f->input.seed, "Simulator seed")->capture_default_str();
+  cmd->add_flag("--skip-unreadable-frames", f->input.skip_unreadable_frames,
+                "Logs: skip (and count) frames that cannot be read instead of failing");
+  cmd->add_option(
+      "--config", f->overrides.config_path,
+      "Engine configuration YAML (keys = option names; see RUNDIR/config.yaml of any run)");
+  if (with_forgetting) {
+    cmd->add_option_function<std::string>(
+        "--forgetting", [f](const std::string& s) { f->overrides.forgetting = s; },
+        "Forgetting mode: active | passive | static");
+  }
+  cmd->add_option_function<double>(
+      "--e-max", [f](double v) { f->overrides.e_max = v; },
+      "Descriptor distance at which a view stops matching (model.e_max)");
+  cmd->add_option_function<int>(
+      "--update-delay", [f](int v) { f->overrides.update_delay_frames = v; },
+      "Frames before an observation reaches the map (update_delay_frames)");
+  cmd->add_option_function<std::string>(
+      "--descriptor", [f](const std::string& s) { f->overrides.descriptor = s; },
+      "Descriptor: fourier | ifh | color (set --e-max to suit it)");
+  cmd->add_option_function<int>(
+      "--threads", [f](int v) { f->overrides.threads = v; },
+      "Engine threads: 1 = no worker, 2 = map updates on a background worker "
+      "(default 2 on a multi-core machine unless --config sets it)");
+  cmd->add_option("--out", f->out_dir, "Run directory (default runs/<command>-<date>-<time>)");
+  cmd->add_flag("--quiet", f->quiet, "No progress output");
+  cmd->add_flag("--no-progress-bar", f->no_progress_bar, "Plain log lines even on a terminal");
+  cmd->add_option("--log-every", f->log_every_frames, "Frames between plain progress lines")
+      ->capture_default_str();
+}
+
+std::unique_ptr<CmlEngine> LoadMapForReading(const std::string& path) {
+  if (!std::filesystem::is_regular_file(path))
+    throw Error(StrCat("map file '", path, "' does not exist"));
+  std::unique_ptr<CmlEngine> engine = LoadEngine(path);
+  engine->Finish();
+  return engine;
+}
+
+}  // namespace omnicml::app

@@ -1,0 +1,77 @@
+// The CML run (`omnicml run`): the engine over a multi-day log or a simulated world, the
+// map carried from day to day, recorded into a run directory (run_recorder.h,
+// run_report.h), optionally resumed from a saved engine and saved again. Also the pieces
+// shared with the other experiments over the same inputs (compare_experiment.h).
+//
+// A run is deterministic: the same input and options give the same run directory
+// (except the timings of frames.csv and report.html), whatever `threads` is, and a run
+// resumed from the map saved after day k with --first-day k gives the files of one
+// uninterrupted run.
+//
+// Thread-safety: the functions are thread-compatible (one run per call; independent runs
+// may go on in parallel threads when their outputs differ).
+#ifndef OMNICML_EXPERIMENTS_RUN_EXPERIMENT_H_
+#define OMNICML_EXPERIMENTS_RUN_EXPERIMENT_H_
+
+#include <cstddef>
+#include <cstdint>
+#include <optional>
+#include <string>
+
+#include "omnicml/evaluation/evaluation.h"
+#include "omnicml/experiments/run_config.h"
+#include "omnicml/experiments/run_recorder.h"
+
+namespace omnicml {
+
+// "runs/<command>-<YYYYmmdd-HHMMSS>" (UTC now): the run directory when --out is not given.
+std::string DefaultRunDir(const std::string& command);
+
+// Progress of a run with these settings: a bar on a terminal unless no_progress_bar,
+// plain lines every log_every_frames otherwise, nothing when quiet.
+ProgressOptions MakeProgressOptions(const RunSettings& settings, const std::string& label,
+                                    std::optional<std::int64_t> total_frames);
+
+// Without --threads and --config, threads = 2 (the engine's map-update worker) when the
+// machine has a second core; results are identical with 1 or 2 threads.
+OptionOverrides WithDefaultThreads(OptionOverrides overrides);
+
+// Fails early (before a long run) when the directory of output file `path` does not
+// exist and is not `run_dir` (which the run creates). `flag` names the option in the
+// omnicml::Error. No-op for an empty path.
+void CheckOutputParent(const std::string& path, const char* flag, const std::string& run_dir = "");
+
+struct RunExperimentOptions {
+  RunSettings settings;        // input, engine options, run directory, progress
+  std::string map_in;          // resume from this saved engine ("" = a new engine)
+  std::string map_out;         // save the engine here at the end ("" = no)
+  std::string trajectory_out;  // TUM trajectory file ("" = no)
+};
+
+struct RunExperimentResult {
+  std::string run_dir;          // where the run directory went (settings.out_dir or a default)
+  RunSummary summary;           // frames, sessions, wall time
+  EvaluationResult evaluation;  // of the recorded frames, Alignment::kNone
+  std::size_t views = 0;        // map at the end (after Finish)
+  std::size_t components = 0;
+  int threads = 1;     // the engine's threads
+  std::string timing;  // "<wall> s (<fps> frames/s)", as in the report
+};
+
+// Runs CML as described in the file comment and writes the run directory (and map_out,
+// trajectory_out) atomically. With map_in the saved engine's options are used; only
+// settings.overrides.threads and .forgetting may be set (CmlEngine::SetThreads,
+// SetForgettingMode). The map saved is the state before Finish(), so a resumed run goes
+// on exactly as one uninterrupted run. Progress and warnings go to stderr. Throws
+// omnicml::Error (bad input, options, paths; an input without frames), naming the flag
+// or file; nothing partial is left behind.
+RunExperimentResult RunExperiment(const RunExperimentOptions& options);
+
+// What `omnicml run` prints on stdout for `result`: the evaluation table, frames and
+// timing, the map size, the run directory, report and output files.
+std::string FormatRunExperimentResult(const RunExperimentOptions& options,
+                                      const RunExperimentResult& result);
+
+}  // namespace omnicml
+
+#endif  // OMNICML_EXPERIMENTS_RUN_EXPERIMENT_H_

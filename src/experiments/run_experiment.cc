@@ -1,0 +1,153 @@
+#include "omnicml/experiments/run_experiment.h"
+
+#include <algorithm>
+#include <cstdio>
+#include <ctime>
+#include <filesystem>
+#include <iostream>
+#include <memory>
+#include <sstream>
+#include <thread>
+#include <vector>
+
+#include "omnicml/common/common.h"
+#include "omnicml/engine/engine_io.h"
+
+namespace omnicml {
+
+std::string DefaultRunDir(const std::string& command) {
+  const std::time_t now = std::time(nullptr);
+  std::tm tm{};
+  gmtime_r(&now, &tm);
+  char buf[64];
+  std::strftime(buf, sizeof buf, "%Y%m%d-%H%M%S", &tm);
+  return "runs/" + command + "-" + buf;
+}
+
+ProgressOptions MakeProgressOptions(const RunSettings& settings, const std::string& label,
+                                    std::optional<std::int64_t> total_frames) {
+  ProgressOptions p;
+  p.progress_bar = !settings.no_progress_bar && StderrIsTerminal();
+  p.log_every_frames = settings.log_every_frames;
+  p.label = label;
+  p.total_frames = total_frames;
+  p.quiet = settings.quiet;
+  return p;
+}
+
+OptionOverrides WithDefaultThreads(OptionOverrides overrides) {
+  if (!overrides.threads && overrides.config_path.empty() &&
+      std::thread::hardware_concurrency() >= 2) {
+    overrides.threads = 2;
+  }
+  return overrides;
+}
+
+void CheckOutputParent(const std::string& path, const char* flag, const std::string& run_dir) {
+  if (path.empty()) return;
+  const std::filesystem::path parent = std::filesystem::path(path).parent_path();
+  if (!run_dir.empty() && !parent.empty() &&
+      std::filesystem::weakly_canonical(parent) == std::filesystem::weakly_canonical(run_dir)) {
+    return;
+  }
+  if (!parent.empty() && !std::filesystem::is_directory(parent)) {
+    throw Error(StrCat(flag, " '", path, "': directory '", parent.string(), "' does not exist"));
+  }
+}
+
+namespace {
+
+// The engine of a run: a new one from the resolved options, or the saved one of map_in
+// with only its mode changed.
+std::unique_ptr<CmlEngine> MakeRunEngine(const RunExperimentOptions& o) {
+  const OptionOverrides& overrides = o.settings.overrides;
+  if (o.map_in.empty()) {
+    return std::make_unique<CmlEngine>(ResolveEngineOptions(WithDefaultThreads(overrides)));
+  }
+  if (!overrides.OnlyThreadsAndForgetting()) {
+    throw Error(StrCat("--map-in '", o.map_in,
+                       "': the saved engine's options are used; only --threads and "
+                       "--forgetting may change (drop --config, --e-max, --update-delay, "
+                       "--descriptor)"));
+  }
+  if (!std::filesystem::is_regular_file(o.map_in)) {
+    throw Error(StrCat("--map-in '", o.map_in, "' does not exist"));
+  }
+  std::unique_ptr<CmlEngine> engine = LoadEngine(o.map_in);
+  // Parse both before changing anything, so a bad value leaves no half-changed engine.
+  std::optional<ForgettingMode> forgetting;
+  if (overrides.forgetting) forgetting = ForgettingModeFromString(*overrides.forgetting);
+  if (overrides.threads) engine->SetThreads(*overrides.threads);
+  if (forgetting) engine->SetForgettingMode(*forgetting);
+  return engine;
+}
+
+}  // namespace
+
+RunExperimentResult RunExperiment(const RunExperimentOptions& o) {
+  const RunSettings& f = o.settings;
+  f.input.Validate();
+  CheckOutputParent(o.map_out, "--map-out", f.out_dir);
+  CheckOutputParent(o.trajectory_out, "--trajectory-out", f.out_dir);
+  if (f.log_every_frames < 1) throw Error("--log-every must be >= 1");
+
+  std::unique_ptr<CmlEngine> engine = MakeRunEngine(o);
+  if (engine->options().model.forgetting == ForgettingMode::kStatic &&
+      engine->model().NumViews() == 0 && !f.quiet) {
+    std::cerr << "omnicml run: warning: static forgetting on an empty map: the map will stay empty "
+                 "(build it first, then resume with --map-in MAP --forgetting static)\n";
+  }
+
+  std::unique_ptr<FrameSource> source = OpenFrameSource(f.input);
+  RunExperimentResult result;
+  result.run_dir = f.out_dir.empty() ? DefaultRunDir("run") : f.out_dir;
+  RunRecorderOptions ro;
+  ro.run_dir = result.run_dir;
+  ro.trajectory_path = o.trajectory_out;
+  ro.title = "omnicml run";
+  ro.input_description = f.input.Describe() + (o.map_in.empty() ? "" : ", map " + o.map_in);
+  RunRecorder recorder(ro);
+  result.summary = RunEngineOverSource(
+      *engine, *source, &recorder, MakeProgressOptions(f, "run", CountFrames(f.input, *source)));
+  if (result.summary.frames == 0) {
+    throw Error(StrCat("the input (", f.input.Describe(), ") has no frames"));
+  }
+  // The saved engine is the state before Finish(), so a resumed run continues exactly as
+  // one uninterrupted run would (queued updates and pending frames included).
+  std::vector<std::uint8_t> map_bytes;
+  if (!o.map_out.empty()) map_bytes = EncodeEngine(*engine);
+  engine->Finish();
+  const double fps =
+      static_cast<double>(result.summary.frames) / std::max(result.summary.wall_s, 1e-9);
+  char timing[96];
+  std::snprintf(timing, sizeof timing, "%.1f s (%.1f frames/s)", result.summary.wall_s, fps);
+  result.timing = timing;
+  result.threads = engine->options().threads;
+  recorder.Commit(*engine,
+                  {{"wall time", result.timing}, {"threads", std::to_string(result.threads)}});
+  if (!o.map_out.empty()) WriteFileAtomically(o.map_out, map_bytes);
+
+  FramesTable table;
+  table.stage_names = StageNames();
+  table.records = recorder.records();
+  result.evaluation = Evaluate(table, Alignment::kNone);
+  result.views = engine->model().NumViews();
+  result.components = engine->model().NumComponents();
+  return result;
+}
+
+std::string FormatRunExperimentResult(const RunExperimentOptions& options,
+                                      const RunExperimentResult& result) {
+  std::ostringstream os;
+  os << FormatEvaluation(result.evaluation, /*with_histogram=*/false);
+  os << "frames: " << result.summary.frames << " in " << result.summary.sessions << " session(s), "
+     << result.timing << "\n";
+  os << "map: " << result.views << " views, " << result.components << " components\n";
+  os << "run directory: " << result.run_dir
+     << "\nreport: " << (std::filesystem::path(result.run_dir) / "report.html").string() << "\n";
+  if (!options.map_out.empty()) os << "map saved: " << options.map_out << "\n";
+  if (!options.trajectory_out.empty()) os << "trajectory (TUM): " << options.trajectory_out << "\n";
+  return os.str();
+}
+
+}  // namespace omnicml

@@ -1,0 +1,174 @@
+#include "omnicml/experiments/run_report.h"
+
+#include <cmath>
+#include <cstdio>
+
+#include "omnicml/common/common.h"
+#include "omnicml/experiments/floor_plan.h"
+#include "omnicml/experiments/run_config.h"
+#include "omnicml/experiments/run_recorder.h"
+#include "omnicml/report/map_export.h"
+#include "omnicml/report/report.h"
+#include "omnicml/report/svg_plot.h"
+
+namespace omnicml {
+namespace {
+
+std::string CsvText(std::string s) {
+  // Event reasons are plain text; keep the CSV simple by quoting when needed.
+  if (s.find_first_of(",\"\n") == std::string::npos) return s;
+  std::string out = "\"";
+  for (char c : s) {
+    if (c == '"') out += '"';
+    out += c;
+  }
+  return out + "\"";
+}
+
+}  // namespace
+
+std::string FormatFixed(double v, int decimals) {
+  if (!std::isfinite(v)) return "-";
+  char buf[48];
+  std::snprintf(buf, sizeof buf, "%.*f", decimals, v);
+  return buf;
+}
+
+std::map<int, SessionEventCounts> EventCountsBySession(const EnvironmentModel& model) {
+  std::map<int, SessionEventCounts> out;
+  for (const MapEvent& e : model.events()) {
+    SessionEventCounts& s = out[e.session];
+    if (e.type == MapEventType::kViewInserted) ++s.views_inserted;
+    if (e.type == MapEventType::kViewRemoved) ++s.views_removed;
+    if (e.type == MapEventType::kComponentRemoved) ++s.components_removed;
+  }
+  return out;
+}
+
+std::string RunConfigYaml(const std::string& input_description, const CmlEngineOptions& options) {
+  return "# omnicml effective configuration (load with --config)\n# input: " + input_description +
+         "\n" + EngineOptionsToYaml(options);
+}
+
+void WriteRunDaysCsv(std::ostream& out, const std::vector<FrameRecord>& records,
+                     const EnvironmentModel& model) {
+  const auto events = EventCountsBySession(model);
+  WriteDaysCsv(out, records, StageNames(),
+               {"views_inserted", "views_removed", "components_removed"}, [&](int session) {
+                 const auto it = events.find(session);
+                 const SessionEventCounts ev =
+                     it == events.end() ? SessionEventCounts{} : it->second;
+                 return std::vector<std::string>{std::to_string(ev.views_inserted),
+                                                 std::to_string(ev.views_removed),
+                                                 std::to_string(ev.components_removed)};
+               });
+}
+
+void WriteEventsCsv(std::ostream& out, const EnvironmentModel& model) {
+  out << "type,frame,session,view_id,component_id,x_m,y_m,phi_rad,weight,reason\n";
+  for (const MapEvent& e : model.events()) {
+    out << ToString(e.type) << ',' << e.frame << ',' << e.session << ',' << e.view_id << ','
+        << e.component_id << ',' << ShortestDouble(e.position.x()) << ','
+        << ShortestDouble(e.position.y()) << ',' << ShortestDouble(e.position.z()) << ','
+        << ShortestDouble(e.weight) << ',' << CsvText(e.reason) << '\n';
+  }
+}
+
+std::string RenderRunReport(const std::string& title, const std::string& input,
+                            const std::vector<FrameRecord>& records, const CmlEngine& engine,
+                            const std::vector<std::pair<std::string, std::string>>& notes) {
+  HtmlReport report(title);
+  FramesTable table;
+  table.stage_names = StageNames();
+  table.records = records;
+  const EvaluationResult eval = Evaluate(table, Alignment::kNone);
+  const EnvironmentModel& model = engine.model();
+  std::vector<std::pair<std::string, std::string>> summary = {
+      {"input", input},
+      {"frames", std::to_string(records.size())},
+      {"sessions (days)", std::to_string(eval.days.size())},
+      {"descriptor", ToString(engine.options().descriptor.kind)},
+      {"forgetting", ToString(model.options().forgetting)},
+      {"reference views at the end", std::to_string(model.NumViews())},
+      {"map components at the end", std::to_string(model.NumComponents())},
+      {"map memory", FormatFixed(model.MemoryBytes() / 1024.0, 1) + " KiB"},
+      {"unimodal frames", FormatFixed(eval.overall.unimodal_fraction * 100, 1) + " %"},
+      {"position error mean / p95 / max", FormatFixed(eval.overall.position_m.mean, 3) + " / " +
+                                              FormatFixed(eval.overall.position_m.p95, 3) + " / " +
+                                              FormatFixed(eval.overall.position_m.max, 3) + " m"},
+      {"odometry-only error mean", FormatFixed(eval.overall.odometry_m.mean, 3) + " m"},
+      {"mean time per frame", FormatFixed(eval.overall.mean_frame_time_us / 1000.0, 2) + " ms"},
+  };
+  for (const auto& n : notes) summary.push_back(n);
+  report.AddHeading("Summary");
+  report.AddKeyValues(summary);
+
+  report.AddHeading("Per day");
+  const auto events = EventCountsBySession(model);
+  std::vector<std::vector<std::string>> rows;
+  for (const DayEvaluation& d : eval.days) {
+    const auto it = events.find(d.session);
+    const SessionEventCounts ev = it == events.end() ? SessionEventCounts{} : it->second;
+    rows.push_back({std::to_string(d.session + 1), std::to_string(d.frames),
+                    FormatFixed(d.unimodal_fraction * 100, 1), FormatFixed(d.position_m.mean, 3),
+                    FormatFixed(d.position_m.median, 3), FormatFixed(d.position_m.p95, 3),
+                    FormatFixed(d.position_m.max, 3),
+                    FormatFixed(d.heading_rad.mean * 180 / kPi, 2),
+                    FormatFixed(d.odometry_m.mean, 3), std::to_string(d.views_at_end),
+                    std::to_string(ev.views_inserted), std::to_string(ev.views_removed),
+                    std::to_string(ev.components_removed)});
+  }
+  report.AddTable(
+      {"day", "frames", "unimodal %", "mean m", "median m", "p95 m", "max m", "heading mean deg",
+       "odometry mean m", "views at end", "views inserted", "views removed", "components removed"},
+      rows);
+
+  std::vector<double> x, err, odo, views, comps;
+  std::vector<Pose2> trajectory;
+  for (const FrameRecord& r : records) {
+    x.push_back(static_cast<double>(r.global_frame));
+    err.push_back(r.position_error_m);
+    odo.push_back(r.odometry_error_m);
+    views.push_back(r.views);
+    comps.push_back(r.map_components);
+    if (r.has_estimate) trajectory.push_back(r.estimate);
+  }
+  report.AddHeading("Plots");
+  SvgPlot err_plot("Position error", "frame", "error [m]", 960, 300);
+  err_plot.AddLine("estimate (strongest)", x, err);
+  err_plot.AddLine("odometry only", x, odo);
+  report.AddSvg(err_plot.Render());
+  SvgPlot map_plot("Map growth", "frame", "count", 960, 260);
+  map_plot.AddLine("reference views", x, views);
+  map_plot.AddLine("components", x, comps);
+  report.AddSvg(map_plot.Render());
+  report.AddSvg(RenderPositionHistogramSvg(eval));
+
+  report.AddHeading("Time per stage (mean over frames)");
+  std::vector<std::vector<std::string>> stage_rows;
+  for (std::size_t s = 0; s < StageNames().size(); ++s) {
+    std::vector<double> v;
+    for (const FrameRecord& r : records) {
+      if (s < r.stage_times_us.size()) v.push_back(r.stage_times_us[s]);
+    }
+    const ErrorStats st = ComputeStats(v);
+    stage_rows.push_back({StageNames()[s], FormatFixed(st.mean, 1), FormatFixed(st.median, 1),
+                          FormatFixed(st.p95, 1), FormatFixed(st.max, 1)});
+  }
+  report.AddTable({"stage", "mean us", "median us", "p95 us", "max us"}, stage_rows);
+
+  report.AddHeading("Map over the estimated trajectory");
+  MapPictureOptions pic;
+  pic.width_px = 900;
+  pic.floor_plan = FloorPlanForRunInput(input);
+  for (const FrameRecord& r : records) {
+    if (r.has_truth) pic.ground_truth.push_back(r.truth);
+  }
+  report.AddSvg(MapToSvg(model, trajectory, pic));
+
+  report.AddHeading("Effective configuration");
+  report.AddPreformatted(EngineOptionsToYaml(engine.options()));
+  return report.Render();
+}
+
+}  // namespace omnicml

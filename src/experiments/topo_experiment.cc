@@ -1,0 +1,162 @@
+#include "omnicml/experiments/topo_experiment.h"
+
+#include <filesystem>
+#include <iostream>
+#include <memory>
+#include <sstream>
+
+#include "omnicml/common/common.h"
+#include "omnicml/logs/log_format.h"
+#include "omnicml/report/report.h"
+#include "omnicml/sim/simulator.h"
+#include "omnicml/sim/world.h"
+
+namespace omnicml {
+namespace {
+
+namespace fs = std::filesystem;
+
+std::string ConfigYaml(const TopoExperimentOptions& a, const TopologicalOptions& o,
+                       const CrossSequenceOptions& c, const std::string& places_from) {
+  std::ostringstream os;
+  os << "# Effective options of `omnicml topo` ([UN] topological localization).\n";
+  if (!a.world.empty()) os << "world: \"" << a.world << "\"\n";
+  if (!a.log.empty()) os << "log: \"" << a.log << "\"\n";
+  if (a.log.empty()) {
+    os << "days: " << a.days << "\nframes_per_day: " << a.frames_per_day << "\nseed: " << a.seed
+       << "\nstep_m: " << FormatRoundTrip(a.step_m) << "\npeople: " << (a.people ? "true" : "false")
+       << "\n";
+  }
+  os << "train_day: " << c.train_session + 1 << "\ntest_day: " << c.test_session + 1
+     << "\nplaces: \"" << places_from << "\"\n"
+     << "reference_stride_frames: " << c.reference_stride_frames << "\n"
+     << "known_start: " << (c.known_start ? "true" : "false") << "\n"
+     << "histogram: {bins: " << o.histogram.bins << ", filter_width: " << o.histogram.filter_width
+     << ", normalized_rgb: " << (o.histogram.normalized_rgb ? "true" : "false")
+     << ", distance: " << ToString(o.histogram.distance) << "}\n"
+     << "band_threshold: [";
+  for (int b = 0; b < ColorHistogram::kBands; ++b) {
+    os << (b ? ", " : "") << FormatRoundTrip(o.band_threshold[b]);
+  }
+  os << "]\naction_threshold: " << FormatRoundTrip(o.action_threshold) << "\n"
+     << "restrict_to_neighbours: " << (o.restrict_to_neighbours ? "true" : "false") << "\n"
+     << "global_search_after_frames: " << o.global_search_after_frames << "\n";
+  return os.str();
+}
+
+}  // namespace
+
+TopoExperimentResult RunTopoExperiment(const TopoExperimentOptions& experiment) {
+  TopoExperimentOptions a = experiment;
+  if (a.out_dir.empty()) throw Error("topo: --out RUNDIR is required");
+  if (a.world.empty() && a.log.empty()) throw Error("topo: give --world NAME or --log LOGDIR");
+  if (a.train_day < 1 || a.test_day < 1)
+    throw Error("topo: --train-day and --test-day are 1-based");
+  if (a.train_day == a.test_day) {
+    std::cerr << "warning: training and test day are the same (not a cross-sequence test)\n";
+  }
+  TopologicalOptions options;
+  options.histogram.bins = a.bins;
+  options.histogram.filter_width = a.filter_width;
+  options.histogram.normalized_rgb = a.normalized_rgb;
+  options.histogram.distance = HistogramDistanceFromString(a.distance);
+  options.band_threshold.fill(a.band_threshold);
+  options.action_threshold = a.action_threshold;
+  options.restrict_to_neighbours = !a.all_places;
+  options.global_search_after_frames = a.global_search_after;
+  options.Validate();
+  CrossSequenceOptions cross;
+  cross.train_session = a.train_day - 1;
+  cross.test_session = a.test_day - 1;
+  cross.reference_stride_frames = a.reference_stride;
+  cross.known_start = !a.global_start;
+  cross.Validate();
+
+  // The input and the route.
+  std::unique_ptr<FrameSource> source;
+  std::unique_ptr<RoutePath> route;
+  if (a.log.empty()) {
+    SimulatorOptions sim;
+    sim.world = a.world;
+    sim.days = a.days > 0 ? a.days : std::max(a.train_day, a.test_day);
+    a.days = sim.days;
+    sim.frames_per_day = a.frames_per_day;
+    sim.seed = a.seed;
+    sim.step_m = a.step_m;
+    sim.people = a.people;
+    sim.output = ImageKind::kPanorama;
+    sim.Validate();
+    auto sim_source = std::make_unique<SimulatedFrameSource>(sim);
+    route = std::make_unique<RoutePath>(sim_source->route());
+    source = std::move(sim_source);
+  } else {
+    std::string world = a.world;
+    if (world.empty() && fs::exists(fs::path(a.log) / "world.yaml")) {
+      world = (fs::path(a.log) / "world.yaml").string();
+    }
+    if (!world.empty()) {
+      const World w = LoadWorld(world);
+      route = std::make_unique<RoutePath>(w.route.waypoints_m, w.route.turn_radius_m);
+    }
+    source = std::make_unique<LogReader>(a.log);
+  }
+
+  AdjacencyMap map;
+  std::string places_from;
+  if (!a.places.empty()) {
+    map = LoadAdjacencyMap(a.places);
+    places_from = a.places;
+  } else {
+    if (!route) {
+      throw Error("topo: --place-length-m needs a route: give --world or --places places.yaml");
+    }
+    map = PlacesFromRoute(*route, a.place_length_m);
+    places_from = StrCat("route, place_length_m ", FormatRoundTrip(a.place_length_m));
+  }
+
+  TopologicalLocalizer localizer(map, options);
+  CrossSequenceResult r = RunCrossSequence(source.get(), &localizer, cross, route.get());
+
+  fs::create_directories(a.out_dir);
+  const fs::path out(a.out_dir);
+  WriteFileAtomic(out / "places.yaml", AdjacencyMapYaml(map));
+  WriteFileAtomic(out / "topo_config.yaml", ConfigYaml(a, options, cross, places_from));
+  {
+    const char* bands_rgb[] = {"H", "L", "S", "R", "G", "B"};
+    const char* bands_nrgb[] = {"H", "L", "S", "r", "g", "b"};
+    const char** bands = a.normalized_rgb ? bands_nrgb : bands_rgb;
+    std::ostringstream csv;
+    csv << "stamp_s,index,gt_x_m,gt_y_m,gt_phi_rad,true_place,believed_place,state,voted_place,"
+           "confidence,voting_bands";
+    for (int b = 0; b < ColorHistogram::kBands; ++b) csv << ",vote_" << bands[b];
+    for (int b = 0; b < ColorHistogram::kBands; ++b) csv << ",conf_" << bands[b];
+    csv << "\n";
+    auto name = [&](int p) { return p < 0 ? std::string() : map.places()[p].name; };
+    for (const auto& f : r.frames) {
+      csv << FormatRoundTrip(f.stamp_s) << "," << f.index_in_session << ","
+          << FormatRoundTrip(f.map_T_robot_truth.x()) << ","
+          << FormatRoundTrip(f.map_T_robot_truth.y()) << ","
+          << FormatRoundTrip(f.map_T_robot_truth.z()) << "," << name(f.true_place) << ","
+          << name(f.believed_place) << "," << ToString(f.decision.state) << ","
+          << name(f.decision.place) << "," << FormatRoundTrip(f.decision.confidence) << ","
+          << f.decision.voting_bands;
+      for (const auto& v : f.decision.bands) csv << "," << name(v.place);
+      for (const auto& v : f.decision.bands) csv << "," << FormatRoundTrip(v.confidence);
+      csv << "\n";
+    }
+    WriteFileAtomic(out / "frames.csv", csv.str());
+  }
+  const std::string input = a.log.empty() ? a.world : a.log;
+  const std::string title =
+      StrCat(input, ": train day ", a.train_day, ", test day ", a.test_day, " (", map.size(),
+             " places, ", r.references, " reference images)");
+  const std::string table = TopologicalSummaryTable(r.counts, title);
+  WriteFileAtomic(out / "summary.md", table);
+  TopoExperimentResult result;
+  result.cross = std::move(r);
+  result.places = static_cast<int>(map.size());
+  result.summary = table;
+  return result;
+}
+
+}  // namespace omnicml

@@ -1,0 +1,142 @@
+// The [W] Monte Carlo localization experiments (mcl_experiment.h) on a short simulated
+// run: result structure, determinism, the run directory.
+#include <algorithm>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "omnicml/common/common.h"
+#include "omnicml/experiments/mcl_experiment.h"
+#include "omnicml/report/report.h"
+
+namespace omnicml {
+namespace {
+
+namespace fs = std::filesystem;
+
+class MclExperimentTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() { prepared_ = new MclPrepared(PrepareMclExperiment(Options())); }
+  static void TearDownTestSuite() { delete prepared_; }
+
+  // Two days of home_store, 120 frames each, 500 particles.
+  static MclExperimentOptions Options() {
+    MclExperimentOptions o;
+    o.world = "home_store";
+    o.days = 2;
+    o.frames_per_day = 120;
+    o.seed = 3;
+    o.particles = 500;
+    o.runs = 2;
+    return o;
+  }
+
+  static std::size_t Lines(const std::string& text) {
+    return static_cast<std::size_t>(std::count(text.begin(), text.end(), '\n'));
+  }
+
+  static inline MclPrepared* prepared_ = nullptr;
+};
+
+TEST_F(MclExperimentTest, PreparationTakesReferencesFromTheTrainingDayAndQueriesTheTestDay) {
+  // Every ref_every-th frame of day 1 is a reference; every frame of day 2 a query.
+  EXPECT_EQ(prepared_->refs.size(), 60u);
+  ASSERT_EQ(prepared_->test.size(), 120u);
+  for (const MclFrame& f : prepared_->test) EXPECT_EQ(f.session, 1);
+  EXPECT_EQ(prepared_->options.num_particles, 500);
+}
+
+TEST_F(MclExperimentTest, TrackingHasOneRowPerRunAndIsDeterministic) {
+  // One row per run with max >= mean error, the text has a header, the rows and a
+  // summary; the same options give the same numbers.
+  MclExperimentOptions o = Options();
+  o.experiment = "tracking";
+  const MclExperimentResult a = RunMclExperiment(o, *prepared_);
+  const MclExperimentResult b = RunMclExperiment(o, *prepared_);
+  ASSERT_EQ(a.tracking.size(), 2u);
+  EXPECT_TRUE(a.global.empty() && a.kidnap.empty() && a.noise.empty());
+  for (std::size_t i = 0; i < a.tracking.size(); ++i) {
+    EXPECT_GE(a.tracking[i].max_position_error_m, a.tracking[i].mean_position_error_m);
+    EXPECT_GE(a.tracking[i].max_heading_error_deg, 0.0);
+    EXPECT_GT(a.tracking[i].ms_per_step, 0.0);
+    EXPECT_EQ(a.tracking[i].max_position_error_m, b.tracking[i].max_position_error_m);
+    EXPECT_EQ(a.tracking[i].mean_position_error_m, b.tracking[i].mean_position_error_m);
+  }
+  // Different seeds per run.
+  EXPECT_NE(a.tracking[0].mean_position_error_m, a.tracking[1].mean_position_error_m);
+  EXPECT_EQ(Lines(a.text), 2u + 2u + 1u);
+  EXPECT_NE(a.text.find("\nsummary: "), std::string::npos);
+}
+
+TEST_F(MclExperimentTest, GlobalKidnapAndNoiseRowsFollowTheirDefinitions) {
+  // global: run 0 starts at frame 0, others in the first half; kidnap: the target is at
+  // least a quarter of the sequence ahead; noise: one row per level, successes <= runs.
+  const int n = static_cast<int>(prepared_->test.size());
+  MclExperimentOptions o = Options();
+  o.experiment = "global";
+  const MclExperimentResult g = RunMclExperiment(o, *prepared_);
+  ASSERT_EQ(g.global.size(), 2u);
+  EXPECT_EQ(g.global[0].start_frame, 0);
+  EXPECT_LT(g.global[1].start_frame, n / 2);
+  for (const MclGlobalRun& r : g.global) EXPECT_GE(r.steps_to_converge, -1);
+
+  o.experiment = "kidnap";
+  const MclExperimentResult k = RunMclExperiment(o, *prepared_);
+  ASSERT_EQ(k.kidnap.size(), 2u);
+  for (const MclKidnapRun& r : k.kidnap) {
+    EXPECT_GE(r.kidnap_step, 20);
+    EXPECT_GE(r.to_frame, r.kidnap_step + n / 4);
+    EXPECT_LT(r.to_frame, n);
+    EXPECT_GT(r.jump_m, 0.0);
+  }
+
+  o.experiment = "noise";
+  o.noise_levels = "0,4";
+  const MclExperimentResult z = RunMclExperiment(o, *prepared_);
+  ASSERT_EQ(z.noise.size(), 2u);
+  EXPECT_EQ(z.noise[0].level, 0.0);
+  EXPECT_EQ(z.noise[1].level, 4.0);
+  for (const MclNoiseLevel& l : z.noise) {
+    EXPECT_EQ(l.runs, 2);
+    EXPECT_LE(l.successes, l.runs);
+    EXPECT_GE(l.mean_max_error_m, l.mean_final_error_m);
+  }
+  o.noise_levels = "0,x";
+  EXPECT_THROW(RunMclExperiment(o, *prepared_), Error);
+  o.experiment = "teleport";
+  EXPECT_THROW(RunMclExperiment(o, *prepared_), Error);
+  EXPECT_THROW(PrepareMclExperiment(o), Error);
+}
+
+TEST_F(MclExperimentTest, SingleRunWritesEveryFileOfTheRunDirectory) {
+  // One frames.csv row per query, summary.txt = the summary text, the grid, no
+  // temporaries; an unrelated file in an existing run directory is kept.
+  const fs::path dir =
+      fs::temp_directory_path() /
+      StrCat("omnicml_mcl_experiment_", ::testing::UnitTest::GetInstance()->random_seed());
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  { std::ofstream(dir / "notes.txt") << "mine\n"; }
+  MclExperimentOptions o = Options();
+  o.out_dir = dir.string();
+  const MclSingleResult r = RunMclSingle(o, *prepared_);
+  EXPECT_EQ(r.steps.size(), prepared_->test.size());
+  ASSERT_EQ(r.records.size(), prepared_->test.size());
+  std::vector<std::string> names;
+  for (const auto& e : fs::directory_iterator(dir)) names.push_back(e.path().filename().string());
+  std::sort(names.begin(), names.end());
+  EXPECT_EQ(names,
+            (std::vector<std::string>{"config.yaml", "days.csv", "frames.csv", "map.pgm",
+                                      "map.yaml", "notes.txt", "report.html", "summary.txt"}));
+  EXPECT_EQ(ReadTextFile(dir / "summary.txt"), r.summary_text);
+  EXPECT_EQ(Lines(ReadTextFile(dir / "frames.csv")), 1 + prepared_->test.size());
+  EXPECT_EQ(ReadTextFile(dir / "notes.txt"), "mine\n");
+  fs::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace omnicml

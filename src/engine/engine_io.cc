@@ -13,6 +13,7 @@
 
 #include "omnicml/common/common.h"
 #include "omnicml/common/file_io.h"
+#include "omnicml/common/options.h"
 
 namespace omnicml {
 
@@ -98,134 +99,6 @@ E ReadEnum(BinaryReader& in, const char* what, int lo, int hi) {
   return static_cast<E>(v);
 }
 
-// ---- options -----------------------------------------------------------------------
-
-void WriteDescriptorOptions(BinaryWriter& out, const DescriptorOptions& o) {
-  out.Write<std::uint8_t>(static_cast<std::uint8_t>(o.kind));
-  // Fourier.
-  out.Write<std::int32_t>(o.fourier.bands);
-  out.Write<std::int32_t>(o.fourier.coefficients);
-  out.Write<std::int32_t>(static_cast<std::int32_t>(o.fourier.distance));
-  out.Write<bool>(o.fourier.normalize_bands);
-  out.Write<bool>(o.fourier.normalize_columns);
-  // Invariant feature histogram.
-  out.Write<std::uint64_t>(o.ifh.kernels.size());
-  for (const IfhKernel& k : o.ifh.kernels) {
-    out.Write<std::uint64_t>(k.offsets.size());
-    for (const cv::Point2d& p : k.offsets) {
-      out.Write<double>(p.x);
-      out.Write<double>(p.y);
-    }
-  }
-  out.Write<std::int32_t>(o.ifh.angles);
-  out.Write<std::int32_t>(o.ifh.bins);
-  out.WriteVector(o.ifh.scales);
-  out.Write<bool>(o.ifh.color);
-  out.Write<double>(o.ifh.sample_fraction);
-  out.Write<std::uint32_t>(o.ifh.seed);
-  // Colour histogram.
-  out.Write<std::int32_t>(o.color.bins);
-  out.Write<std::int32_t>(o.color.filter_width);
-  out.Write<bool>(o.color.normalized_rgb);
-  out.Write<std::int32_t>(static_cast<std::int32_t>(o.color.distance));
-}
-
-DescriptorOptions ReadDescriptorOptions(BinaryReader& in) {
-  DescriptorOptions o;
-  o.kind = ReadEnum<DescriptorKind>(in, "descriptor.kind", 1, 3);
-  o.fourier.bands = in.Read<std::int32_t>("descriptor.fourier.bands");
-  o.fourier.coefficients = in.Read<std::int32_t>("descriptor.fourier.coefficients");
-  o.fourier.distance = ReadEnum<FourierDistance>(in, "descriptor.fourier.distance", 0, 1);
-  o.fourier.normalize_bands = in.Read<bool>("descriptor.fourier.normalize_bands");
-  o.fourier.normalize_columns = in.Read<bool>("descriptor.fourier.normalize_columns");
-  const std::size_t kernels = in.ReadCount("descriptor.ifh.kernels", 8);
-  o.ifh.kernels.clear();
-  for (std::size_t i = 0; i < kernels; ++i) {
-    IfhKernel k;
-    const std::size_t offsets = in.ReadCount("descriptor.ifh.kernels.offsets", 16);
-    for (std::size_t j = 0; j < offsets; ++j) {
-      cv::Point2d p;
-      p.x = in.Read<double>("descriptor.ifh.kernels.offsets");
-      p.y = in.Read<double>("descriptor.ifh.kernels.offsets");
-      k.offsets.push_back(p);
-    }
-    o.ifh.kernels.push_back(std::move(k));
-  }
-  o.ifh.angles = in.Read<std::int32_t>("descriptor.ifh.angles");
-  o.ifh.bins = in.Read<std::int32_t>("descriptor.ifh.bins");
-  o.ifh.scales = in.ReadVector<double>("descriptor.ifh.scales");
-  o.ifh.color = in.Read<bool>("descriptor.ifh.color");
-  o.ifh.sample_fraction = in.Read<double>("descriptor.ifh.sample_fraction");
-  o.ifh.seed = in.Read<std::uint32_t>("descriptor.ifh.seed");
-  o.color.bins = in.Read<std::int32_t>("descriptor.color.bins");
-  o.color.filter_width = in.Read<std::int32_t>("descriptor.color.filter_width");
-  o.color.normalized_rgb = in.Read<bool>("descriptor.color.normalized_rgb");
-  o.color.distance = ReadEnum<HistogramDistance>(in, "descriptor.color.distance", 0, 4);
-  return o;
-}
-
-void WriteTrackerOptions(BinaryWriter& out, const TrackerOptions& o) {
-  out.Write<double>(o.gamma);
-  out.Write<double>(o.w_min);
-  out.Write<double>(o.delta);
-  out.Write<std::int32_t>(o.max_components);
-  out.Write<double>(o.unimodal_min_weight);
-  out.Write<double>(o.min_covariance_eigenvalue);
-  out.Write<double>(o.motion.a1);
-  out.Write<double>(o.motion.a2);
-  out.Write<double>(o.motion.a3);
-  out.Write<double>(o.motion.a4);
-}
-
-TrackerOptions ReadTrackerOptions(BinaryReader& in) {
-  TrackerOptions o;
-  o.gamma = in.Read<double>("tracker.gamma");
-  o.w_min = in.Read<double>("tracker.w_min");
-  o.delta = in.Read<double>("tracker.delta");
-  o.max_components = in.Read<std::int32_t>("tracker.max_components");
-  o.unimodal_min_weight = in.Read<double>("tracker.unimodal_min_weight");
-  o.min_covariance_eigenvalue = in.Read<double>("tracker.min_covariance_eigenvalue");
-  o.motion.a1 = in.Read<double>("tracker.motion.a1");
-  o.motion.a2 = in.Read<double>("tracker.motion.a2");
-  o.motion.a3 = in.Read<double>("tracker.motion.a3");
-  o.motion.a4 = in.Read<double>("tracker.motion.a4");
-  return o;
-}
-
-void WriteModelOptions(BinaryWriter& out, const EnvironmentModelOptions& o) {
-  out.Write<double>(o.e_max);
-  out.Write<std::int32_t>(o.top_k);
-  out.Write<double>(o.beta);
-  out.Write<double>(o.d_max);
-  out.Write<double>(o.d_for_m);
-  out.Write<double>(o.beta_for);
-  out.Write<double>(o.d_gain_m);
-  out.Write<double>(o.w_min);
-  out.Write<double>(o.merge_delta);
-  out.Write<double>(o.heading_sigma_no_rotation_rad);
-  out.Write<std::uint8_t>(static_cast<std::uint8_t>(o.forgetting));
-  out.Write<double>(o.spatial_cell_m);
-  out.Write<bool>(o.log_component_events);
-}
-
-EnvironmentModelOptions ReadModelOptions(BinaryReader& in) {
-  EnvironmentModelOptions o;
-  o.e_max = in.Read<double>("model.e_max");
-  o.top_k = in.Read<std::int32_t>("model.top_k");
-  o.beta = in.Read<double>("model.beta");
-  o.d_max = in.Read<double>("model.d_max");
-  o.d_for_m = in.Read<double>("model.d_for_m");
-  o.beta_for = in.Read<double>("model.beta_for");
-  o.d_gain_m = in.Read<double>("model.d_gain_m");
-  o.w_min = in.Read<double>("model.w_min");
-  o.merge_delta = in.Read<double>("model.merge_delta");
-  o.heading_sigma_no_rotation_rad = in.Read<double>("model.heading_sigma_no_rotation_rad");
-  o.forgetting = ReadEnum<ForgettingMode>(in, "model.forgetting", 0, 2);
-  o.spatial_cell_m = in.Read<double>("model.spatial_cell_m");
-  o.log_component_events = in.Read<bool>("model.log_component_events");
-  return o;
-}
-
 void WriteCalibration(BinaryWriter& out, const OmniCalibration& c) {
   out.Write<double>(c.center_x_px);
   out.Write<double>(c.center_y_px);
@@ -258,58 +131,14 @@ OmniCalibration ReadCalibration(BinaryReader& in) {
 
 }  // namespace
 
-void WriteEngineOptions(BinaryWriter& out, const CmlEngineOptions& o) {
-  WriteDescriptorOptions(out, o.descriptor);
-  WriteTrackerOptions(out, o.tracker);
-  WriteModelOptions(out, o.model);
-  out.Write<double>(o.reconstruction.min_translation_variance_m2);
-  out.Write<double>(o.reconstruction.min_rotation_variance_rad2);
-  out.Write<std::int32_t>(o.reconstruction.max_iterations);
-  out.Write<double>(o.reconstruction.function_tolerance);
-  out.Write<bool>(o.reconstruction.compute_covariances);
-  out.Write<std::int32_t>(o.update_delay_frames);
-  out.Write<std::int32_t>(o.threads);
-  out.Write<bool>(o.reconstruct_multimodal);
-  out.Write<std::int32_t>(o.max_pending_multimodal_frames);
-  out.Write<double>(o.anchor_max_sigma_m);
-  out.Write<std::int32_t>(o.panorama_width);
-  out.Write<std::int32_t>(o.panorama_height);
-  WritePose(out, o.initial_pose);
-  WriteMatrix3(out, o.initial_covariance);
-  out.Write<double>(o.hypothesis_min_similarity);
-  out.Write<bool>(o.hypothesis_weight_by_similarity);
-  out.Write<double>(o.hypothesis_weight_scale);
-  out.Write<double>(o.appearance_sigma_m);
-  out.Write<double>(o.global_seed_min_similarity);
-  out.Write<bool>(o.continue_odometry_across_sessions);
-}
+// The options section is the schema's tree of every field (cml_engine.h VisitFields,
+// common/options.h EncodeOptions): names and values, so reading checks that every field
+// is present and none is unknown.
+void WriteEngineOptions(BinaryWriter& out, const CmlEngineOptions& o) { EncodeOptions(out, o); }
 
 CmlEngineOptions ReadEngineOptions(BinaryReader& in) {
-  CmlEngineOptions o;
-  o.descriptor = ReadDescriptorOptions(in);
-  o.tracker = ReadTrackerOptions(in);
-  o.model = ReadModelOptions(in);
-  o.reconstruction.min_translation_variance_m2 = in.Read<double>("reconstruction.min_translation_variance_m2");
-  o.reconstruction.min_rotation_variance_rad2 = in.Read<double>("reconstruction.min_rotation_variance_rad2");
-  o.reconstruction.max_iterations = in.Read<std::int32_t>("reconstruction.max_iterations");
-  o.reconstruction.function_tolerance = in.Read<double>("reconstruction.function_tolerance");
-  o.reconstruction.compute_covariances = in.Read<bool>("reconstruction.compute_covariances");
+  CmlEngineOptions o = DecodeOptions<CmlEngineOptions>(in, "options");
   o.reconstruction.motion = o.tracker.motion;
-  o.update_delay_frames = in.Read<std::int32_t>("update_delay_frames");
-  o.threads = in.Read<std::int32_t>("threads");
-  o.reconstruct_multimodal = in.Read<bool>("reconstruct_multimodal");
-  o.max_pending_multimodal_frames = in.Read<std::int32_t>("max_pending_multimodal_frames");
-  o.anchor_max_sigma_m = in.Read<double>("anchor_max_sigma_m");
-  o.panorama_width = in.Read<std::int32_t>("panorama_width");
-  o.panorama_height = in.Read<std::int32_t>("panorama_height");
-  o.initial_pose = ReadPose(in, "initial_pose");
-  o.initial_covariance = ReadMatrix3(in, "initial_covariance");
-  o.hypothesis_min_similarity = in.Read<double>("hypothesis_min_similarity");
-  o.hypothesis_weight_by_similarity = in.Read<bool>("hypothesis_weight_by_similarity");
-  o.hypothesis_weight_scale = in.Read<double>("hypothesis_weight_scale");
-  o.appearance_sigma_m = in.Read<double>("appearance_sigma_m");
-  o.global_seed_min_similarity = in.Read<double>("global_seed_min_similarity");
-  o.continue_odometry_across_sessions = in.Read<bool>("continue_odometry_across_sessions");
   return o;
 }
 

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include "omnicml/common/options.h"
 #include "omnicml/common/common.h"
 
 namespace omnicml {
@@ -345,5 +346,18 @@ const WorldState& SimulatedFrameSource::state() const { return impl_->state; }
 const std::vector<Person>& SimulatedFrameSource::people() const { return impl_->people_now; }
 const cv::Mat& SimulatedFrameSource::last_panorama() const { return impl_->panorama; }
 const Renderer& SimulatedFrameSource::renderer() const { return impl_->renderer; }
+
+// ---- options (the schema of the header's VisitFields, common/options.h)
+
+SimulatorOptions ParseSimulatorOptionsYaml(const std::string& yaml_text, const std::string& source) {
+  return ParseOptionsYaml<SimulatorOptions>(yaml_text, source, SimulatorOptions{},
+                                            kSimulatorRunKeys);
+}
+SimulatorOptions LoadSimulatorOptions(const std::string& path) {
+  return ParseSimulatorOptionsYaml(ReadOptionFile(path), path);
+}
+std::string SimulatorOptionsToYaml(const SimulatorOptions& options) {
+  return OptionsToYaml(options);
+}
 
 }  // namespace omnicml

@@ -3,6 +3,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <fstream>
+#include <random>
 #include <string>
 #include <vector>
 
@@ -10,6 +11,7 @@
 
 #include "omnicml/engine/cml_engine.h"
 #include "omnicml/common/common.h"
+#include "omnicml/common/options.h"
 
 namespace omnicml {
 // Defined in cml_engine_test.cc (same test binary): a textured room rendered as panoramas
@@ -101,6 +103,30 @@ TEST(EngineIo, RoundTripRestoresState) {
     ++files;
   }
   EXPECT_EQ(files, 1);
+}
+
+// Save and load restore every option field: all of them set to random values different
+// from their defaults (common/options.h RandomizeOptions), for several seeds.
+TEST(EngineIo, RestoresEveryOptionField) {
+  for (std::uint32_t seed : {1u, 2u, 3u}) {
+    std::mt19937 rng(seed);
+    CmlEngineOptions o;
+    RandomizeOptions(&o, rng);
+    ASSERT_NO_THROW(o.Validate()) << OptionsToYaml(o);
+    const OptionValue defaults = OptionsToValue(CmlEngineOptions{});
+    const OptionValue randomised = OptionsToValue(o);
+    for (std::size_t i = 0; i < defaults.members.size(); ++i) {
+      if (defaults.members[i].second.kind == OptionValue::Kind::kMap) continue;  // sections
+      EXPECT_FALSE(defaults.members[i].second == randomised.members[i].second)
+          << defaults.members[i].first;
+    }
+    CmlEngine engine(o);
+    const std::unique_ptr<CmlEngine> loaded = DecodeEngine(EncodeEngine(engine), "engine");
+    EXPECT_TRUE(SameOptions(loaded->options(), o)) << OptionsToYaml(loaded->options()) << "\n---\n"
+                                                   << OptionsToYaml(o);
+    EXPECT_EQ(loaded->options().reconstruction.motion.a3, o.tracker.motion.a3);
+    EXPECT_EQ(EncodeEngine(*loaded), EncodeEngine(engine));
+  }
 }
 
 // Day 1, save, load, day 2 gives bit-identically the result of one run over both days.

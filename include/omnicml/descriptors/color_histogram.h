@@ -48,6 +48,17 @@ struct ColorHistogramOptions {
   void Validate() const;
 };
 
+// The options schema (common/options.h): YAML keys, dump, binary codec.
+template <class V>
+void VisitFields(V& v, ColorHistogramOptions& o) {
+  v("bins", o.bins);
+  v("filter_width", o.filter_width);
+  v("normalized_rgb", o.normalized_rgb);
+  v.Enum("distance", o.distance,
+         {HistogramDistance::kJeffrey, HistogramDistance::kChiSquare, HistogramDistance::kL1,
+          HistogramDistance::kL2, HistogramDistance::kIntersection});
+}
+
 class ColorHistogram final : public DescriptorExtractor {
  public:
   static constexpr int kBands = 6;  // H, L, S, R|r, G|g, B|b

@@ -24,6 +24,17 @@ struct DescriptorOptions {
   void Validate() const;
 };
 
+// The options schema (common/options.h): YAML keys, dump, binary codec.
+template <class V>
+void VisitFields(V& v, DescriptorOptions& o) {
+  v.Enum("kind", o.kind,
+         {DescriptorKind::kFourier, DescriptorKind::kInvariantFeatureHistogram,
+          DescriptorKind::kColorHistogram});
+  v.Section("fourier", o.fourier);
+  v.Section("ifh", o.ifh);
+  v.Section("color", o.color);
+}
+
 // A new extractor of options.kind. Throws omnicml::Error on invalid options. The
 // result is immutable and thread-safe (descriptor.h).
 std::unique_ptr<DescriptorExtractor> MakeDescriptorExtractor(const DescriptorOptions& options);

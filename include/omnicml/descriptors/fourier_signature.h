@@ -84,6 +84,16 @@ struct FourierOptions {
   int first_harmonic() const { return normalize_bands ? 1 : 0; }
 };
 
+// The options schema (common/options.h): YAML keys, dump, binary codec.
+template <class V>
+void VisitFields(V& v, FourierOptions& o) {
+  v("bands", o.bands);
+  v("coefficients", o.coefficients);
+  v.Enum("distance", o.distance, {FourierDistance::kL1, FourierDistance::kL2});
+  v("normalize_bands", o.normalize_bands);
+  v("normalize_columns", o.normalize_columns);
+}
+
 class FourierSignature final : public DescriptorExtractor {
  public:
   // Throws omnicml::Error if the options are invalid.

@@ -28,6 +28,7 @@
 #ifndef OMNICML_INVARIANT_FEATURE_HISTOGRAM_H_
 #define OMNICML_INVARIANT_FEATURE_HISTOGRAM_H_
 
+#include <array>
 #include <cstddef>
 #include <cstdint>
 #include <optional>
@@ -65,6 +66,37 @@ struct IfhOptions {
   // Throws omnicml::Error naming the field when a value is out of range.
   void Validate() const;
 };
+
+// The options schema (common/options.h): YAML keys, dump, binary codec.
+// IfhOptions::kernels in YAML: a list of kernels, each a list of [x, y] offsets.
+template <class V>
+void VisitFields(V& v, IfhOptions& o) {
+  using Offsets = std::vector<std::vector<std::array<double, 2>>>;
+  v.template Converted<Offsets>(
+      "kernels", o.kernels,
+      [](const std::vector<IfhKernel>& kernels) {
+        Offsets rep;
+        for (const IfhKernel& k : kernels) {
+          rep.emplace_back();
+          for (const cv::Point2d& p : k.offsets) rep.back().push_back({p.x, p.y});
+        }
+        return rep;
+      },
+      [](const Offsets& rep) {
+        std::vector<IfhKernel> kernels;
+        for (const auto& k : rep) {
+          kernels.emplace_back();
+          for (const auto& p : k) kernels.back().offsets.emplace_back(p[0], p[1]);
+        }
+        return kernels;
+      });
+  v("angles", o.angles);
+  v("bins", o.bins);
+  v("scales", o.scales);
+  v("color", o.color);
+  v("sample_fraction", o.sample_fraction);
+  v("seed", o.seed);
+}
 
 class InvariantFeatureHistogram final : public DescriptorExtractor {
  public:

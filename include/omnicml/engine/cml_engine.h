@@ -156,6 +156,31 @@ struct CmlEngineOptions {
   void Validate() const;
 };
 
+// The options schema (common/options.h): YAML keys (run_config.h), dump, and the options
+// section of engine files (engine_io.h).
+template <class V>
+void VisitFields(V& v, CmlEngineOptions& o) {
+  v("update_delay_frames", o.update_delay_frames);
+  v("threads", o.threads);
+  v("reconstruct_multimodal", o.reconstruct_multimodal);
+  v("max_pending_multimodal_frames", o.max_pending_multimodal_frames);
+  v("anchor_max_sigma_m", o.anchor_max_sigma_m);
+  v("panorama_width", o.panorama_width);
+  v("panorama_height", o.panorama_height);
+  v("initial_pose", o.initial_pose);
+  v("initial_covariance", o.initial_covariance);
+  v("global_seed_min_similarity", o.global_seed_min_similarity);
+  v("hypothesis_min_similarity", o.hypothesis_min_similarity);
+  v("hypothesis_weight_by_similarity", o.hypothesis_weight_by_similarity);
+  v("hypothesis_weight_scale", o.hypothesis_weight_scale);
+  v("appearance_sigma_m", o.appearance_sigma_m);
+  v("continue_odometry_across_sessions", o.continue_odometry_across_sessions);
+  v.Section("descriptor", o.descriptor);
+  v.Section("tracker", o.tracker);
+  v.Section("model", o.model);
+  v.Section("reconstruction", o.reconstruction);
+}
+
 // Timing (microseconds, wall clock) and sizes of one ProcessFrame call.
 struct FrameStats {
   double unwrap_us = 0.0;       // unwrapping / panorama preparation

@@ -5,7 +5,9 @@
 //   magic            8 bytes  "OMNICML\0"
 //   format version   u32      kEngineFormatVersion
 //   payload length   u64      bytes of the payload
-//   payload                   options (engine, descriptor, tracker, model, reconstruction),
+//   payload                   options: every field of CmlEngineOptions and its sections, as
+//                             the named tree of common/options.h (EncodeOptions), so a load
+//                             restores every field or fails naming the missing one;
 //                             counters, session state, next frame index, the tracker's
 //                             mixture, the pending multimodal frames and their anchor, the
 //                             queued map updates, and the environment model
@@ -39,7 +41,8 @@
 namespace omnicml {
 
 // Version of the payload layout written by SaveEngine. Bump on any change.
-inline constexpr std::uint32_t kEngineFormatVersion = 3;
+// 4: the options section is the schema's tree of named fields (common/options.h).
+inline constexpr std::uint32_t kEngineFormatVersion = 4;
 // The 8 magic bytes (including the terminating NUL).
 inline constexpr char kEngineMagic[8] = {'O', 'M', 'N', 'I', 'C', 'M', 'L', '\0'};
 

@@ -50,6 +50,17 @@ struct ReconstructionOptions {
   void Validate() const;  // throws omnicml::Error naming the field
 };
 
+// The options schema (common/options.h). `motion` is not a key: the engine always sets
+// it to tracker.motion.
+template <class V>
+void VisitFields(V& v, ReconstructionOptions& o) {
+  v("min_translation_variance_m2", o.min_translation_variance_m2);
+  v("min_rotation_variance_rad2", o.min_rotation_variance_rad2);
+  v("max_iterations", o.max_iterations);
+  v("function_tolerance", o.function_tolerance);
+  v("compute_covariances", o.compute_covariances);
+}
+
 // The relative pose (frame of the earlier pose) that odometry increment u produces:
 // (trans cos rot1, trans sin rot1, wrap(rot1 + rot2)).
 Pose2 IncrementToRelativePose(const OdometryIncrement& u);

@@ -121,6 +121,25 @@ struct EnvironmentModelOptions {
   void Validate() const;
 };
 
+// The options schema (common/options.h): YAML keys, dump, binary codec.
+template <class V>
+void VisitFields(V& v, EnvironmentModelOptions& o) {
+  v("e_max", o.e_max);
+  v("top_k", o.top_k);
+  v("beta", o.beta);
+  v("d_max", o.d_max);
+  v("d_for_m", o.d_for_m);
+  v("beta_for", o.beta_for);
+  v("d_gain_m", o.d_gain_m);
+  v("w_min", o.w_min);
+  v("merge_delta", o.merge_delta);
+  v("heading_sigma_no_rotation_rad", o.heading_sigma_no_rotation_rad);
+  v.Enum("forgetting", o.forgetting,
+         {ForgettingMode::kActive, ForgettingMode::kPassive, ForgettingMode::kStatic});
+  v("spatial_cell_m", o.spatial_cell_m);
+  v("log_component_events", o.log_component_events);
+}
+
 // One Gaussian of a view's mixture X_i.
 struct ViewComponent {
   std::uint64_t id = 0;        // unique in the model, never reused

@@ -70,6 +70,35 @@ struct SimulatorOptions {
   void Validate() const;
 };
 
+// The options schema (common/options.h): YAML keys, dump, binary codec.
+template <class V>
+void VisitFields(V& v, SimulatorOptions& o) {
+  v("world", o.world);
+  v("days", o.days);
+  v("frames_per_day", o.frames_per_day);
+  v("seed", o.seed);
+  v.NamedEnum("output", o.output,
+              {{ImageKind::kRawRing, "raw_ring"}, {ImageKind::kPanorama, "panorama"}});
+  v("step_m", o.step_m);
+  v.Enum("later_days_start", o.later_days_start,
+         {SessionStartMode::kKnownPose, SessionStartMode::kContinue, SessionStartMode::kGlobal});
+  v("render_images", o.render_images);
+  v("sensor_noise", o.sensor_noise);
+  v("people", o.people);
+  v("start_sigma_xy_m", o.start_sigma_xy_m);
+  v("start_sigma_phi_rad", o.start_sigma_phi_rad);
+}
+
+// SimulatorOptions in YAML (keys = member names; absent keys keep their defaults),
+// validated. `world_name`, which `omnicml simulate` writes into simulation.yaml, is
+// accepted and skipped (kSimulatorRunKeys), so that file loads back. Throws
+// omnicml::Error "<file>:<line>: ..." naming the key.
+inline const std::vector<std::string> kSimulatorRunKeys = {"world_name"};
+SimulatorOptions ParseSimulatorOptionsYaml(const std::string& yaml_text, const std::string& source);
+SimulatorOptions LoadSimulatorOptions(const std::string& path);
+// Every field as YAML; LoadSimulatorOptions reads it back to equal options.
+std::string SimulatorOptionsToYaml(const SimulatorOptions& options);
+
 // A closed route with rounded corners, parameterised by arc length.
 class RoutePath {
  public:

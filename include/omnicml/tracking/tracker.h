@@ -49,6 +49,25 @@ struct TrackerOptions {
   void Validate() const;  // throws omnicml::Error naming the field
 };
 
+// The options schema (common/options.h): YAML keys, dump, binary codec.
+template <class V>
+void VisitFields(V& v, MotionNoise& o) {
+  v("a1", o.a1);
+  v("a2", o.a2);
+  v("a3", o.a3);
+  v("a4", o.a4);
+}
+template <class V>
+void VisitFields(V& v, TrackerOptions& o) {
+  v("gamma", o.gamma);
+  v("w_min", o.w_min);
+  v("delta", o.delta);
+  v("max_components", o.max_components);
+  v("unimodal_min_weight", o.unimodal_min_weight);
+  v("min_covariance_eigenvalue", o.min_covariance_eigenvalue);
+  v.Section("motion", o.motion);
+}
+
 // Jacobians of g(mu, u) = ApplyIncrement(mu, u): G = dg/dmu (3x3), V = dg/du (3x3, u =
 // (rot1, trans, rot2)).
 Eigen::Matrix3d MotionJacobianState(const Pose2& mu, const OdometryIncrement& u);

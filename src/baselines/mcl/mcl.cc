@@ -5,6 +5,7 @@
 #include <cmath>
 #include <numeric>
 
+#include "omnicml/common/options.h"
 #include "omnicml/logs/antworld.h"
 #include "omnicml/common/common.h"
 
@@ -442,5 +443,15 @@ int StepsToConverge(const std::vector<MclStepRecord>& records, int from, double 
   }
   return -1;
 }
+
+// ---- options (the schema of the header's VisitFields, common/options.h)
+
+MclOptions ParseMclOptionsYaml(const std::string& yaml_text, const std::string& source) {
+  return ParseOptionsYaml<MclOptions>(yaml_text, source, MclOptions{}, kMclRunKeys);
+}
+MclOptions LoadMclOptions(const std::string& path) {
+  return ParseMclOptionsYaml(ReadOptionFile(path), path);
+}
+std::string MclOptionsToYaml(const MclOptions& options) { return OptionsToYaml(options); }
 
 }  // namespace omnicml

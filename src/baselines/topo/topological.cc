@@ -14,6 +14,7 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include "omnicml/common/options.h"
 #include "omnicml/geometry/planar_geometry.h"
 #include "omnicml/common/common.h"
 #include "omnicml/common/file_io.h"
@@ -639,6 +640,20 @@ std::string TopologicalSummaryTable(const TopologicalCounts& c, const std::strin
   os << "\nbelief (last confident place) correct: " << c.belief_correct << " of " << c.frames
      << " frames\n";
   return os.str();
+}
+
+// ---- options (the schema of the header's VisitFields, common/options.h)
+
+TopologicalOptions ParseTopologicalOptionsYaml(const std::string& yaml_text,
+                                               const std::string& source) {
+  return ParseOptionsYaml<TopologicalOptions>(yaml_text, source, TopologicalOptions{},
+                                              kTopoRunKeys);
+}
+TopologicalOptions LoadTopologicalOptions(const std::string& path) {
+  return ParseTopologicalOptionsYaml(ReadOptionFile(path), path);
+}
+std::string TopologicalOptionsToYaml(const TopologicalOptions& options) {
+  return OptionsToYaml(options);
 }
 
 }  // namespace omnicml

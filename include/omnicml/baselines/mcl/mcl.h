@@ -101,6 +101,38 @@ struct MclOptions {
   void Validate() const;
 };
 
+// The options schema (common/options.h): YAML keys, dump, binary codec.
+template <class V>
+void VisitFields(V& v, MclOptions& o) {
+  v("num_particles", o.num_particles);
+  v("random_samples_per_step", o.random_samples_per_step);
+  v.Section("motion", o.motion);
+  v("heading_gate_half_width_rad", o.heading_gate_half_width_rad);
+  v("heading_independent", o.heading_independent);
+  v("top_k", o.top_k);
+  v("prior_fraction", o.prior_fraction);
+  v("min_likelihood", o.min_likelihood);
+  v("axis_offset_rad", o.axis_offset_rad);
+  v.Section("visibility", o.visibility);
+  v("cluster_cell_m", o.cluster_cell_m);
+  v("cluster_radius_m", o.cluster_radius_m);
+  v("init_sigma_xy_m", o.init_sigma_xy_m);
+  v("init_sigma_phi_rad", o.init_sigma_phi_rad);
+  v("seed", o.seed);
+}
+
+// MclOptions in YAML (keys = member names, sections motion and visibility; absent keys
+// keep their defaults), validated. The inputs `omnicml mcl` writes next to the options in
+// its config.yaml (kMclRunKeys) are accepted and skipped, so that file loads back.
+// Throws omnicml::Error "<file>:<line>: ..." naming the key.
+inline const std::vector<std::string> kMclRunKeys = {
+    "input", "train_day", "test_day", "ref_every", "references", "panorama_width_px",
+    "panorama_height_px", "descriptor", "grid_resolution_m", "start"};
+MclOptions ParseMclOptionsYaml(const std::string& yaml_text, const std::string& source);
+MclOptions LoadMclOptions(const std::string& path);
+// Every field as YAML; LoadMclOptions reads it back to equal options.
+std::string MclOptionsToYaml(const MclOptions& options);
+
 // A reference image of the map: where it was taken, its descriptor and its visibility area.
 struct MclReference {
   Pose2 map_T_robot = Pose2::Zero();

@@ -144,6 +144,15 @@ struct VisibilityOptions {
   void Validate() const;  // throws omnicml::Error naming the field
 };
 
+// The options schema (common/options.h): YAML keys, dump, binary codec.
+template <class V>
+void VisitFields(V& v, VisibilityOptions& o) {
+  v("max_ray_range_m", o.max_ray_range_m);
+  v("max_distance_m", o.max_distance_m);
+  v("max_view_angle_rad", o.max_view_angle_rad);
+  v("max_distance_from_reference_m", o.max_distance_from_reference_m);
+}
+
 // The visibility area of a view at `position_m` whose (chosen) optical axis points along
 // axis_rad: lambda_j is the first occupied cell on the axis (CastRay); the area is grown
 // from the free 8-neighbours of lambda_j over 8-connected free cells, adding a cell

@@ -132,6 +132,29 @@ struct TopologicalOptions {
   void Validate() const;
 };
 
+// The options schema (common/options.h): YAML keys, dump, binary codec.
+template <class V>
+void VisitFields(V& v, TopologicalOptions& o) {
+  v.Section("histogram", o.histogram);
+  v("band_threshold", o.band_threshold);
+  v("action_threshold", o.action_threshold);
+  v("restrict_to_neighbours", o.restrict_to_neighbours);
+  v("global_search_after_frames", o.global_search_after_frames);
+}
+
+// TopologicalOptions in YAML (keys = member names; absent keys keep their defaults),
+// validated. The inputs `omnicml topo` writes next to the options in its
+// topo_config.yaml (kTopoRunKeys) are accepted and skipped, so that file loads back.
+// Throws omnicml::Error "<file>:<line>: ..." naming the key.
+inline const std::vector<std::string> kTopoRunKeys = {
+    "world", "log", "days", "frames_per_day", "seed", "step_m", "people", "train_day",
+    "test_day", "places", "reference_stride_frames", "known_start"};
+TopologicalOptions ParseTopologicalOptionsYaml(const std::string& yaml_text,
+                                               const std::string& source);
+TopologicalOptions LoadTopologicalOptions(const std::string& path);
+// Every field as YAML; LoadTopologicalOptions reads it back to equal options.
+std::string TopologicalOptionsToYaml(const TopologicalOptions& options);
+
 // One band's nearest-neighbour result.
 struct BandVote {
   int place = -1;               // place of the nearest reference image, -1 if none

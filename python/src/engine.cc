@@ -484,13 +484,14 @@ void BindEngine(py::module_& m) {
            py::arg("descriptor"),
            "Views matching a descriptor (E < e_max), best first: dicts with view_index, "
            "view_id, distance, similarity, relative_heading_rad.")
-      .def("with_options",
-           [](const CmlEngine& e, const py::object& options) {
-             return RebuildEngineWithOptions(e, OptionsFromObject(options));
-           },
-           py::arg("options"),
-           "A copy of the engine (same state) with other options; only threads and "
-           "model.forgetting may differ (else omnicml.Error).")
+      .def("set_threads", &CmlEngine::SetThreads, py::arg("threads"),
+           "Changes options.threads between frames (1: no worker; >= 2: background map "
+           "updates); results do not depend on it. Raises omnicml.Error unless threads >= 1.")
+      .def("set_forgetting_mode",
+           [](CmlEngine& e, const std::string& mode) { e.SetForgettingMode(ForgettingModeFromString(mode)); },
+           py::arg("mode"),
+           "Changes options.model.forgetting between frames: 'active', 'passive' or 'static' "
+           "(e.g. learn day 1, then freeze the map); queued updates apply under the new mode.")
       .def("map_json", [](const CmlEngine& e) { return MapToJson(e).dump(); },
            "The map as JSON text (datasets/map_schema.md).");
 }

@@ -1,29 +1,34 @@
-// Bindings of the experiments: run (CML over logs or a simulated world, the map carried
-// from day to day) and compare (the [G] Table 1 experiment: passive, active and static
-// forgetting on the same input), returning their tables as numpy arrays; evaluate (the
-// statistics of a run directory).
+// Bindings of the experiments module: run (`omnicml run`: CML over logs or a simulated
+// world, the map carried from day to day) and compare (`omnicml compare`: the [G] Table 1
+// experiment, passive / active / static forgetting on the same input) through the library's
+// RunExperiment and RunCompareExperiment, so Python gets exactly the command's results;
+// their tables come back as numpy arrays. evaluate: the statistics of a run directory.
 //
-// `omnicml compare` lives in apps/cmd_compare.cc (not yet a library function), so compare
-// here drives the library's engine loop (RunEngineOverSource) itself, exactly as the
-// command does: static learns the first day with active forgetting and is frozen after it.
+// The library functions take engine options as a configuration file and always write a
+// run directory: options given from Python go to a temporary YAML file, and without
+// out_dir the run directory is a temporary one, removed after its frames.csv was read.
 #include <algorithm>
+#include <atomic>
 #include <cmath>
-#include <exception>
 #include <filesystem>
 #include <memory>
 #include <optional>
 #include <string>
-#include <thread>
+#include <system_error>
 #include <vector>
+
+#include <unistd.h>
 
 #include <pybind11/stl.h>
 
 #include "convert.h"
 #include "omnicml/common/common.h"
+#include "omnicml/common/file_io.h"
 #include "omnicml/engine/engine_io.h"
 #include "omnicml/evaluation/evaluation.h"
+#include "omnicml/experiments/compare_experiment.h"
 #include "omnicml/experiments/run_config.h"
-#include "omnicml/experiments/run_recorder.h"
+#include "omnicml/experiments/run_experiment.h"
 
 namespace omnicml::python {
 
@@ -31,25 +36,41 @@ CmlEngineOptions OptionsFromObject(const py::object& obj);  // engine.cc
 
 namespace {
 
-// One finished run, in C++ (built without the GIL).
-struct RunOutput {
-  std::string label;
-  std::vector<FrameRecord> records;
-  EvaluationResult eval;
-  RunSummary summary;
-  std::unique_ptr<CmlEngine> engine;
+// A fresh temporary directory, removed with everything in it on destruction.
+class TempDir {
+ public:
+  TempDir() {
+    static std::atomic<int> counter{0};
+    path_ = std::filesystem::temp_directory_path() /
+            StrCat("omnicml-python-", ::getpid(), "-", counter++);
+    std::filesystem::remove_all(path_);
+    std::filesystem::create_directories(path_);
+  }
+  ~TempDir() {
+    std::error_code ec;
+    std::filesystem::remove_all(path_, ec);
+  }
+  TempDir(const TempDir&) = delete;
+  TempDir& operator=(const TempDir&) = delete;
+  const std::filesystem::path& path() const { return path_; }
+
+ private:
+  std::filesystem::path path_;
 };
 
-// What Python gets.
+// What Python gets of one run.
 struct RunResult {
   std::string label;
+  std::string run_dir;  // "" when it was a temporary directory
   py::dict frames;
   py::list days;
   py::dict overall;
   double wall_s = 0;
   std::int64_t num_frames = 0;
   int num_sessions = 0;
-  py::object engine;
+  std::int64_t views = 0;  // map at the end, after Finish
+  std::int64_t components = 0;
+  py::object engine = py::none();
 };
 
 struct CompareResult {
@@ -57,6 +78,7 @@ struct CompareResult {
   std::string table_text;
   std::vector<std::int64_t> steps;
   py::dict runs;
+  std::string out_dir;
 };
 
 py::dict StatsDict(const ErrorStats& s) {
@@ -125,22 +147,19 @@ py::dict FramesDict(const std::vector<FrameRecord>& r) {
   return d;
 }
 
-RunResult ToPython(RunOutput out) {
-  RunResult r;
-  r.label = out.label;
-  r.frames = FramesDict(out.records);
-  for (const DayEvaluation& d : out.eval.days) r.days.append(DayDict(d));
-  r.overall = DayDict(out.eval.overall);
-  r.wall_s = out.summary.wall_s;
-  r.num_frames = out.summary.frames;
-  r.num_sessions = out.summary.sessions;
-  r.engine = py::cast(std::move(out.engine));
-  return r;
+void FillEvaluation(const EvaluationResult& e, RunResult* r) {
+  for (const DayEvaluation& d : e.days) r->days.append(DayDict(d));
+  r->overall = DayDict(e.overall);
 }
 
-RunInput MakeInput(const py::object& logs, const std::string& world, int days, int first_day,
-                   int frames_per_day, std::uint64_t seed) {
-  RunInput in;
+// Input, engine options (a temporary configuration file under `tmp`), threads and
+// forgetting overrides, out_dir: the settings the library's experiments take.
+RunSettings MakeSettings(const py::object& logs, const std::string& world, int days, int first_day,
+                         int frames_per_day, std::uint64_t seed, const py::object& options,
+                         std::optional<int> threads, std::optional<std::string> forgetting,
+                         const std::filesystem::path& out_dir, bool quiet, const TempDir& tmp) {
+  RunSettings s;
+  RunInput& in = s.input;
   if (!logs.is_none()) {
     if (py::isinstance<py::str>(logs) || py::hasattr(logs, "__fspath__")) {
       in.log_dirs.push_back(py::str(logs));
@@ -153,43 +172,17 @@ RunInput MakeInput(const py::object& logs, const std::string& world, int days, i
   in.first_day = first_day;
   in.frames_per_day = frames_per_day;
   in.seed = seed;
-  in.Validate();
-  return in;
-}
-
-// The engine loop of `omnicml run` over `input` (no GIL needed). `engine` is consumed.
-RunOutput RunOne(std::unique_ptr<CmlEngine> engine, const RunInput& input, const std::string& out_dir,
-                 const std::string& trajectory_out, const std::string& map_out, bool quiet,
-                 const std::string& label, const SessionEndHook& hook) {
-  RunOutput out;
-  out.label = label;
-  auto source = OpenFrameSource(input);
-  RunRecorderOptions ro;
-  ro.run_dir = out_dir;
-  ro.trajectory_path = trajectory_out;
-  ro.title = label.empty() ? "omnicml run" : "omnicml run (" + label + ")";
-  ro.input_description = input.Describe();
-  RunRecorder recorder(ro);
-  ProgressOptions progress;
-  progress.quiet = quiet;
-  progress.label = label.empty() ? "run" : label;
-  progress.total_frames = CountFrames(input, *source);
-  out.summary = RunEngineOverSource(engine, *source, &recorder, progress, hook);
-  if (out.summary.frames == 0) throw Error(StrCat("the input (", input.Describe(), ") has no frames"));
-  // As `omnicml run`: the saved engine is the state before Finish(), so a resumed run
-  // continues exactly as one uninterrupted run.
-  std::vector<std::uint8_t> map_bytes;
-  if (!map_out.empty()) map_bytes = EncodeEngine(*engine);
-  engine->Finish();
-  recorder.Commit(*engine);
-  if (!map_out.empty()) WriteFileAtomically(map_out, map_bytes);
-  FramesTable table;
-  table.stage_names = StageNames();
-  table.records = recorder.records();
-  out.eval = Evaluate(table, Alignment::kNone);
-  out.records = recorder.records();
-  out.engine = std::move(engine);
-  return out;
+  if (!options.is_none()) {
+    const std::filesystem::path config = tmp.path() / "config.yaml";
+    WriteFileAtomic(config, EngineOptionsToYaml(OptionsFromObject(options)));
+    s.overrides.config_path = config.string();
+  }
+  s.overrides.threads = threads;
+  s.overrides.forgetting = forgetting;
+  s.out_dir = out_dir.string();
+  s.quiet = quiet;
+  s.no_progress_bar = true;
+  return s;
 }
 
 }  // namespace
@@ -197,174 +190,153 @@ RunOutput RunOne(std::unique_ptr<CmlEngine> engine, const RunInput& input, const
 void BindExperiments(py::module_& m) {
   py::class_<RunResult>(
       m, "RunResult",
-      "A finished run: frames (dict of per-frame numpy arrays: session, frame, global_frame, "
-      "stamp_s, has_estimate, estimate (N, 3), mean_estimate, unimodal, has_truth, truth (N, 3), "
-      "position_error_m, heading_error_rad, odometry_error_m, views, map_components, "
-      "hypotheses, mixture_components), days (per-day statistics dicts), overall (the same "
-      "over all days), the engine after finish(), wall time.")
+      "A finished run: frames (dict of per-frame numpy arrays from its frames.csv: session, "
+      "frame, global_frame, stamp_s, has_estimate, estimate (N, 3), mean_estimate, unimodal, "
+      "has_truth, truth (N, 3), position_error_m, heading_error_rad, odometry_error_m, views, "
+      "map_components, hypotheses, mixture_components), days (per-day statistics dicts), "
+      "overall (the same over all days), the map size after finish, wall time, run_dir (\"\" "
+      "when temporary) and, for run(), the engine as saved at the end (before finish(): "
+      "resumable, as `omnicml run --map-out`); None for compare().")
       .def_readonly("label", &RunResult::label)
+      .def_readonly("run_dir", &RunResult::run_dir)
       .def_readonly("frames", &RunResult::frames)
       .def_readonly("days", &RunResult::days)
       .def_readonly("overall", &RunResult::overall)
       .def_readonly("wall_s", &RunResult::wall_s)
       .def_readonly("num_frames", &RunResult::num_frames)
       .def_readonly("num_sessions", &RunResult::num_sessions)
+      .def_readonly("views", &RunResult::views, "Views in the map at the end (after finish).")
+      .def_readonly("components", &RunResult::components)
       .def_readonly("engine", &RunResult::engine)
       .def_property_readonly(
           "mean_error_m", [](const RunResult& r) { return r.overall["position_m"]["mean"]; },
           "Mean position error over all frames with truth (m).")
       .def("__repr__", [](const RunResult& r) {
         return StrCat("<omnicml.RunResult ", r.label, " frames=", r.num_frames,
-                      " sessions=", r.num_sessions, ">");
+                      " sessions=", r.num_sessions, " views=", r.views, ">");
       });
 
   py::class_<CompareResult>(
       m, "CompareResult",
       "The [G] Table 1 experiment: table (dict of columns: forgetting, views_at (modes x "
-      "steps), views_end, mean_err_m, max_err_m, head_mean_deg, unimodal_pct, odom_err_m), "
-      "the same as text, and runs (mode -> RunResult).")
+      "steps; -1 beyond the run), views_end, mean_err_m, max_err_m, head_mean_deg, "
+      "unimodal_pct, odom_err_m), the same as text (table.txt), runs (mode -> RunResult) and "
+      "out_dir (\"\" when temporary).")
       .def_readonly("table", &CompareResult::table)
       .def_readonly("table_text", &CompareResult::table_text)
       .def_readonly("steps", &CompareResult::steps)
       .def_readonly("runs", &CompareResult::runs)
+      .def_readonly("out_dir", &CompareResult::out_dir)
       .def("__repr__", [](const CompareResult& r) { return r.table_text; });
 
   m.def("run",
         [](const py::object& logs, const std::string& world, int days, int first_day,
            int frames_per_day, std::uint64_t seed, const py::object& options,
+           std::optional<int> threads, std::optional<std::string> forgetting,
            const std::string& out_dir, const std::string& map_in, const std::string& map_out,
            const std::string& trajectory_out, bool quiet) {
-          const RunInput input = MakeInput(logs, world, days, first_day, frames_per_day, seed);
-          std::unique_ptr<CmlEngine> engine;
-          if (!map_in.empty()) {
-            engine = LoadEngine(map_in);
-            if (!options.is_none()) engine = RebuildEngineWithOptions(*engine, OptionsFromObject(options));
-          } else {
-            engine = std::make_unique<CmlEngine>(OptionsFromObject(options));
+          if (!map_in.empty() && !options.is_none()) {
+            throw Error(StrCat("run: map_in '", map_in,
+                               "': the saved engine's options are used; only threads and "
+                               "forgetting may change (drop options)"));
           }
-          RunOutput out;
+          TempDir tmp;
+          RunExperimentOptions o;
+          o.settings = MakeSettings(logs, world, days, first_day, frames_per_day, seed, options,
+                                    threads, forgetting,
+                                    out_dir.empty() ? tmp.path() / "run" : std::filesystem::path(out_dir),
+                                    quiet, tmp);
+          o.map_in = map_in;
+          o.map_out = map_out.empty() ? (tmp.path() / "map.omap").string() : map_out;
+          o.trajectory_out = trajectory_out;
+          RunExperimentResult r;
+          FramesTable table;
+          std::unique_ptr<CmlEngine> engine;
           {
             py::gil_scoped_release release;
-            out = RunOne(std::move(engine), input, out_dir, trajectory_out, map_out, quiet, "", {});
+            r = RunExperiment(o);
+            table = ReadFramesCsv(std::filesystem::path(r.run_dir) / "frames.csv");
+            engine = LoadEngine(o.map_out);
           }
-          return ToPython(std::move(out));
+          RunResult out;
+          out.label = "run";
+          out.run_dir = out_dir.empty() ? "" : r.run_dir;
+          out.frames = FramesDict(table.records);
+          FillEvaluation(r.evaluation, &out);
+          out.wall_s = r.summary.wall_s;
+          out.num_frames = r.summary.frames;
+          out.num_sessions = r.summary.sessions;
+          out.views = static_cast<std::int64_t>(r.views);
+          out.components = static_cast<std::int64_t>(r.components);
+          out.engine = py::cast(std::move(engine));
+          return out;
         },
         py::arg("logs") = py::none(), py::arg("world") = "", py::arg("days") = 1,
         py::arg("first_day") = 0, py::arg("frames_per_day") = 0, py::arg("seed") = 1,
-        py::arg("options") = py::none(), py::arg("out_dir") = "", py::arg("map_in") = "",
+        py::arg("options") = py::none(), py::arg("threads") = py::none(),
+        py::arg("forgetting") = py::none(), py::arg("out_dir") = "", py::arg("map_in") = "",
         py::arg("map_out") = "", py::arg("trajectory_out") = "", py::arg("quiet") = true,
-        "CML over the days in order, the map carried from day to day (`omnicml run`). Input: "
-        "logs (a path or list) or world (built-in name) with days, frames_per_day (0 = 300), "
-        "seed. options: None, dict, YAML path or EngineOptions (with map_in: only threads and "
-        "model.forgetting may differ from the saved ones). out_dir: a run directory (config, "
-        "frames.csv, days.csv, report) when given. Returns a RunResult.");
+        "CML over the days in order, the map carried from day to day: `omnicml run` "
+        "(RunExperiment). Input: logs (a path or list) or world (built-in name or YAML) with "
+        "days, first_day, frames_per_day (0 = 300) and seed. options: None, a dict, a YAML path "
+        "or EngineOptions; threads, forgetting ('active', 'passive', 'static'): overrides, the "
+        "only ones allowed with map_in (resume a saved engine). out_dir: keep the run "
+        "directory (config, frames.csv, days.csv, events.csv, report.html) there; map_out, "
+        "trajectory_out (TUM) as the command's flags. Returns a RunResult.");
 
   m.def("compare",
         [](const py::object& logs, const std::string& world, int days, int first_day,
            int frames_per_day, std::uint64_t seed, const py::object& options,
-           const std::vector<std::int64_t>& steps, const std::string& out_dir, int jobs,
-           bool quiet) {
-          const RunInput input = MakeInput(logs, world, days, first_day, frames_per_day, seed);
-          if (steps.empty()) throw Error("steps: at least one step");
-          for (std::int64_t s : steps) {
-            if (s < 1) throw Error(StrCat("steps: ", s, " is not a positive integer"));
-          }
-          const CmlEngineOptions base = OptionsFromObject(options);
-          const std::vector<ForgettingMode> modes = {ForgettingMode::kPassive, ForgettingMode::kActive,
-                                                     ForgettingMode::kStatic};
-          const int n_jobs = std::clamp(
-              jobs > 0 ? jobs : static_cast<int>(std::thread::hardware_concurrency()), 1, 3);
-          std::vector<RunOutput> outs(modes.size());
-          std::vector<std::exception_ptr> errors(modes.size());
+           std::optional<int> threads, const std::vector<std::int64_t>& steps,
+           const std::string& out_dir, int jobs, bool quiet) {
+          TempDir tmp;
+          CompareExperimentOptions o;
+          o.settings = MakeSettings(logs, world, days, first_day, frames_per_day, seed, options,
+                                    threads, std::nullopt,
+                                    out_dir.empty() ? tmp.path() / "compare" : std::filesystem::path(out_dir),
+                                    quiet, tmp);
+          o.steps = steps;
+          o.jobs = jobs;
+          CompareExperimentResult r;
           {
             py::gil_scoped_release release;
-            auto run_mode = [&](std::size_t i) {
-              const ForgettingMode mode = modes[i];
-              CmlEngineOptions o = base;
-              o.model.forgetting = mode == ForgettingMode::kStatic ? ForgettingMode::kActive : mode;
-              SessionEndHook freeze;
-              if (mode == ForgettingMode::kStatic) {
-                freeze = [](const CmlEngine& e, int session) -> std::unique_ptr<CmlEngine> {
-                  if (session != 0) return nullptr;
-                  CmlEngineOptions frozen = e.options();
-                  frozen.model.forgetting = ForgettingMode::kStatic;
-                  return RebuildEngineWithOptions(e, frozen);
-                };
-              }
-              const std::string dir =
-                  out_dir.empty() ? "" : (std::filesystem::path(out_dir) / ToString(mode)).string();
-              outs[i] = RunOne(std::make_unique<CmlEngine>(o), input, dir, "", "", quiet,
-                               ToString(mode), freeze);
-            };
-            auto worker = [&](int w) {
-              for (std::size_t i = static_cast<std::size_t>(w); i < modes.size();
-                   i += static_cast<std::size_t>(n_jobs)) {
-                try {
-                  run_mode(i);
-                } catch (...) {
-                  errors[i] = std::current_exception();
-                }
-              }
-            };
-            if (n_jobs == 1) {
-              worker(0);
-            } else {
-              std::vector<std::thread> threads;
-              for (int w = 0; w < n_jobs; ++w) threads.emplace_back(worker, w);
-              for (auto& t : threads) t.join();
-            }
-          }
-          for (const auto& e : errors) {
-            if (e) std::rethrow_exception(e);
+            r = RunCompareExperiment(o);
           }
           CompareResult result;
           result.steps = steps;
+          result.table_text = r.table_text;
+          result.out_dir = out_dir.empty() ? "" : r.out_dir;
+          const auto n = static_cast<py::ssize_t>(r.modes.size());
           py::list names;
-          py::array_t<std::int64_t> views_at({static_cast<py::ssize_t>(modes.size()),
-                                              static_cast<py::ssize_t>(steps.size())});
+          py::array_t<std::int64_t> views_at({n, static_cast<py::ssize_t>(steps.size())});
           std::vector<std::int64_t> views_end;
           std::vector<double> mean_err, max_err, head_deg, unimodal_pct, odom_err;
-          std::vector<std::string> header = {"forgetting"};
-          for (std::int64_t s : steps) header.push_back("views@" + std::to_string(s));
-          for (const char* h : {"views_end", "mean_err_m", "max_err_m", "head_mean_deg",
-                                "unimodal%", "odom_err_m"})
-            header.push_back(h);
-          std::vector<std::vector<std::string>> rows;
-          auto fixed = [](double v, int decimals) -> std::string {
-            if (!std::isfinite(v)) return "-";
-            char buf[48];
-            std::snprintf(buf, sizeof buf, "%.*f", decimals, v);
-            return buf;
-          };
-          for (std::size_t i = 0; i < outs.size(); ++i) {
-            const RunOutput& o = outs[i];
-            names.append(o.label);
-            std::vector<std::string> row = {o.label};
+          for (py::ssize_t i = 0; i < n; ++i) {
+            const CompareModeResult& mr = r.modes[static_cast<std::size_t>(i)];
+            names.append(mr.mode);
             for (std::size_t k = 0; k < steps.size(); ++k) {
               const auto s = static_cast<std::size_t>(steps[k]);
-              const std::int64_t v = s <= o.records.size() ? o.records[s - 1].views : -1;
-              views_at.mutable_at(i, k) = v;
-              row.push_back(v < 0 ? "-" : std::to_string(v));
+              views_at.mutable_at(i, static_cast<py::ssize_t>(k)) =
+                  s >= 1 && s <= mr.records.size() ? mr.records[s - 1].views : -1;
             }
-            const auto& ov = o.eval.overall;
-            views_end.push_back(static_cast<std::int64_t>(o.engine->model().NumViews()));
+            const DayEvaluation& ov = mr.evaluation.overall;
+            views_end.push_back(mr.final_views);
             mean_err.push_back(ov.position_m.mean);
             max_err.push_back(ov.position_m.max);
             head_deg.push_back(ov.heading_rad.mean * 180 / kPi);
             unimodal_pct.push_back(ov.unimodal_fraction * 100);
             odom_err.push_back(ov.odometry_m.mean);
-            row.push_back(std::to_string(views_end.back()));
-            row.push_back(fixed(mean_err.back(), 3));
-            row.push_back(fixed(max_err.back(), 3));
-            row.push_back(fixed(head_deg.back(), 2));
-            row.push_back(fixed(unimodal_pct.back(), 1));
-            row.push_back(fixed(odom_err.back(), 3));
-            rows.push_back(row);
-          }
-          result.table_text = FormatTextTable(header, rows, /*left_align_first=*/true);
-          if (!out_dir.empty()) {
-            WriteFileAtomically((std::filesystem::path(out_dir) / "table.txt").string(),
-                                std::vector<std::uint8_t>(result.table_text.begin(), result.table_text.end()));
+            RunResult run;
+            run.label = mr.mode;
+            run.run_dir = out_dir.empty() ? "" : (std::filesystem::path(r.out_dir) / mr.mode).string();
+            run.frames = FramesDict(mr.records);
+            FillEvaluation(mr.evaluation, &run);
+            run.wall_s = mr.wall_s;
+            run.num_frames = static_cast<std::int64_t>(mr.records.size());
+            run.num_sessions = static_cast<int>(mr.evaluation.days.size());
+            run.views = mr.final_views;
+            run.components = mr.final_components;
+            result.runs[py::str(mr.mode)] = run;
           }
           result.table["forgetting"] = names;
           result.table["views_at"] = views_at;
@@ -374,22 +346,18 @@ void BindExperiments(py::module_& m) {
           result.table["head_mean_deg"] = py::array(py::cast(head_deg));
           result.table["unimodal_pct"] = py::array(py::cast(unimodal_pct));
           result.table["odom_err_m"] = py::array(py::cast(odom_err));
-          for (auto& o : outs) {
-            const std::string label = o.label;
-            result.runs[py::str(label)] = ToPython(std::move(o));
-          }
           return result;
         },
         py::arg("logs") = py::none(), py::arg("world") = "", py::arg("days") = 1,
         py::arg("first_day") = 0, py::arg("frames_per_day") = 0, py::arg("seed") = 1,
-        py::arg("options") = py::none(),
+        py::arg("options") = py::none(), py::arg("threads") = py::none(),
         py::arg("steps") = std::vector<std::int64_t>{2000, 4000, 6000, 8000},
         py::arg("out_dir") = "", py::arg("jobs") = 1, py::arg("quiet") = true,
-        "The [G] Table 1 experiment (`omnicml compare`): the same input under passive, active "
-        "and static forgetting (static learns day 1 actively, then is frozen); reference views "
-        "at `steps` (frames) and errors. jobs: modes run in parallel threads (0 = one per core; "
-        "same results). out_dir: each mode's run directory under it, and table.txt. Returns a "
-        "CompareResult.");
+        "The [G] Table 1 experiment: `omnicml compare` (RunCompareExperiment). The same input "
+        "under passive, active and static forgetting (static learns day 1 actively, then is "
+        "frozen); reference views at `steps` (frames) and errors. jobs: modes in parallel "
+        "threads (0 = one per core; same results). out_dir: keep each mode's run directory, "
+        "table.txt and report.html there. Returns a CompareResult.");
 
   m.def("evaluate",
         [](const std::string& run_dir, const std::string& align) {

@@ -30,18 +30,26 @@ class ExperimentsTest(unittest.TestCase):
             self.assertEqual(len(r.days), 2)
             self.assertEqual(r.days[1]["frames"], 80)
             self.assertEqual(r.days[1]["views_at_end"], r.frames["views"][-1])
-            # finish() applied the updates still queued at the last frame.
-            self.assertGreaterEqual(r.engine.num_views, r.days[1]["views_at_end"])
+            # finish() applied the updates still queued at the last frame; the engine
+            # returned is the resumable state before it.
+            self.assertGreaterEqual(r.views, r.days[1]["views_at_end"])
+            self.assertEqual(r.engine.num_views, r.frames["views"][-1])
             self.assertEqual(r.engine.counters["frames"], 160)
+            self.assertEqual(r.run_dir, out)
             for name in ("frames.csv", "days.csv", "config.yaml", "report.html"):
                 self.assertTrue(os.path.isfile(os.path.join(out, name)), name)
             e = omnicml.evaluate(out)
             self.assertAlmostEqual(e["overall"]["position_m"]["mean"], r.mean_error_m, places=6)
             # Resuming the saved map on day 3 with the map of days 1-2.
             r3 = omnicml.run(world="home_store", days=1, first_day=2, frames_per_day=40, seed=1,
-                             map_in=os.path.join(tmp, "map.omap"))
+                             map_in=os.path.join(tmp, "map.omap"), forgetting="static")
             self.assertEqual(r3.num_frames, 40)
-            self.assertGreaterEqual(r3.frames["views"][0], 1)
+            self.assertEqual(r3.run_dir, "")
+            # A frozen map (the saved one, before finish): no view added or removed on day 3.
+            self.assertEqual(set(r3.frames["views"].tolist()), {int(r.frames["views"][-1])})
+            with self.assertRaises(omnicml.Error):
+                omnicml.run(world="home_store", map_in=os.path.join(tmp, "map.omap"),
+                            options={"threads": 1})
 
     def test_compare_table(self):
         # Three modes on the same frames; static is frozen after day 1 (its map does not
@@ -55,7 +63,8 @@ class ExperimentsTest(unittest.TestCase):
             run = c.runs[mode]
             self.assertEqual(run.num_frames, 120)
             self.assertEqual(c.table["views_at"][i, 0], run.frames["views"][29])
-            self.assertEqual(c.table["views_end"][i], run.engine.num_views)
+            self.assertEqual(c.table["views_end"][i], run.views)
+            self.assertIsNone(run.engine)
             self.assertAlmostEqual(c.table["mean_err_m"][i], run.mean_error_m)
         static = c.runs["static"].frames["views"]
         self.assertEqual(len(set(static[60:].tolist())), 1)

@@ -25,6 +25,16 @@ void MclOptions::Validate() const {
     fail("random_samples_per_step",
          StrCat("must be in [0, num_particles / 2], got ", random_samples_per_step));
   }
+  if (!(alpha_fast > 0 && alpha_fast <= 1)) fail("alpha_fast", "must be in (0, 1]");
+  if (!(alpha_slow > 0 && alpha_slow < alpha_fast)) {
+    fail("alpha_slow", "must be in (0, alpha_fast)");
+  }
+  if (!(max_injection_fraction >= 0 && max_injection_fraction <= 0.5)) {
+    fail("max_injection_fraction", "must be in [0, 0.5]");
+  }
+  if (!(injection_near_retrieved_fraction >= 0 && injection_near_retrieved_fraction <= 1)) {
+    fail("injection_near_retrieved_fraction", "must be in [0, 1]");
+  }
   try {
     motion.Validate();
   } catch (const Error& e) {
@@ -112,7 +122,48 @@ Pose2 MonteCarloLocalizer::RandomFreePose() {
   return MakePose(p.x(), p.y(), (2.0 * u01(rng_) - 1.0) * kPi);
 }
 
+Pose2 MonteCarloLocalizer::RandomPoseNearRetrieved(const std::vector<double>& xi) {
+  double total = 0;
+  for (std::size_t j = 0; j < xi.size(); ++j) {
+    if (!references_[j].visibility.empty()) total += xi[j];
+  }
+  if (!(total > 0)) return RandomFreePose();
+  std::uniform_real_distribution<double> u01(0.0, 1.0);
+  const double r = u01(rng_) * total;
+  std::size_t j = xi.size();  // the reference where the cumulative sum passes r
+  double cumulative = 0;
+  for (std::size_t i = 0; i < xi.size(); ++i) {
+    if (references_[i].visibility.empty() || !(xi[i] > 0)) continue;
+    j = i;  // the last valid one when rounding leaves r beyond the sum
+    cumulative += xi[i];
+    if (r < cumulative) break;
+  }
+  const std::vector<int>& area = references_[j].visibility;
+  std::uniform_int_distribution<std::size_t> pick(0, area.size() - 1);
+  const CellIndex c = grid_.FromLinear(area[pick(rng_)]);
+  const double res = grid_.resolution_m();
+  const Eigen::Vector2d p =
+      grid_.origin_m() + Eigen::Vector2d((c.x + u01(rng_)) * res, (c.y + u01(rng_)) * res);
+  return MakePose(p.x(), p.y(), (2.0 * u01(rng_) - 1.0) * kPi);
+}
+
+int MonteCarloLocalizer::InjectionCount(double mean_likelihood) {
+  if (!options_.adaptive_injection) return options_.random_samples_per_step;
+  // Probabilistic Robotics, Table 8.3, lines 9-10 (averages start at the first value).
+  if (!have_averages_) {
+    w_slow_ = w_fast_ = mean_likelihood;
+    have_averages_ = true;
+  } else {
+    w_slow_ += options_.alpha_slow * (mean_likelihood - w_slow_);
+    w_fast_ += options_.alpha_fast * (mean_likelihood - w_fast_);
+  }
+  const double p = w_slow_ > 0 ? std::max(0.0, 1.0 - w_fast_ / w_slow_) : 0.0;
+  const double n = std::min(p, options_.max_injection_fraction) * options_.num_particles;
+  return static_cast<int>(std::lround(n));
+}
+
 void MonteCarloLocalizer::InitializeGlobal() {
+  have_averages_ = false;
   particles_.assign(options_.num_particles, Particle{});
   const double w = 1.0 / options_.num_particles;
   for (Particle& p : particles_) {
@@ -122,6 +173,7 @@ void MonteCarloLocalizer::InitializeGlobal() {
 }
 
 void MonteCarloLocalizer::InitializeAt(const Pose2& pose) {
+  have_averages_ = false;
   particles_.assign(options_.num_particles, Particle{});
   std::normal_distribution<double> n01(0.0, 1.0);
   const double w = 1.0 / options_.num_particles;
@@ -288,13 +340,29 @@ MclEstimate MonteCarloLocalizer::Correct(const Descriptor& query) {
     p.weight = std::max(Likelihood(p.pose, xi), options_.min_likelihood);
     sum += p.weight;
   }
-  for (Particle& p : particles_) p.weight /= sum;
+  const double mean_likelihood = sum / static_cast<double>(particles_.size());
+  double sum_sq = 0;
+  for (Particle& p : particles_) {
+    p.weight /= sum;
+    sum_sq += p.weight * p.weight;
+  }
   const MclEstimate est = Estimate(particles_);
-  const int keep = options_.num_particles - options_.random_samples_per_step;
-  std::vector<Particle> next = LowVarianceResample(particles_, keep, rng_);
-  // [W]: random sample injection.
+  const int inject = InjectionCount(mean_likelihood);
+  std::vector<Particle> next =
+      LowVarianceResample(particles_, options_.num_particles - inject, rng_);
+  // [W]'s random sample injection, a share of it near the retrieved references.
   next.reserve(options_.num_particles);
-  for (int i = 0; i < options_.random_samples_per_step; ++i) next.push_back({RandomFreePose(), 0.0});
+  const int near = static_cast<int>(
+      std::lround(options_.injection_near_retrieved_fraction * static_cast<double>(inject)));
+  for (int i = 0; i < inject; ++i) {
+    next.push_back({i < near ? RandomPoseNearRetrieved(xi) : RandomFreePose(), 0.0});
+  }
+  last_step_ = MclStepStats{.mean_likelihood = mean_likelihood,
+                            .w_slow = w_slow_,
+                            .w_fast = w_fast_,
+                            .effective_sample_size = 1.0 / sum_sq,
+                            .injected = inject,
+                            .injected_near_retrieved = near};
   const double w = 1.0 / options_.num_particles;
   for (Particle& p : next) p.weight = w;
   particles_ = std::move(next);
@@ -410,6 +478,7 @@ std::vector<MclStepRecord> RunMcl(MonteCarloLocalizer& mcl, const std::vector<Mc
     r.estimate = est;
     r.truth = f.truth;
     r.kidnapped = kidnapped;
+    r.stats = mcl.last_step();
     r.time_us = std::chrono::duration<double, std::micro>(t1 - t0).count();
     if (f.truth) {
       r.position_error_m = (est.cluster.head<2>() - f.truth->head<2>()).norm();

@@ -11,7 +11,9 @@ namespace omnicml {
 namespace {
 
 constexpr std::uint32_t kModelMagic = 0x4D45434Fu;  // "OCEM" little-endian
-constexpr std::uint32_t kModelVersion = 1;
+// Version 2 adds each view's footprint (ViewFootprint); version 1 maps are still read,
+// their footprints estimated from the components.
+constexpr std::uint32_t kModelVersion = 2;
 
 // mu_t with its angle expressed relative to view i's panorama: phi_t minus the relative
 // heading RelativeHeading(y_t, y_i) (docs/design.md "Environment model", phase 2). Without a
@@ -44,6 +46,41 @@ void MergeInto(ViewComponent& keep, const ViewComponent& other) {
   keep.mean = merged.mean;
   keep.eta = merged.weight;
   keep.weight = std::min(1.0, keep.weight + other.weight);
+}
+
+// Pass bookkeeping of rule (18) (docs/forgetting.md): an Update in which the view is
+// expected to match (it matched, or mu_t lies inside its footprint) more than gap frames
+// after the last one, or in another session, starts a new pass; the pass it closes adds
+// to missed_passes if the view never matched during it. A match resets missed_passes.
+void NoteExpected(ViewFootprint& f, const UpdateContext& context, bool matched, int gap) {
+  const bool new_pass = f.last_expected_frame < 0 || f.last_expected_session != context.session ||
+                        std::abs(context.frame - f.last_expected_frame) > gap;
+  if (new_pass) {
+    if (f.last_expected_frame >= 0 && !f.pass_matched) ++f.missed_passes;
+    f.pass_matched = false;
+  }
+  if (matched) {
+    if (!f.pass_matched) ++f.matched_passes;
+    f.pass_matched = true;
+    f.missed_passes = 0;
+  }
+  f.last_expected_frame = context.frame;
+  f.last_expected_session = context.session;
+}
+
+// Largest eigenvalue of a symmetric 2x2 matrix.
+double LargestEigenvalue(const Eigen::Matrix2d& m) {
+  const double half_trace = 0.5 * (m(0, 0) + m(1, 1));
+  const double d = 0.5 * (m(0, 0) - m(1, 1));
+  return half_trace + std::sqrt(d * d + m(0, 1) * m(1, 0));
+}
+
+// A footprint estimated from components (maps of version 1, AddView): their xy means
+// weighted by eta.
+ViewFootprint FootprintFromComponents(const std::vector<ViewComponent>& components) {
+  ViewFootprint f;
+  for (const ViewComponent& c : components) f.Observe(c.mean.x(), c.mean.y(), c.eta);
+  return f;
 }
 
 // Which rule last changed a component's weight in this Update (for removal reasons).
@@ -130,12 +167,44 @@ void EnvironmentModelOptions::Validate() const {
   }
   if (!(std::isfinite(spatial_cell_m) && spatial_cell_m > 0))
     fail("spatial_cell_m", "finite and > 0", spatial_cell_m);
+  if (!(std::isfinite(footprint_gate) && footprint_gate > 0))
+    fail("footprint_gate", "finite and > 0", footprint_gate);
+  if (forget_min_missed_passes < 0)
+    fail("forget_min_missed_passes", ">= 0", forget_min_missed_passes);
+  if (pass_gap_frames < 0) fail("pass_gap_frames", ">= 0", pass_gap_frames);
+  if (!(std::isfinite(footprint_confidence) && footprint_confidence >= 0))
+    fail("footprint_confidence", "finite and >= 0", footprint_confidence);
 }
 
 double ReferenceView::TotalWeight() const {
   double sum = 0.0;
   for (const ViewComponent& c : components) sum += c.weight;
   return sum;
+}
+
+void ViewFootprint::Observe(double x_m, double y_m, double w) {
+  if (!(w > 0)) return;
+  const double total = weight + w;
+  const Eigen::Vector2d delta = Eigen::Vector2d(x_m, y_m) - mean;
+  mean += (w / total) * delta;
+  // Weighted Welford update: w (1 - w / total) delta delta^T, kept exactly symmetric.
+  const double k = w * (1.0 - w / total);
+  scatter(0, 0) += k * delta.x() * delta.x();
+  scatter(1, 1) += k * delta.y() * delta.y();
+  scatter(0, 1) += k * delta.x() * delta.y();
+  scatter(1, 0) = scatter(0, 1);
+  weight = total;
+}
+
+Eigen::Matrix2d ViewFootprint::Covariance() const {
+  return weight > 0 ? Eigen::Matrix2d(scatter / weight) : Eigen::Matrix2d::Zero();
+}
+
+double ViewFootprint::SquaredDistance(const Eigen::Vector2d& p, const Eigen::Matrix2d& s) const {
+  const Eigen::Vector2d d = p - mean;
+  const Eigen::LLT<Eigen::Matrix2d> llt(s);
+  if (llt.info() != Eigen::Success) return std::numeric_limits<double>::infinity();
+  return llt.matrixL().solve(d).squaredNorm();
 }
 
 EnvironmentModel::EnvironmentModel(const EnvironmentModelOptions& options,
@@ -268,6 +337,7 @@ std::uint64_t EnvironmentModel::AddView(const Descriptor& y, std::vector<ViewCom
   v.descriptor = y;
   v.stats = stats;
   v.components = std::move(components);
+  v.footprint = FootprintFromComponents(v.components);
   for (ViewComponent& c : v.components) {
     c.id = next_component_id_++;
     c.mean.z() = WrapAngle(c.mean.z());
@@ -352,6 +422,8 @@ UpdateStats EnvironmentModel::Update(const Descriptor& y, const Gaussian& estima
     view.stats.observations += 1;
     view.stats.last_seen_frame = context.frame;
     view.stats.last_seen_session = context.session;
+    view.footprint.Observe(mu_t.x(), mu_t.y(), m.similarity);
+    NoteExpected(view.footprint, context, /*matched=*/true, options_.pass_gap_frames);
 
     ViewComponent added;
     added.weight = 0.0;
@@ -457,32 +529,60 @@ UpdateStats EnvironmentModel::Update(const Descriptor& y, const Gaussian& estima
     for (const ViewMatch& m : matches) matched_ids.push_back(m.view_id);
     std::sort(matched_ids.begin(), matched_ids.end());
     const double sigma_sum_m = std::sqrt(c_t(0, 0)) + std::sqrt(c_t(1, 1));
-    // Rule 3 visits only components within d_for of mu_t (spatial index), sorted by ids.
+    const Eigen::Matrix2d c_xy = c_t.topLeftCorner<2, 2>();
+    const Eigen::Vector2d mu_xy(mu_t.x(), mu_t.y());
+    // Candidates: views with a component within d_for of mu_t (spatial index, entries
+    // sorted by view id, then component id), visited a view at a time.
     const std::vector<SpatialEntry> near =
         spatial_.QueryRadius(mu_t.x(), mu_t.y(), options_.d_for_m);
-    std::size_t view_index = 0;
-    std::uint64_t current_view = 0;
-    for (const SpatialEntry& e : near) {
-      if (std::binary_search(matched_ids.begin(), matched_ids.end(), e.view_id))
+    for (std::size_t first = 0; first < near.size();) {
+      std::size_t last = first;
+      while (last < near.size() && near[last].view_id == near[first].view_id) ++last;
+      const std::uint64_t view_id = near[first].view_id;
+      const std::size_t begin = first;
+      first = last;
+      if (std::binary_search(matched_ids.begin(), matched_ids.end(), view_id))
         continue;  // E_i < E_max
-      const double d_xy = std::hypot(e.x_m - mu_t.x(), e.y_m - mu_t.y());
-      // [G] eq. (19): b = beta_for max(1 - d_xy / d_for, 0) d_gain / (sigma_x + sigma_y), in [0,
-      // 1].
-      const double b = std::clamp(options_.beta_for * std::max(1.0 - d_xy / options_.d_for_m, 0.0) *
+      ReferenceView& view = views_[index_of_id_.at(view_id)];
+      ViewFootprint& footprint = view.footprint;
+      // docs/forgetting.md: the view is expected to match only where mu_t lies inside its
+      // footprint (the spread of the estimates at which it matched), widened by C_t.
+      const double d_fp = std::sqrt(
+          footprint.SquaredDistance(mu_xy, c_xy + footprint.Covariance()));
+      if (!(d_fp < options_.footprint_gate)) continue;
+      // Confidently inside: the robot's position uncertainty must not exceed the
+      // footprint's own extent (largest standard deviations compared), else a miss says
+      // nothing about the view.
+      if (options_.footprint_confidence > 0 &&
+          LargestEigenvalue(c_xy) > options_.footprint_confidence * options_.footprint_confidence *
+                                        LargestEigenvalue(footprint.Covariance())) {
+        continue;
+      }
+      NoteExpected(footprint, context, /*matched=*/false, options_.pass_gap_frames);
+      // Evidence over passes: only after forget_min_missed_passes whole passes through
+      // the footprint without a match does a miss weaken the view.
+      if (footprint.missed_passes < options_.forget_min_missed_passes) continue;
+      // [G] eq. (19) with d_xy / d_for replaced by the footprint distance d_fp / gate:
+      // b = beta_for max(1 - d_fp / gate, 0) d_gain / (sigma_x + sigma_y), in [0, 1].
+      double b = std::clamp(options_.beta_for *
+                                      std::max(1.0 - d_fp / options_.footprint_gate, 0.0) *
                                       options_.d_gain_m / sigma_sum_m,
                                   0.0, 1.0);
-      if (e.view_id != current_view) {
-        current_view = e.view_id;
-        view_index = index_of_id_.at(e.view_id);
-        touched_views.push_back(e.view_id);
+      // Evidence against a place grows with the evidence for it: a view that matched
+      // in k passes loses weight k times more slowly than a view seen once.
+      if (options_.forget_by_matched_passes && footprint.matched_passes > 1) {
+        b /= static_cast<double>(footprint.matched_passes);
       }
-      for (ViewComponent& c : views_[view_index].components) {
-        if (c.id != e.component_id) continue;
-        // [G] eq. (18): active forgetting.
-        c.weight = (1.0 - b) * c.weight;
-        touch[c.id] = Touch::kActive;
-        if (b > 0) ++stats.components_active_forgotten;
-        break;
+      touched_views.push_back(view_id);
+      for (std::size_t k = begin; k < last; ++k) {
+        for (ViewComponent& c : view.components) {
+          if (c.id != near[k].component_id) continue;
+          // [G] eq. (18): active forgetting.
+          c.weight = (1.0 - b) * c.weight;
+          touch[c.id] = Touch::kActive;
+          if (b > 0) ++stats.components_active_forgotten;
+          break;
+        }
       }
     }
   }
@@ -556,6 +656,18 @@ void EnvironmentModel::Serialize(BinaryWriter& out) const {
     out.Write(v.stats.observations);
     out.Write(v.stats.last_seen_frame);
     out.Write<std::int32_t>(v.stats.last_seen_session);
+    const ViewFootprint& f = v.footprint;
+    out.Write(f.weight);
+    out.Write(f.mean.x());
+    out.Write(f.mean.y());
+    out.Write(f.scatter(0, 0));
+    out.Write(f.scatter(0, 1));
+    out.Write(f.scatter(1, 1));
+    out.Write<std::int32_t>(f.missed_passes);
+    out.Write<std::int32_t>(f.matched_passes);
+    out.Write(f.last_expected_frame);
+    out.Write<std::int32_t>(f.last_expected_session);
+    out.Write(f.pass_matched);
     out.Write<std::uint64_t>(v.components.size());
     for (const ViewComponent& c : v.components) {
       out.Write(c.id);
@@ -587,7 +699,7 @@ EnvironmentModel EnvironmentModel::Deserialize(
     in.Fail("environment model magic", "not an environment model (bad magic number)");
   }
   const auto version = in.Read<std::uint32_t>("environment model version");
-  if (version != kModelVersion) {
+  if (version < 1 || version > kModelVersion) {
     in.Fail("environment model version", StrCat("unsupported environment model version ", version));
   }
   const auto kind = in.Read<std::uint8_t>("model descriptor kind");
@@ -618,6 +730,25 @@ EnvironmentModel EnvironmentModel::Deserialize(
     v.stats.observations = in.Read<std::int64_t>("view observations");
     v.stats.last_seen_frame = in.Read<std::int64_t>("view last seen frame");
     v.stats.last_seen_session = in.Read<std::int32_t>("view last seen session");
+    if (version >= 2) {
+      ViewFootprint& f = v.footprint;
+      f.weight = in.Read<double>("view footprint weight");
+      f.mean.x() = in.Read<double>("view footprint mean");
+      f.mean.y() = in.Read<double>("view footprint mean");
+      f.scatter(0, 0) = in.Read<double>("view footprint scatter");
+      f.scatter(0, 1) = f.scatter(1, 0) = in.Read<double>("view footprint scatter");
+      f.scatter(1, 1) = in.Read<double>("view footprint scatter");
+      f.missed_passes = in.Read<std::int32_t>("view footprint missed passes");
+      f.matched_passes = in.Read<std::int32_t>("view footprint matched passes");
+      f.last_expected_frame = in.Read<std::int64_t>("view footprint last expected frame");
+      f.last_expected_session = in.Read<std::int32_t>("view footprint last expected session");
+      f.pass_matched = in.Read<bool>("view footprint pass matched");
+      if (!(f.weight >= 0) || !f.mean.allFinite() || !f.scatter.allFinite() ||
+          f.scatter(0, 0) < 0 || f.scatter(1, 1) < 0 || f.missed_passes < 0 ||
+          f.matched_passes < 0) {
+        in.Fail("view footprint", StrCat("view ", v.id, " has an invalid footprint"));
+      }
+    }
     const std::size_t num_components = in.ReadCount("view components", 8 * 15);
     if (num_components == 0)
       in.Fail("view components", StrCat("view ", v.id, " has no components"));
@@ -637,6 +768,7 @@ EnvironmentModel EnvironmentModel::Deserialize(
       }
       v.components.push_back(c);
     }
+    if (version < 2) v.footprint = FootprintFromComponents(v.components);
     model.views_.push_back(std::move(v));
   }
   const std::size_t num_events = in.ReadCount("events", 1 + 8 + 4 + 8 + 8 + 24 + 8 + 8);

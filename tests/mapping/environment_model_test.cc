@@ -225,25 +225,34 @@ TEST(EnvironmentModel, ActiveForgettingEq18And19) {
   o.d_for_m = 2.0;
   o.beta_for = 0.5;
   o.d_gain_m = 0.2;
+  o.forget_min_missed_passes = 0;  // the first miss counts (passes: see below)
   EnvironmentModel m(o, fx);
   m.Update(fx->Make({0, 0}), Est(0, 0, 0), {0, 0});  // view A at (0, 0)
-  m.Update(fx->Make({0, 5}), Est(3, 0, 0), {1, 0});  // view C at (3, 0), 2.5 m from mu_t below
+  m.Update(fx->Make({0, 5}), Est(3, 0, 0), {1, 0});  // view C at (3, 0), 2.8 m from mu_t below
   const double w_a = ViewById(m, 1).components[0].weight;
   const double w_c = ViewById(m, 2).components[0].weight;
-  // Non-matching y at mu_t = (0.5, 0), sigma_x + sigma_y = 0.2 + 0.3.
-  const UpdateStats st = m.Update(fx->Make({5, 0}), Est(0.5, 0, 0, 0.2, 0.3, 0.1), {2, 0});
+  // Non-matching y at mu_t = (0.2, 0), sigma_x + sigma_y = 0.2 + 0.3. A's footprint is the
+  // point (0, 0), so its distance is 0.2 / sigma_x = 1 < footprint_gate 2.
+  const UpdateStats st = m.Update(fx->Make({5, 0}), Est(0.2, 0, 0, 0.2, 0.3, 0.1), {2, 0});
   EXPECT_TRUE(st.view_inserted);
-  const double b = 0.5 * (1.0 - 0.5 / 2.0) * 0.2 / (0.2 + 0.3);
+  const double b = 0.5 * (1.0 - 1.0 / 2.0) * 0.2 / (0.2 + 0.3);
   EXPECT_NEAR(ViewById(m, 1).components[0].weight, (1 - b) * w_a, kTol);
   EXPECT_EQ(ViewById(m, 2).components[0].weight, w_c);
   EXPECT_EQ(st.components_active_forgotten, 1);
 
+  // Outside the footprint (mu_t 0.5 m from it, sigma 0.1 m: distance 5 > 2) nothing is
+  // forgotten, although A is within d_for.
+  const double w_a2 = ViewById(m, 1).components[0].weight;
+  const UpdateStats outside = m.Update(fx->Make({9, 0}), Est(0.5, 0, 0), {3, 0});
+  EXPECT_EQ(outside.components_active_forgotten, 0);
+  EXPECT_EQ(ViewById(m, 1).components[0].weight, w_a2);
+
   // A very confident estimate makes b > 1, clamped to 1: A is gone.
-  m.Update(fx->Make({5, 0}), Est(0.5, 0, 0, 1e-4, 1e-4, 0.1), {3, 0});
+  m.Update(fx->Make({5, 0}), Est(0, 0, 0, 1e-4, 1e-4, 0.1), {4, 0});
   EXPECT_FALSE(m.FindView(1).has_value());
   bool saw_component = false, saw_view = false;
   for (const MapEvent& e : m.events()) {
-    if (e.view_id != 1 || e.frame != 3) continue;
+    if (e.view_id != 1 || e.frame != 4) continue;
     if (e.type == MapEventType::kComponentRemoved) {
       saw_component = true;
       EXPECT_EQ(e.reason, "active forgetting (18)-(19)");
@@ -457,7 +466,14 @@ TEST(EnvironmentModel, ActiveForgetsChangedPlacePassiveKeepsIt) {
     ASSERT_EQ(m.NumViews(), 1u);
     const std::uint64_t old_view = m.views()[0].id;
     const double w_old = m.views()[0].TotalWeight();
-    for (int t = 20; t < 220; ++t) m.Update(after_change, Est(jitter(rng), jitter(rng), 0), {t, 1});
+    // Ten passes through the place (frames 100 apart between passes), 20 frames each.
+    int last_frame = 0;
+    for (int pass = 0; pass < 10; ++pass) {
+      for (int k = 0; k < 20; ++k) {
+        last_frame = 20 + 100 * pass + k;
+        m.Update(after_change, Est(jitter(rng), jitter(rng), 0), {last_frame, 1});
+      }
+    }
     m.CheckInvariants();
     if (mode == ForgettingMode::kActive) {
       EXPECT_FALSE(m.FindView(old_view).has_value());
@@ -488,7 +504,7 @@ TEST(EnvironmentModel, ActiveForgetsChangedPlacePassiveKeepsIt) {
       EXPECT_EQ(now.stats.created_frame, 20);
       EXPECT_EQ(now.stats.created_session, 1);
       EXPECT_EQ(now.stats.observations, 200);
-      EXPECT_EQ(now.stats.last_seen_frame, 219);
+      EXPECT_EQ(now.stats.last_seen_frame, last_frame);
       EXPECT_EQ(now.stats.last_seen_session, 1);
       EXPECT_GT(now.TotalWeight(), 0.5);
     } else {
@@ -497,6 +513,126 @@ TEST(EnvironmentModel, ActiveForgetsChangedPlacePassiveKeepsIt) {
       EXPECT_EQ(m.NumViews(), 2u);
     }
   }
+}
+
+// The forgetting gains of the engine's defaults (CmlEngineOptions::DefaultModelOptions).
+EnvironmentModelOptions EngineLikeOptions() {
+  EnvironmentModelOptions o;
+  o.d_for_m = 0.5;
+  o.beta_for = 0.5;
+  o.d_gain_m = 1.0;
+  return o;
+}
+
+// A static world is not forgotten: a robot drives back and forth along a corridor whose
+// appearance changes every few centimetres (views match within ~3 cm, so every recent
+// neighbour is a non-matching view nearby, the AntWorld failure); active keeps as many
+// views as passive, although d_for is far larger than the views' spacing.
+TEST(EnvironmentModel, StaticWorldIsNotForgotten) {
+  auto fx = MakeFakeExtractor(1);
+  std::mt19937 rng(3);
+  std::normal_distribution<double> jitter(0.0, 0.003);
+  std::normal_distribution<float> look(0.0f, 0.05f);
+  std::size_t views[2] = {0, 0};
+  for (const ForgettingMode mode : {ForgettingMode::kActive, ForgettingMode::kPassive}) {
+    EnvironmentModelOptions o = EngineLikeOptions();
+    o.forgetting = mode;
+    EnvironmentModel m(o, fx);
+    int frame = 0;
+    for (int session = 0; session < 4; ++session) {
+      for (int lap = 0; lap < 3; ++lap) {
+        for (int k = 0; k <= 200; ++k) {
+          const double x = 0.01 * ((lap % 2 == 0) ? k : 200 - k);  // metres, 1 cm steps
+          // Feature: 30 units per metre plus a little noise; e_max 1 = 3.3 cm.
+          const Descriptor y = fx->Make({static_cast<float>(30.0 * x) + look(rng)});
+          m.Update(y, Est(x + jitter(rng), jitter(rng), 0, 0.01, 0.01, 0.05), {frame++, session});
+        }
+        frame += 100;
+      }
+    }
+    m.CheckInvariants();
+    views[mode == ForgettingMode::kActive ? 0 : 1] = m.NumViews();
+  }
+  EXPECT_GT(views[1], 30u);
+  EXPECT_GE(static_cast<double>(views[0]), 0.8 * static_cast<double>(views[1]))
+      << "active " << views[0] << " passive " << views[1];
+}
+
+// One odd frame (or one odd pass) does not erase a place: a view that fails to match
+// during a single pass but matches again on the next keeps its weight rising.
+TEST(EnvironmentModel, OneMissedPassDoesNotForget) {
+  auto fx = MakeFakeExtractor(1);
+  EnvironmentModelOptions o;
+  o.d_for_m = 1.0;
+  EnvironmentModel m(o, fx);
+  for (int k = 0; k < 5; ++k) m.Update(fx->Make({0}), Est(0, 0, 0), {k, 0});
+  const std::uint64_t id = m.views()[0].id;
+  const double w = m.views()[0].TotalWeight();
+  // One pass in which the place looks different, then it looks as before again.
+  for (int k = 0; k < 5; ++k) m.Update(fx->Make({9}), Est(0, 0, 0), {100 + k, 0});
+  ASSERT_TRUE(m.FindView(id).has_value());
+  EXPECT_EQ(ViewById(m, id).TotalWeight(), w);
+  EXPECT_EQ(ViewById(m, id).footprint.missed_passes, 0);
+  for (int k = 0; k < 5; ++k) m.Update(fx->Make({0}), Est(0, 0, 0), {200 + k, 0});
+  EXPECT_EQ(ViewById(m, id).footprint.missed_passes, 0);
+  // Two passes that miss: the second one forgets.
+  for (int pass = 0; pass < 2; ++pass) {
+    for (int k = 0; k < 5; ++k) m.Update(fx->Make({9}), Est(0, 0, 0), {300 + 100 * pass + k, 0});
+  }
+  ASSERT_TRUE(m.FindView(id).has_value() == false || ViewById(m, id).TotalWeight() < w);
+  m.CheckInvariants();
+}
+
+// A world whose places change for good: after the change the old views go under active
+// forgetting (within a few passes) and stay under passive.
+TEST(EnvironmentModel, ChangedWorldIsForgotten) {
+  auto fx = MakeFakeExtractor(2);
+  std::mt19937 rng(4);
+  std::normal_distribution<double> jitter(0.0, 0.02);
+  for (const ForgettingMode mode : {ForgettingMode::kActive, ForgettingMode::kPassive}) {
+    EnvironmentModelOptions o = EngineLikeOptions();
+    o.forgetting = mode;
+    EnvironmentModel m(o, fx);
+    int frame = 0;
+    auto lap = [&](float appearance, int session) {
+      for (int k = 0; k <= 50; ++k) {
+        const double x = 0.2 * k;  // a 10 m corridor, 0.2 m steps; a view per 0.4 m
+        const Descriptor y = fx->Make({static_cast<float>(2.5 * x), appearance});
+        m.Update(y, Est(x + jitter(rng), jitter(rng), 0), {frame++, session});
+      }
+      frame += 100;
+    };
+    for (int l = 0; l < 3; ++l) lap(0.0f, 0);
+    std::set<std::uint64_t> old_views;
+    for (const ReferenceView& v : m.views()) old_views.insert(v.id);
+    for (int l = 0; l < 6; ++l) lap(10.0f, 1);  // every place looks different now
+    std::size_t old_left = 0;
+    for (const ReferenceView& v : m.views()) old_left += old_views.count(v.id);
+    m.CheckInvariants();
+    if (mode == ForgettingMode::kActive) {
+      EXPECT_LE(old_left, old_views.size() / 10) << old_left << " of " << old_views.size();
+    } else {
+      EXPECT_EQ(old_left, old_views.size());
+    }
+  }
+}
+
+// Footprints survive Serialize/Deserialize and grow with the matches.
+TEST(EnvironmentModel, FootprintFollowsMatches) {
+  auto fx = MakeFakeExtractor(1);
+  EnvironmentModel m(EnvironmentModelOptions{}, fx);
+  for (int k = 0; k < 11; ++k) m.Update(fx->Make({0}), Est(0.1 * k, 0, 0), {k, 0});
+  ASSERT_EQ(m.NumViews(), 1u);
+  const ViewFootprint& f = m.views()[0].footprint;
+  EXPECT_NEAR(f.mean.x(), 0.5, 1e-9);
+  EXPECT_NEAR(f.Covariance()(0, 0), 0.1, 1e-9);  // variance of 0, 0.1, ..., 1.0
+  EXPECT_NEAR(f.Covariance()(1, 1), 0.0, 1e-12);
+  BinaryWriter w;
+  m.Serialize(w);
+  const std::vector<std::uint8_t> bytes = w.Release();
+  BinaryReader r(bytes);
+  const EnvironmentModel back = EnvironmentModel::Deserialize(r, EnvironmentModelOptions{}, fx);
+  EXPECT_EQ(back.views()[0].footprint, f);
 }
 
 // Static mode never changes the model (bytes identical), even when empty.
@@ -537,6 +673,7 @@ TEST(EnvironmentModel, ForgettingNeverRaisesWeight) {
     o.e_max = 0.6;
     o.d_for_m = 1.5;
     o.beta_for = 0.3;
+    o.forget_min_missed_passes = 0;
     EnvironmentModel m(o, fx);
     int decreases = 0;
     for (int t = 0; t < 600; ++t) {

@@ -1,0 +1,62 @@
+// `omnicml calibrate LOG [--config ENGINE.yaml] [--out CALIBRATION.yaml]`: measures how
+// fast appearance changes with travelled distance over the first session of a log and
+// derives the engine's spatial thresholds from it (engine/calibration.h). Prints the
+// measurements and the derived values; --out saves them as an engine configuration that
+// `omnicml run --config` loads (explicit values in a later --config still win).
+#include <fstream>
+#include <iostream>
+#include <memory>
+#include <string>
+
+#include <CLI/CLI.hpp>
+
+#include "command_registry.h"
+#include "omnicml/common/common.h"
+#include "omnicml/engine/calibration.h"
+#include "omnicml/experiments/run_config.h"
+
+namespace omnicml::app {
+namespace {
+
+struct CalibrateFlags {
+  RunInput input;
+  std::string config_path;
+  std::string out;
+  CalibrationOptions calibration;
+};
+
+const CommandRegistration kRegistration{
+    "calibrate", [](CLI::App& app) {
+      CLI::App* cmd = app.add_subcommand(
+          "calibrate", "Derive the spatial thresholds from how appearance changes with travel");
+      auto f = std::make_shared<CalibrateFlags>();
+      cmd->add_option("logs", f->input.log_dirs, "Log (its first session is used)");
+      cmd->add_option("--world", f->input.world, "Built-in simulated world instead of a log");
+      cmd->add_option("--frames-per-day", f->input.frames_per_day, "Simulated frames (with --world)");
+      cmd->add_option("--seed", f->input.seed, "Simulator seed")->capture_default_str();
+      cmd->add_option("--config", f->config_path, "Engine configuration (descriptor, e_max)");
+      cmd->add_option("--out", f->out, "Write the derived values as engine YAML");
+      cmd->add_option("--max-frames", f->calibration.max_frames, "Frames used")
+          ->capture_default_str();
+      cmd->add_option("--max-lag", f->calibration.max_lag_frames, "Largest frame lag")
+          ->capture_default_str();
+      cmd->callback([f] {
+        f->input.days = 1;
+        f->input.Validate();
+        OptionOverrides overrides;
+        overrides.config_path = f->config_path;
+        const CmlEngineOptions options = ResolveEngineOptions(overrides);
+        const std::unique_ptr<FrameSource> source = OpenFrameSource(f->input);
+        const Calibration c = Calibrate(*source, options, f->calibration);
+        const std::string yaml = c.ToYaml();
+        std::cout << yaml;
+        if (!f->out.empty()) {
+          std::ofstream out(f->out);
+          if (!(out << yaml)) throw Error(StrCat("cannot write '", f->out, "'"));
+          std::cout << "written: " << f->out << "\n";
+        }
+      });
+    }};
+
+}  // namespace
+}  // namespace omnicml::app

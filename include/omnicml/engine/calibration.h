@@ -1,0 +1,81 @@
+// Scale calibration from a log (`omnicml calibrate LOG`): how fast appearance changes
+// with travelled distance, and the engine's spatial thresholds derived from it.
+//
+// The engine's spatial defaults (appearance_sigma_m, d_for_m, spatial_cell_m,
+// anchor_max_sigma_m) were tuned on the simulator, where views keep matching (descriptor
+// distance E below e_max) over about reference_match_length_m of travel. Calibrate reads
+// the first session of a log, computes the descriptor of every frame (up to max_frames)
+// with the engine's descriptor options, and measures, for frame lags 1..max_lag_frames,
+// the median E between frames t and t + lag against the median odometry path length
+// between them. The match length L is the path length at which the median E first
+// reaches e_max (linear interpolation between lags). Each spatial threshold is then its
+// default times s = L / reference_match_length_m (clamped to [min_scale, max_scale]).
+// Descriptor thresholds (e_max) stay: they are in descriptor units, not the world's.
+//
+// Pure function of the log and the options; not thread-safe per FrameSource.
+#ifndef OMNICML_ENGINE_CALIBRATION_H_
+#define OMNICML_ENGINE_CALIBRATION_H_
+
+#include <string>
+#include <vector>
+
+#include "omnicml/engine/cml_engine.h"
+#include "omnicml/unwrap/frame.h"
+
+namespace omnicml {
+
+struct CalibrationOptions {
+  // Frames of the first session used (from its start). > 1.
+  int max_frames = 3000;
+  // Largest frame lag measured. >= 1.
+  int max_lag_frames = 400;
+  // Match length of the world the spatial defaults were tuned on, metres, > 0: measured
+  // with the default options on home_store seed 1 (1000 frames, 0.2 m steps: 0.265 m)
+  // and institute seed 1 (1500 frames: 0.267 m). AntWorld route 1 gives 0.044 m.
+  double reference_match_length_m = 0.27;
+  // Clamp of the scale factor s.
+  double min_scale = 0.02;
+  double max_scale = 1.0;
+
+  // Throws omnicml::Error naming the first invalid field.
+  void Validate() const;
+};
+
+// One point of the distance-versus-travel curve.
+struct CalibrationPoint {
+  int lag_frames = 0;
+  int pairs = 0;
+  double median_path_m = 0.0;  // odometry path length between the frames of a pair
+  double median_distance = 0.0;  // descriptor distance E, extractor units
+};
+
+struct Calibration {
+  int frames_used = 0;
+  double e_max = 0.0;            // the threshold the match length refers to
+  double median_step_m = 0.0;    // median odometry step between consecutive frames
+  double match_length_m = 0.0;   // L; the largest measured path if E never reaches e_max
+  bool saturated = false;        // E stayed below e_max up to max_lag_frames
+  double scale = 1.0;            // s = clamp(L / reference_match_length_m)
+  std::vector<CalibrationPoint> curve;
+  // Derived values (defaults of CmlEngineOptions times s).
+  double appearance_sigma_m = 0.0;
+  double anchor_max_sigma_m = 0.0;
+  double d_for_m = 0.0;
+  double spatial_cell_m = 0.0;
+
+  // The derived values as an engine configuration (YAML, loadable with --config), the
+  // measurements as comments above them.
+  std::string ToYaml() const;
+};
+
+// Reads the first session of `source` (it must be at its start). Throws omnicml::Error
+// when the session has fewer than two frames or on a bad frame.
+Calibration Calibrate(FrameSource& source, const CmlEngineOptions& options,
+                      const CalibrationOptions& calibration_options = {});
+
+// Writes the derived values into `options`.
+void ApplyCalibration(const Calibration& calibration, CmlEngineOptions* options);
+
+}  // namespace omnicml
+
+#endif  // OMNICML_ENGINE_CALIBRATION_H_

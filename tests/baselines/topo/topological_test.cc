@@ -332,6 +332,33 @@ TEST(TopologicalLocalizer, SimulatedCrossDayMostlyCorrect) {
   EXPECT_GT(static_cast<double>(c.belief_correct) / c.frames, 0.7);
 }
 
+// Issue 18: institute with the repository's room places (datasets/places/
+// institute_rooms.yaml, the corridor one place as in [UN]), train day 1, test day 2, on
+// several seeds (short laps): confident answers are rarely wrong.
+TEST(TopologicalLocalizer, InstituteRoomsRarelyConfidentWrongOnSeveralSeeds) {
+  const AdjacencyMap map =
+      LoadAdjacencyMap(std::string(OMNICML_SOURCE_DIR) + "/datasets/places/institute_rooms.yaml");
+  for (std::uint64_t seed : {1u, 2u, 3u}) {
+    SimulatorOptions sim;
+    sim.world = "institute";
+    sim.days = 2;
+    sim.frames_per_day = 90;  // one 36 m lap at 0.4 m a frame
+    sim.step_m = 0.4;
+    sim.seed = seed;
+    sim.output = ImageKind::kPanorama;
+    SimulatedFrameSource source(sim);
+    TopologicalLocalizer loc(map);
+    CrossSequenceOptions cross;
+    cross.train_session = 0;
+    cross.test_session = 1;
+    const TopologicalCounts c = RunCrossSequence(&source, &loc, cross).counts;
+    std::cout << TopologicalSummaryTable(c, StrCat("institute rooms seed ", seed, " day 1 -> 2"));
+    ASSERT_EQ(c.frames, 90);
+    EXPECT_LE(c.confident_wrong, 0.05 * c.frames) << "seed " << seed;
+    EXPECT_GT(c.confident_correct, 0.4 * c.frames) << "seed " << seed;
+  }
+}
+
 // The cross-sequence test over a written log of raw ring images (unwrapped with the
 // session's calibration), areas as polygon places: deterministic, mostly right, and bad
 // session indices are errors.

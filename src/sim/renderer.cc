@@ -359,6 +359,7 @@ struct Renderer::Impl {
   };
   BakedPlanes fine, coarse;
   std::vector<char> row_coarse;  // per row: use `coarse`
+  bool built = false;            // Build ran once (later Builds rebuild what changed)
 
   std::vector<std::int8_t> noise_table;
   std::size_t noise_period = 0;
@@ -423,7 +424,29 @@ struct Renderer::Impl {
                   s.light_on.size() == world.lights.size() &&
                   s.curtains_closed.size() == world.windows.size())
         << "world state does not belong to world " << world.name;
+    // Rebuild only what the change touches (the bytes rendered are the same as after a
+    // full rebuild): obstacles and textures -> segments and grid; lights -> light grid
+    // and the baked planes (only the boxes of the zones switched); curtains are read at
+    // draw time.
+    const bool geometry_same = built && s.obstacle_offset_m == state.obstacle_offset_m &&
+                               s.texture_seed == state.texture_seed && s.cleared == state.cleared;
+    std::vector<int> zones_switched;
+    for (std::size_t z = 0; z < world.lights.size(); ++z) {
+      if (!built || s.light_on[z] != state.light_on[z]) zones_switched.push_back(static_cast<int>(z));
+    }
     state = s;
+    if (!geometry_same) BuildGeometry(s);
+    if (!built) {
+      BuildLights();
+      BakeFloor();
+    } else if (!zones_switched.empty()) {
+      BuildLights();
+      RebakeZones(zones_switched);
+    }
+    built = true;
+  }
+
+  void BuildGeometry(const WorldState& s) {
     // Textures.
     textures.clear();
     for (std::size_t i = 0; i < world.obstacles.size(); ++i) {
@@ -527,8 +550,6 @@ struct Renderer::Impl {
       cell_segs.insert(cell_segs.end(), cells[i].begin(), cells[i].end());
     }
     cell_start[cells.size()] = static_cast<int>(cell_segs.size());
-    BuildLights();
-    BakeFloor();
   }
 
   // The lit ceiling at (x, y): lamps switched on are bright panels, off ones grey.
@@ -545,11 +566,17 @@ struct Renderer::Impl {
     planes->h = std::max(1, static_cast<int>(std::ceil(world.size_m.y() / cell_m)));
     planes->floor_bgr.resize(static_cast<std::size_t>(planes->w) * planes->h * 3);
     planes->ceiling_bgr.resize(planes->floor_bgr.size());
-    for (int cy = 0; cy < planes->h; ++cy) {
+    BakeCells(0, planes->w - 1, 0, planes->h - 1, planes);
+  }
+
+  // (Re)bakes the cells [cx0, cx1] x [cy0, cy1] of `planes` from the current lights.
+  void BakeCells(int cx0, int cx1, int cy0, int cy1, BakedPlanes* planes) const {
+    const double cell_m = planes->cell_m;
+    for (int cy = cy0; cy <= cy1; ++cy) {
       const double y = (cy + 0.5) * cell_m;
       std::uint8_t* out = planes->floor_bgr.data() + static_cast<std::size_t>(cy) * planes->w * 3;
       std::uint8_t* top = planes->ceiling_bgr.data() + static_cast<std::size_t>(cy) * planes->w * 3;
-      for (int cx = 0; cx < planes->w; ++cx) {
+      for (int cx = cx0; cx <= cx1; ++cx) {
         const double x = (cx + 0.5) * cell_m;
         const Rgb c = Scale(SampleTexture(floor_tex, x, y), light[LightIndex(x, y)]);
         out[3 * cx] = Sat(c.b);
@@ -559,6 +586,47 @@ struct Renderer::Impl {
         top[3 * cx] = Sat(t.b);
         top[3 * cx + 1] = Sat(t.g);
         top[3 * cx + 2] = Sat(t.r);
+      }
+    }
+  }
+
+  // Light-grid cells [*cx0, *cx1] x [*cy0, *cy1] covering zone z's bounding box (the only
+  // cells whose light or lamp the zone sets; BuildLights visits the same box).
+  void ZoneLightBox(int z, int* cx0, int* cx1, int* cy0, int* cy1) const {
+    double xmin = 1e18, xmax = -1e18, ymin = 1e18, ymax = -1e18;
+    for (const auto& p : world.lights[z].polygon_m) {
+      xmin = std::min(xmin, p.x());
+      xmax = std::max(xmax, p.x());
+      ymin = std::min(ymin, p.y());
+      ymax = std::max(ymax, p.y());
+    }
+    *cx0 = std::clamp(static_cast<int>(std::floor(xmin / kLightCellM)), 0, light_w - 1);
+    *cx1 = std::clamp(static_cast<int>(std::ceil(xmax / kLightCellM)), 0, light_w - 1);
+    *cy0 = std::clamp(static_cast<int>(std::floor(ymin / kLightCellM)), 0, light_h - 1);
+    *cy1 = std::clamp(static_cast<int>(std::ceil(ymax / kLightCellM)), 0, light_h - 1);
+  }
+
+  // After BuildLights for switched zones: rebakes the baked-plane cells whose light cell
+  // lies in a switched zone's box (padded by one baked cell; cells past the light grid's
+  // last row or column, which LightIndex clamps onto it, included).
+  void RebakeZones(const std::vector<int>& zones) {
+    for (BakedPlanes* planes : {&fine, &coarse}) {
+      for (int z : zones) {
+        int lx0, lx1, ly0, ly1;
+        ZoneLightBox(z, &lx0, &lx1, &ly0, &ly1);
+        const auto lo = [&](int l, int n) {
+          return l == 0 ? 0
+                        : std::clamp(static_cast<int>(std::floor(l * kLightCellM / planes->cell_m)) - 1,
+                                     0, n - 1);
+        };
+        const auto hi = [&](int l, int lmax, int n) {
+          return l == lmax ? n - 1
+                           : std::clamp(static_cast<int>(std::ceil((l + 1) * kLightCellM /
+                                                                   planes->cell_m)) + 1,
+                                        0, n - 1);
+        };
+        BakeCells(lo(lx0, planes->w), hi(lx1, light_w - 1, planes->w), lo(ly0, planes->h),
+                  hi(ly1, light_h - 1, planes->h), planes);
       }
     }
   }

@@ -1,7 +1,8 @@
 // `omnicml export MAP --format json|csv|svg|png --out FILE`: the learned map (views,
 // component means, covariance ellipses, weights and eta, counters, descriptor summaries;
 // JSON schema in map_export.h and datasets/map_schema.md); the pictures draw the map
-// over a TUM trajectory when --trajectory is given.
+// over the floor plan (--world, or the world of --run), ground truth and estimate (--run's
+// frames.csv) or a TUM trajectory (--trajectory).
 #include <filesystem>
 #include <iostream>
 #include <memory>
@@ -15,8 +16,11 @@
 #include "command_registry.h"
 #include "omnicml/common/common.h"
 #include "omnicml/engine/engine_io.h"
+#include "omnicml/evaluation/evaluation.h"
+#include "omnicml/experiments/floor_plan.h"
 #include "omnicml/report/map_export.h"
 #include "omnicml/report/report.h"
+#include "omnicml/sim/world.h"
 
 namespace omnicml::app {
 
@@ -27,6 +31,10 @@ struct ExportFlags {
   std::string format;
   std::string out;
   std::string trajectory;
+  std::string run;    // run directory: estimate, ground truth and world
+  std::string world;  // built-in world name or world file: floor plan
+  int world_day = 0;  // floor plan state at this day (0 = the run's last day, else 1)
+  std::string color = "weight";
   bool features = false;
   bool no_events = false;
   int width_px = 900;
@@ -48,10 +56,28 @@ void Export(const ExportFlags& f) {
   if (f.width_px < 200 || f.width_px > 10000) throw Error("--width must be in 200..10000");
   const std::unique_ptr<CmlEngine> engine = LoadMapForReading(f.map);
   std::vector<Pose2> trajectory;
+  MapPictureOptions pic;
+  pic.coloring = MapColoringFromString(f.color);
+  // The run directory gives the estimate and ground truth (frames.csv) and the world.
+  std::string world = f.world;
+  int day = f.world_day;
+  std::uint64_t seed = 1;
+  if (!f.run.empty()) {
+    for (const FrameRecord& r : ReadFramesCsv(std::filesystem::path(f.run) / "frames.csv").records) {
+      if (r.has_estimate) trajectory.push_back(r.estimate);
+      if (r.has_truth) pic.ground_truth.push_back(r.truth);
+    }
+    if (const auto w = ReadRunWorld(f.run)) {
+      if (world.empty()) world = w->world;
+      if (day == 0) day = w->last_day;
+      seed = w->seed;
+    }
+  }
   if (!f.trajectory.empty()) {
+    trajectory.clear();
     for (const TimedPose& p : ReadTumTrajectory(f.trajectory)) trajectory.push_back(p.pose);
   }
-  MapPictureOptions pic;
+  if (!world.empty()) pic.floor_plan = FloorPlanFromWorld(LoadWorld(world), std::max(1, day), seed);
   pic.width_px = f.width_px;
   pic.title = std::filesystem::path(f.map).filename().string();
   if (format == "json") {
@@ -86,6 +112,18 @@ const CommandRegistration kRegistration{
       cmd->add_option("--out", flags->out, "Output file")->required();
       cmd->add_option("--trajectory", flags->trajectory,
                       "TUM trajectory drawn under the map (svg, png)");
+      cmd->add_option("--run", flags->run,
+                      "Run directory of the map (svg, png): its estimate and ground truth "
+                      "(frames.csv) and, for simulated runs, the world's floor plan");
+      cmd->add_option("--world", flags->world,
+                      "Built-in world name or world file whose floor plan is drawn (svg, png)");
+      cmd->add_option("--world-day", flags->world_day,
+                      "Draw the floor plan as at the start of this day (default: the run's "
+                      "last day, else 1)");
+      cmd->add_option("--color", flags->color,
+                      "Dots coloured by component weight or by area health (svg, png)")
+          ->check(CLI::IsMember({"weight", "health"}))
+          ->capture_default_str();
       cmd->add_flag("--features", flags->features, "JSON: include the full descriptor vectors");
       cmd->add_flag("--no-events", flags->no_events, "JSON: leave out the event log");
       cmd->add_option("--width", flags->width_px, "Picture width in pixels (svg, png)")

@@ -36,53 +36,497 @@ std::string Px(double v) {
   return buf;
 }
 
-// World (m) -> picture (px) transform fitted to the map and the trajectory.
-struct Canvas {
-  double min_x = 0, min_y = 0, scale = 1;  // px per metre
-  int width = 0, height = 0;
-  double margin = 30;
-  double top = 30;  // extra room for the title
-  double X(double x) const { return margin + (x - min_x) * scale; }
-  double Y(double y) const { return height - margin - (y - min_y) * scale; }
+// ---- The map picture: one list of drawing primitives, two back ends (SVG, OpenCV). ----
+
+// A drawing primitive in picture pixels (y down).
+struct Prim {
+  enum class Type { kPolyline, kPolygon, kCircle, kEllipse, kText, kRect };
+  Type type = Type::kPolyline;
+  std::vector<cv::Point2d> pts;  // polyline/polygon vertices; circle/ellipse/text/rect origin
+  double rx = 0, ry = 0;         // circle radius (rx), ellipse semi-axes, rect size
+  double angle_deg = 0;          // ellipse rotation, clockwise on the page
+  std::string stroke;            // "" = none
+  double stroke_width = 1;
+  std::string fill;  // "" = none
+  double opacity = 1;
+  std::string text;
+  double font_px = 11;
+  int anchor = -1;  // text: -1 start, 0 middle, 1 end
+  bool bold = false;
 };
 
-Canvas MakeCanvas(const EnvironmentModel& model, const std::vector<Pose2>& trajectory, int width_px,
-                  double sigma) {
-  double lo_x = std::numeric_limits<double>::infinity(), lo_y = lo_x, hi_x = -lo_x, hi_y = -lo_x;
-  auto extend = [&](double x, double y, double r) {
-    lo_x = std::min(lo_x, x - r);
-    hi_x = std::max(hi_x, x + r);
-    lo_y = std::min(lo_y, y - r);
-    hi_y = std::max(hi_y, y + r);
-  };
-  for (const auto& view : model.views()) {
-    for (const auto& c : view.components) {
-      const Ellipse2 e = CovarianceEllipse(c.covariance);
-      extend(c.mean.x(), c.mean.y(), std::min(sigma * e.major_m, 2.0));
-    }
+struct Scene {
+  int width = 0, height = 0;
+  std::vector<Prim> prims;
+  Prim& Add(Prim::Type type) {
+    prims.emplace_back();
+    prims.back().type = type;
+    return prims.back();
   }
-  for (const Pose2& p : trajectory) extend(p.x(), p.y(), 0.0);
-  if (!std::isfinite(lo_x)) lo_x = 0, hi_x = 1, lo_y = 0, hi_y = 1;
-  if (hi_x - lo_x < 1) hi_x = lo_x + 1;
-  if (hi_y - lo_y < 1) hi_y = lo_y + 1;
-  Canvas c;
-  c.width = std::max(200, width_px);
-  c.scale = (c.width - 2 * c.margin) / (hi_x - lo_x);
-  c.height = static_cast<int>(std::ceil((hi_y - lo_y) * c.scale + 2 * c.margin + c.top));
-  c.height = std::min(c.height, 4 * c.width);  // very thin maps: cap the height
-  c.min_x = lo_x;
-  c.min_y = lo_y;
-  return c;
+  void Line(std::vector<cv::Point2d> pts, const std::string& color, double width,
+            double opacity = 1) {
+    Prim& p = Add(Prim::Type::kPolyline);
+    p.pts = std::move(pts);
+    p.stroke = color;
+    p.stroke_width = width;
+    p.opacity = opacity;
+  }
+  void Text(double x, double y, std::string text, double font_px = 11, int anchor = -1,
+            bool bold = false) {
+    Prim& p = Add(Prim::Type::kText);
+    p.pts = {{x, y}};
+    p.text = std::move(text);
+    p.font_px = font_px;
+    p.anchor = anchor;
+    p.bold = bold;
+  }
+};
+
+// Text metrics shared by both back ends: OpenCV's Hershey simplex at this scale per
+// pixel of font size is a little wider than an SVG sans-serif, so layouts measured with it
+// fit in both.
+constexpr double kHersheyScalePerPx = 1.0 / 30.0;
+double TextWidthPx(const std::string& text, double font_px = 11) {
+  int baseline = 0;
+  return cv::getTextSize(text, cv::FONT_HERSHEY_SIMPLEX, font_px * kHersheyScalePerPx, 1,
+                         &baseline)
+      .width;
 }
 
-// A round scale-bar length (1, 2, 5 x 10^k metres) of about a fifth of the width.
-double ScaleBarMetres(const Canvas& c) {
-  const double target = (c.width - 2 * c.margin) / c.scale / 5;
-  const double mag = std::pow(10.0, std::floor(std::log10(target)));
+// World (m) -> picture (px) transform.
+struct Canvas {
+  double min_x = 0, min_y = 0, scale = 1;  // px per metre
+  double left = 0, bottom = 0;             // pixel of (min_x, min_y)
+  double X(double x) const { return left + (x - min_x) * scale; }
+  double Y(double y) const { return bottom - (y - min_y) * scale; }
+  cv::Point2d P(double x, double y) const { return {X(x), Y(y)}; }
+};
+
+// A round scale-bar length (1, 2, 5 x 10^k metres) of at most `target_m`.
+double RoundMetres(double target_m) {
+  const double mag = std::pow(10.0, std::floor(std::log10(target_m)));
   for (double m : {5.0, 2.0, 1.0}) {
-    if (m * mag <= target) return m * mag;
+    if (m * mag <= target_m) return m * mag;
   }
   return mag;
+}
+
+std::string Hex(int r, int g, int b) {
+  char buf[8];
+  std::snprintf(buf, sizeof buf, "#%02x%02x%02x", std::clamp(r, 0, 255), std::clamp(g, 0, 255),
+                std::clamp(b, 0, 255));
+  return buf;
+}
+
+// Component weight 0..1 -> pale blue .. dark navy (sequential, readable on white).
+std::string WeightColor(double w) {
+  static const double stops[3][3] = {{198, 219, 239}, {66, 146, 198}, {8, 48, 107}};
+  const double t = std::clamp(w, 0.0, 1.0) * 2;
+  const int i = std::min(1, static_cast<int>(t));
+  const double f = t - i;
+  auto mix = [&](int k) { return static_cast<int>(std::lround(stops[i][k] * (1 - f) + stops[i + 1][k] * f)); };
+  return Hex(mix(0), mix(1), mix(2));
+}
+
+const char* HealthColor(CellHealth h) {
+  switch (h) {
+    case CellHealth::kOk:
+      return "#1b7837";
+    case CellHealth::kChanged:
+      return "#e7298a";
+    case CellHealth::kNew:
+      return "#7570b3";
+    case CellHealth::kStale:
+      return "#999999";
+  }
+  return "#1b7837";
+}
+
+constexpr const char* kWallColor = "#404040";
+constexpr const char* kShelfFill = "#d9d9d9";
+constexpr const char* kShelfEdge = "#a0a0a0";
+constexpr const char* kBoxFill = "#e8dcc8";
+constexpr const char* kTruthColor = "#222222";
+constexpr const char* kEstimateColor = "#d55e00";
+
+Scene BuildMapScene(const EnvironmentModel& model, const std::vector<Pose2>& trajectory,
+                    const MapPictureOptions& options) {
+  // Extent: floor plan, trajectories and component means (not the ellipses: one
+  // uncertain component must not shrink the whole map).
+  double lo_x = std::numeric_limits<double>::infinity(), lo_y = lo_x, hi_x = -lo_x, hi_y = -lo_x;
+  auto extend = [&](double x, double y) {
+    if (!std::isfinite(x) || !std::isfinite(y)) return;
+    lo_x = std::min(lo_x, x);
+    hi_x = std::max(hi_x, x);
+    lo_y = std::min(lo_y, y);
+    hi_y = std::max(hi_y, y);
+  };
+  const FloorPlan& plan = options.floor_plan;
+  if (!plan.empty()) {
+    if ((plan.max_m.array() > plan.min_m.array()).all()) {
+      extend(plan.min_m.x(), plan.min_m.y());
+      extend(plan.max_m.x(), plan.max_m.y());
+    }
+    for (const auto& shape : plan.shapes) {
+      for (const auto& p : shape.points_m) extend(p.x(), p.y());
+    }
+  }
+  for (const auto& view : model.views()) {
+    for (const auto& c : view.components) extend(c.mean.x(), c.mean.y());
+  }
+  for (const Pose2& p : trajectory) extend(p.x(), p.y());
+  for (const Pose2& p : options.ground_truth) extend(p.x(), p.y());
+  if (!std::isfinite(lo_x)) lo_x = 0, hi_x = 1, lo_y = 0, hi_y = 1;
+  const double pad_m = 0.03 * std::max(hi_x - lo_x, hi_y - lo_y);
+  lo_x -= pad_m, hi_x += pad_m, lo_y -= pad_m, hi_y += pad_m;
+  if (hi_x - lo_x < 1) hi_x = lo_x + 1;
+  if (hi_y - lo_y < 1) hi_y = lo_y + 1;
+
+  Scene s;
+  s.width = std::max(400, options.width_px);
+  const double margin = 12;
+  const double top = options.title.empty() ? margin : 30;
+  const double legend_h = 64;
+  Canvas c;
+  c.scale = (s.width - 2 * margin) / (hi_x - lo_x);
+  const double map_h = std::min((hi_y - lo_y) * c.scale, 3.0 * s.width);
+  c.min_x = lo_x;
+  c.min_y = lo_y;
+  c.left = margin;
+  c.bottom = top + map_h;
+  s.height = static_cast<int>(std::ceil(top + map_h + legend_h));
+
+  Prim& bg = s.Add(Prim::Type::kRect);
+  bg.pts = {{0, 0}};
+  bg.rx = s.width;
+  bg.ry = s.height;
+  bg.fill = "#ffffff";
+  if (!options.title.empty()) s.Text(s.width / 2.0, 19, options.title, 13, 0, true);
+
+  // Floor plan: blocks first, walls over them.
+  for (int pass = 0; pass < 2; ++pass) {
+    for (const auto& shape : plan.shapes) {
+      const bool wall = shape.kind == FloorPlanShape::Kind::kWall;
+      if (wall != (pass == 1) || shape.points_m.size() < 2) continue;
+      std::vector<cv::Point2d> pts;
+      for (const auto& p : shape.points_m) pts.push_back(c.P(p.x(), p.y()));
+      if (wall) {
+        if (shape.closed) pts.push_back(pts.front());
+        s.Line(std::move(pts), kWallColor, 2.5);
+      } else {
+        Prim& p = s.Add(shape.closed ? Prim::Type::kPolygon : Prim::Type::kPolyline);
+        p.pts = std::move(pts);
+        p.fill = shape.closed ? (shape.kind == FloorPlanShape::Kind::kBox ? kBoxFill : kShelfFill)
+                              : "";
+        p.stroke = kShelfEdge;
+        p.stroke_width = 1;
+      }
+    }
+  }
+
+  // Components, weakest first so the strong ones stay on top.
+  struct Comp {
+    const ViewComponent* comp;
+    std::string color;
+  };
+  std::vector<Comp> comps;
+  std::map<std::pair<int, int>, CellHealth> health_of_cell;
+  if (options.coloring == MapColoring::kHealth) {
+    int latest = options.latest_session;
+    if (latest < 0) {
+      for (const auto& view : model.views()) {
+        latest = std::max({latest, view.stats.created_session, view.stats.last_seen_session});
+      }
+    }
+    MapHealthOptions ho;
+    ho.cell_m = options.health_cell_m;
+    for (const MapCell& cell : ComputeMapHealth(model, latest, ho).cells) {
+      health_of_cell[{cell.ix, cell.iy}] = cell.health;
+    }
+  }
+  for (const auto& view : model.views()) {
+    for (const auto& comp : view.components) {
+      std::string color;
+      if (options.coloring == MapColoring::kHealth) {
+        const int ix = static_cast<int>(std::floor(comp.mean.x() / options.health_cell_m));
+        const int iy = static_cast<int>(std::floor(comp.mean.y() / options.health_cell_m));
+        const auto it = health_of_cell.find({ix, iy});
+        color = HealthColor(it == health_of_cell.end() ? CellHealth::kOk : it->second);
+      } else {
+        color = WeightColor(comp.weight);
+      }
+      comps.push_back({&comp, color});
+    }
+  }
+  std::stable_sort(comps.begin(), comps.end(),
+                   [](const Comp& a, const Comp& b) { return a.comp->weight < b.comp->weight; });
+
+  // Readable ellipses: strongest first, within the size limits on the page.
+  std::vector<const Comp*> by_strength;
+  for (const Comp& k : comps) by_strength.push_back(&k);
+  std::reverse(by_strength.begin(), by_strength.end());
+  // An ellipse is left out when it would mostly overlap a stronger one already drawn
+  // (centres closer than 0.75 x the sum of the major semi-axes): neighbouring views along
+  // the path have near-identical ellipses, and a chain of them reads as one blob.
+  const double max_px = options.max_ellipse_fraction * s.width;
+  std::vector<std::pair<cv::Point2d, double>> drawn;  // centre, major semi-axis (px)
+  int ellipses = 0;
+  for (const Comp* k : by_strength) {
+    if (ellipses >= options.max_ellipses || k->comp->weight < options.min_ellipse_weight) break;
+    const Ellipse2 e = CovarianceEllipse(k->comp->covariance);
+    const double rx = options.ellipse_sigma * e.major_m * c.scale;
+    const double ry = options.ellipse_sigma * e.minor_m * c.scale;
+    if (rx < options.min_ellipse_px || rx > max_px) continue;
+    const cv::Point2d centre = c.P(k->comp->mean.x(), k->comp->mean.y());
+    const bool crowded = std::any_of(drawn.begin(), drawn.end(), [&](const auto& d) {
+      return cv::norm(d.first - centre) < 0.75 * (d.second + rx);
+    });
+    if (crowded) continue;
+    drawn.emplace_back(centre, rx);
+    Prim& p = s.Add(Prim::Type::kEllipse);
+    p.pts = {centre};
+    p.rx = rx;
+    p.ry = std::max(ry, 0.5);
+    p.angle_deg = -e.angle_rad * 180 / kPi;  // the page's y axis points down
+    p.stroke = k->color;
+    p.stroke_width = 1;
+    p.opacity = 0.7;
+    ++ellipses;
+  }
+
+  // Trajectories: ground truth under the estimate.
+  auto path = [&](const std::vector<Pose2>& poses, const char* color, double width,
+                  double opacity) {
+    if (poses.size() < 2) return;
+    std::vector<cv::Point2d> pts;
+    pts.reserve(poses.size());
+    for (const Pose2& p : poses) pts.push_back(c.P(p.x(), p.y()));
+    s.Line(std::move(pts), color, width, opacity);
+  };
+  path(options.ground_truth, kTruthColor, 1.0, 0.55);
+  path(trajectory, kEstimateColor, 1.2, 0.85);
+
+  // Component dots: radius grows with the weight.
+  for (const Comp& k : comps) {
+    Prim& p = s.Add(Prim::Type::kCircle);
+    p.pts = {c.P(k.comp->mean.x(), k.comp->mean.y())};
+    p.rx = 1.6 + 1.6 * std::clamp(k.comp->weight, 0.0, 1.0);
+    p.fill = k.color;
+  }
+
+  // Legend: two rows under the map.
+  const double y1 = top + map_h + 20, y2 = y1 + 24;
+  double x = margin;
+  auto swatch_line = [&](const char* color, double width, const std::string& label) {
+    s.Line({{x, y1 - 4}, {x + 22, y1 - 4}}, color, width);
+    s.Text(x + 27, y1, label);
+    x += 27 + TextWidthPx(label) + 18;
+  };
+  if (!plan.empty()) {
+    swatch_line(kWallColor, 2.5, "walls");
+    Prim& r = s.Add(Prim::Type::kRect);
+    r.pts = {{x, y1 - 10}};
+    r.rx = 22;
+    r.ry = 11;
+    r.fill = kShelfFill;
+    r.stroke = kShelfEdge;
+    const std::string label =
+        plan.name.empty() ? "shelves, boxes" : "shelves, boxes (" + plan.name + ")";
+    s.Text(x + 27, y1, label);
+    x += 27 + TextWidthPx(label) + 18;
+  }
+  if (options.ground_truth.size() >= 2) swatch_line(kTruthColor, 1.5, "ground truth");
+  if (trajectory.size() >= 2) swatch_line(kEstimateColor, 1.5, "estimate");
+  {
+    Prim& e = s.Add(Prim::Type::kEllipse);
+    e.pts = {{x + 11, y1 - 4}};
+    e.rx = 10;
+    e.ry = 5;
+    e.stroke = WeightColor(0.8);
+    const std::string label =
+        StrCat(FormatTick(options.ellipse_sigma), "-sigma ellipses: ", ellipses,
+               " strongest that do not overlap");
+    s.Text(x + 27, y1, label);
+  }
+  // Row 2: the dot colours, counts, the scale bar on the right.
+  x = margin;
+  if (options.coloring == MapColoring::kWeight) {
+    const std::string label = "view components by weight:";
+    s.Text(x, y2, label);
+    x += TextWidthPx(label) + 12;
+    for (double w : {0.0, 0.25, 0.5, 0.75, 1.0}) {
+      Prim& p = s.Add(Prim::Type::kCircle);
+      p.pts = {{x + 4, y2 - 4}};
+      p.rx = 1.6 + 1.6 * w;
+      p.fill = WeightColor(w);
+      s.Text(x + 10, y2, FormatTick(w));
+      x += 10 + TextWidthPx(FormatTick(w)) + 14;
+    }
+  } else {
+    const std::string label = "view components by area health:";
+    s.Text(x, y2, label);
+    x += TextWidthPx(label) + 12;
+    for (CellHealth h :
+         {CellHealth::kOk, CellHealth::kChanged, CellHealth::kNew, CellHealth::kStale}) {
+      Prim& p = s.Add(Prim::Type::kCircle);
+      p.pts = {{x + 4, y2 - 4}};
+      p.rx = 3.5;
+      p.fill = HealthColor(h);
+      s.Text(x + 11, y2, ToString(h));
+      x += 11 + TextWidthPx(ToString(h)) + 14;
+    }
+  }
+  s.Text(x + 10, y2,
+         StrCat(model.NumViews(), " views, ", model.NumComponents(), " components"));
+  const double bar_m = RoundMetres((s.width - 2 * margin) / c.scale / 6);
+  const double bar_px = bar_m * c.scale;
+  const double bar_x1 = s.width - margin - 50, bar_x0 = bar_x1 - bar_px;
+  s.Line({{bar_x0, y2 - 8}, {bar_x0, y2 - 2}, {bar_x1, y2 - 2}, {bar_x1, y2 - 8}}, "#000000", 2);
+  s.Text(bar_x1 + 6, y2, FormatTick(bar_m) + " m");
+  return s;
+}
+
+std::string RenderSvg(const Scene& s) {
+  std::ostringstream os;
+  os << "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"" << s.width << "\" height=\""
+     << s.height << "\" viewBox=\"0 0 " << s.width << " " << s.height
+     << "\" font-family=\"sans-serif\" font-size=\"11\">\n";
+  for (const Prim& p : s.prims) {
+    std::string paint;
+    paint += " fill=\"" + (p.fill.empty() ? std::string("none") : p.fill) + "\"";
+    if (!p.stroke.empty()) {
+      paint += " stroke=\"" + p.stroke + "\" stroke-width=\"" + Px(p.stroke_width) +
+               "\" stroke-linejoin=\"round\"";
+    }
+    if (p.opacity < 1) paint += " opacity=\"" + Px(p.opacity) + "\"";
+    switch (p.type) {
+      case Prim::Type::kPolyline:
+      case Prim::Type::kPolygon:
+        os << (p.type == Prim::Type::kPolygon ? "<polygon" : "<polyline") << paint
+           << " points=\"";
+        for (const auto& q : p.pts) os << Px(q.x) << "," << Px(q.y) << " ";
+        os << "\"/>\n";
+        break;
+      case Prim::Type::kCircle:
+        os << "<circle cx=\"" << Px(p.pts[0].x) << "\" cy=\"" << Px(p.pts[0].y) << "\" r=\""
+           << Px(p.rx) << "\"" << paint << "/>\n";
+        break;
+      case Prim::Type::kEllipse:
+        os << "<ellipse cx=\"" << Px(p.pts[0].x) << "\" cy=\"" << Px(p.pts[0].y) << "\" rx=\""
+           << Px(p.rx) << "\" ry=\"" << Px(p.ry) << "\" transform=\"rotate(" << Px(p.angle_deg)
+           << " " << Px(p.pts[0].x) << " " << Px(p.pts[0].y) << ")\"" << paint << "/>\n";
+        break;
+      case Prim::Type::kRect:
+        os << "<rect x=\"" << Px(p.pts[0].x) << "\" y=\"" << Px(p.pts[0].y) << "\" width=\""
+           << Px(p.rx) << "\" height=\"" << Px(p.ry) << "\"" << paint << "/>\n";
+        break;
+      case Prim::Type::kText:
+        os << "<text x=\"" << Px(p.pts[0].x) << "\" y=\"" << Px(p.pts[0].y) << "\"";
+        if (p.anchor == 0) os << " text-anchor=\"middle\"";
+        if (p.anchor == 1) os << " text-anchor=\"end\"";
+        if (p.font_px != 11) os << " font-size=\"" << Px(p.font_px) << "\"";
+        if (p.bold) os << " font-weight=\"bold\"";
+        os << ">" << XmlEscape(p.text) << "</text>\n";
+        break;
+    }
+  }
+  os << "</svg>\n";
+  return os.str();
+}
+
+cv::Scalar Bgr(const std::string& hex) {
+  unsigned r = 0, g = 0, b = 0;
+  if (hex.size() == 7) std::sscanf(hex.c_str() + 1, "%02x%02x%02x", &r, &g, &b);
+  return cv::Scalar(b, g, r);
+}
+
+cv::Mat RenderImage(const Scene& s) {
+  cv::Mat image(s.height, s.width, CV_8UC3, cv::Scalar(255, 255, 255));
+  constexpr int kShift = 4;  // sub-pixel bits for OpenCV drawing
+  const double f = 1 << kShift;
+  auto fix = [&](const cv::Point2d& q) { return cv::Point(cvRound(q.x * f), cvRound(q.y * f)); };
+  const cv::Rect whole(0, 0, s.width, s.height);
+  for (const Prim& p : s.prims) {
+    // Translucent primitives: drawn, then blended with what was there within their box.
+    cv::Rect box = whole;
+    cv::Mat before;
+    if (p.opacity < 1) {
+      double x0 = 1e18, y0 = 1e18, x1 = -1e18, y1 = -1e18;
+      for (const auto& q : p.pts) {
+        x0 = std::min(x0, q.x), y0 = std::min(y0, q.y), x1 = std::max(x1, q.x),
+        y1 = std::max(y1, q.y);
+      }
+      const double r = std::max(p.rx, p.ry) + p.stroke_width + 2;
+      box = cv::Rect(cv::Point(static_cast<int>(x0 - r), static_cast<int>(y0 - r)),
+                     cv::Point(static_cast<int>(x1 + r) + 1, static_cast<int>(y1 + r) + 1)) &
+            whole;
+      if (box.empty()) continue;
+      before = image(box).clone();
+    }
+    const int thick = std::max(1, static_cast<int>(std::lround(p.stroke_width)));
+    switch (p.type) {
+      case Prim::Type::kPolyline:
+      case Prim::Type::kPolygon: {
+        std::vector<cv::Point> pts;
+        for (const auto& q : p.pts) pts.push_back(fix(q));
+        if (!p.fill.empty() && p.type == Prim::Type::kPolygon) {
+          cv::fillPoly(image, std::vector<std::vector<cv::Point>>{pts}, Bgr(p.fill), cv::LINE_AA,
+                       kShift);
+        }
+        if (!p.stroke.empty()) {
+          cv::polylines(image, pts, p.type == Prim::Type::kPolygon, Bgr(p.stroke), thick,
+                        cv::LINE_AA, kShift);
+        }
+        break;
+      }
+      case Prim::Type::kCircle:
+        if (!p.fill.empty()) {
+          cv::circle(image, fix(p.pts[0]), cvRound(p.rx * f), Bgr(p.fill), cv::FILLED,
+                     cv::LINE_AA, kShift);
+        }
+        if (!p.stroke.empty()) {
+          cv::circle(image, fix(p.pts[0]), cvRound(p.rx * f), Bgr(p.stroke), thick, cv::LINE_AA,
+                     kShift);
+        }
+        break;
+      case Prim::Type::kEllipse: {
+        const cv::Size axes(std::max(1, cvRound(p.rx * f)), std::max(1, cvRound(p.ry * f)));
+        if (!p.fill.empty()) {
+          cv::ellipse(image, fix(p.pts[0]), axes, p.angle_deg, 0, 360, Bgr(p.fill), cv::FILLED,
+                      cv::LINE_AA, kShift);
+        }
+        if (!p.stroke.empty()) {
+          cv::ellipse(image, fix(p.pts[0]), axes, p.angle_deg, 0, 360, Bgr(p.stroke), thick,
+                      cv::LINE_AA, kShift);
+        }
+        break;
+      }
+      case Prim::Type::kRect: {
+        const cv::Rect r(cvRound(p.pts[0].x), cvRound(p.pts[0].y), cvRound(p.rx), cvRound(p.ry));
+        if (!p.fill.empty()) cv::rectangle(image, r, Bgr(p.fill), cv::FILLED);
+        if (!p.stroke.empty()) cv::rectangle(image, r, Bgr(p.stroke), thick);
+        break;
+      }
+      case Prim::Type::kText: {
+        const int face = cv::FONT_HERSHEY_SIMPLEX;
+        const double font_scale = p.font_px * kHersheyScalePerPx * (p.bold ? 1.1 : 1.0);
+        const int weight = 1;
+        int baseline = 0;
+        const cv::Size size = cv::getTextSize(p.text, face, font_scale, weight, &baseline);
+        double x = p.pts[0].x;
+        if (p.anchor == 0) x -= size.width / 2.0;
+        if (p.anchor == 1) x -= size.width;
+        cv::putText(image, p.text, cv::Point(cvRound(x), cvRound(p.pts[0].y)), face, font_scale,
+                    cv::Scalar(0, 0, 0), weight, cv::LINE_AA);
+        break;
+      }
+    }
+    if (p.opacity < 1) {
+      cv::Mat roi = image(box);
+      cv::addWeighted(roi, p.opacity, before, 1 - p.opacity, 0, roi);
+    }
+  }
+  return image;
 }
 
 std::string DescribeSession(int session) { return session < 0 ? "-" : std::to_string(session + 1); }
@@ -269,118 +713,24 @@ std::string MapToCsv(const EnvironmentModel& model) {
   return os.str();
 }
 
+std::string ToString(MapColoring coloring) {
+  return coloring == MapColoring::kHealth ? "health" : "weight";
+}
+
+MapColoring MapColoringFromString(const std::string& text) {
+  if (text == "weight") return MapColoring::kWeight;
+  if (text == "health") return MapColoring::kHealth;
+  throw Error(StrCat("map colouring '", text, "': expected weight or health"));
+}
+
 std::string MapToSvg(const EnvironmentModel& model, const std::vector<Pose2>& trajectory,
                      const MapPictureOptions& options) {
-  const Canvas c = MakeCanvas(model, trajectory, options.width_px, options.ellipse_sigma);
-  std::ostringstream os;
-  os << "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"" << c.width << "\" height=\""
-     << c.height << "\" viewBox=\"0 0 " << c.width << " " << c.height
-     << "\" font-family=\"sans-serif\" font-size=\"11\">\n";
-  os << "<rect x=\"0\" y=\"0\" width=\"" << c.width << "\" height=\"" << c.height
-     << "\" fill=\"white\"/>\n";
-  if (!options.title.empty()) {
-    os << "<text x=\"" << c.width / 2
-       << "\" y=\"18\" text-anchor=\"middle\" font-size=\"13\" font-weight=\"bold\">"
-       << XmlEscape(options.title) << "</text>\n";
-  }
-  os << "<g fill=\"#0072B2\" stroke=\"#0072B2\" stroke-width=\"0.5\">\n";
-  for (const ReferenceView& view : model.views()) {
-    for (const ViewComponent& comp : view.components) {
-      const Ellipse2 e = CovarianceEllipse(comp.covariance);
-      const double rx = std::max(0.5, options.ellipse_sigma * e.major_m * c.scale);
-      const double ry = std::max(0.5, options.ellipse_sigma * e.minor_m * c.scale);
-      const double opacity = std::clamp(comp.weight, 0.02, 1.0);
-      // SVG's y axis points down: the angle flips sign.
-      os << "<ellipse cx=\"" << Px(c.X(comp.mean.x())) << "\" cy=\"" << Px(c.Y(comp.mean.y()))
-         << "\" rx=\"" << Px(rx) << "\" ry=\"" << Px(ry) << "\" transform=\"rotate("
-         << Px(-e.angle_rad * 180 / kPi) << " " << Px(c.X(comp.mean.x())) << " "
-         << Px(c.Y(comp.mean.y())) << ")\" fill-opacity=\"" << Px(opacity * 0.5)
-         << "\" stroke-opacity=\"" << Px(opacity) << "\"/>\n";
-    }
-  }
-  os << "</g>\n";
-  // The trajectory over the ellipses, then the component centres.
-  if (trajectory.size() >= 2) {
-    os << "<polyline fill=\"none\" stroke=\"#D55E00\" stroke-width=\"1\" stroke-opacity=\"0.8\" "
-          "points=\"";
-    for (const Pose2& p : trajectory) os << Px(c.X(p.x())) << "," << Px(c.Y(p.y())) << " ";
-    os << "\"/>\n";
-  }
-  os << "<g fill=\"#003f66\">\n";
-  for (const ReferenceView& view : model.views()) {
-    for (const ViewComponent& comp : view.components) {
-      os << "<circle cx=\"" << Px(c.X(comp.mean.x())) << "\" cy=\"" << Px(c.Y(comp.mean.y()))
-         << "\" r=\"1.5\"/>\n";
-    }
-  }
-  os << "</g>\n";
-  // Scale bar.
-  const double bar_m = ScaleBarMetres(c);
-  const double y = c.height - 10.0;
-  os << "<line x1=\"" << Px(c.margin) << "\" y1=\"" << Px(y) << "\" x2=\""
-     << Px(c.margin + bar_m * c.scale) << "\" y2=\"" << Px(y)
-     << "\" stroke=\"black\" stroke-width=\"2\"/>\n";
-  os << "<text x=\"" << Px(c.margin + bar_m * c.scale + 6) << "\" y=\"" << Px(y + 4) << "\">"
-     << FormatTick(bar_m) << " m</text>\n";
-  os << "<text x=\"" << c.width - 8 << "\" y=\"" << Px(y + 4) << "\" text-anchor=\"end\">"
-     << model.NumViews() << " views, " << model.NumComponents() << " components</text>\n";
-  os << "</svg>\n";
-  return os.str();
+  return RenderSvg(BuildMapScene(model, trajectory, options));
 }
 
 cv::Mat MapToImage(const EnvironmentModel& model, const std::vector<Pose2>& trajectory,
                    const MapPictureOptions& options) {
-  const Canvas c = MakeCanvas(model, trajectory, options.width_px, options.ellipse_sigma);
-  cv::Mat image(c.height, c.width, CV_8UC3, cv::Scalar(255, 255, 255));
-  constexpr int kShift = 4;  // sub-pixel bits for OpenCV drawing
-  const double f = 1 << kShift;
-  // Components, weakest first so strong ones stay visible; colour blended towards the
-  // background by (1 - weight).
-  std::vector<const ViewComponent*> comps;
-  for (const auto& view : model.views()) {
-    for (const auto& comp : view.components) comps.push_back(&comp);
-  }
-  std::stable_sort(comps.begin(), comps.end(), [](const ViewComponent* a, const ViewComponent* b) {
-    return a->weight < b->weight;
-  });
-  const cv::Vec3d blue(178, 114, 0), white(255, 255, 255);
-  for (const ViewComponent* comp : comps) {
-    const Ellipse2 e = CovarianceEllipse(comp->covariance);
-    const double alpha = std::clamp(comp->weight, 0.05, 1.0);
-    const cv::Vec3d fill = white * (1 - 0.5 * alpha) + blue * (0.5 * alpha);
-    const cv::Vec3d edge = white * (1 - alpha) + blue * alpha;
-    const cv::Point center(cvRound(c.X(comp->mean.x()) * f), cvRound(c.Y(comp->mean.y()) * f));
-    const cv::Size axes(std::max(1, cvRound(options.ellipse_sigma * e.major_m * c.scale * f)),
-                        std::max(1, cvRound(options.ellipse_sigma * e.minor_m * c.scale * f)));
-    const double angle_deg = -e.angle_rad * 180 / kPi;
-    cv::ellipse(image, center, axes, angle_deg, 0, 360, cv::Scalar(fill[0], fill[1], fill[2]),
-                cv::FILLED, cv::LINE_AA, kShift);
-    cv::ellipse(image, center, axes, angle_deg, 0, 360, cv::Scalar(edge[0], edge[1], edge[2]), 1,
-                cv::LINE_AA, kShift);
-  }
-  // The trajectory over the ellipses, then the component centres.
-  if (trajectory.size() >= 2) {
-    std::vector<cv::Point> pts;
-    for (const Pose2& p : trajectory)
-      pts.emplace_back(cvRound(c.X(p.x()) * f), cvRound(c.Y(p.y()) * f));
-    cv::polylines(image, pts, false, cv::Scalar(0, 94, 213), 1, cv::LINE_AA, kShift);
-  }
-  for (const ViewComponent* comp : comps) {
-    const cv::Point center(cvRound(c.X(comp->mean.x()) * f), cvRound(c.Y(comp->mean.y()) * f));
-    cv::circle(image, center, 2 << kShift, cv::Scalar(102, 63, 0), cv::FILLED, cv::LINE_AA, kShift);
-  }
-  const double bar_m = ScaleBarMetres(c);
-  const int y = c.height - 10;
-  cv::line(image, cv::Point(static_cast<int>(c.margin), y),
-           cv::Point(static_cast<int>(c.margin + bar_m * c.scale), y), cv::Scalar(0, 0, 0), 2);
-  cv::putText(image, FormatTick(bar_m) + " m",
-              cv::Point(static_cast<int>(c.margin + bar_m * c.scale + 6), y + 4),
-              cv::FONT_HERSHEY_SIMPLEX, 0.4, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
-  if (!options.title.empty()) {
-    cv::putText(image, options.title, cv::Point(10, 18), cv::FONT_HERSHEY_SIMPLEX, 0.5,
-                cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
-  }
-  return image;
+  return RenderImage(BuildMapScene(model, trajectory, options));
 }
 
 std::string ToString(CellHealth health) {

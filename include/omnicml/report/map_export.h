@@ -23,9 +23,12 @@
 //                  weight, reason} ]   (only with include_events)
 //   }
 // CSV: one row per component with its view's columns repeated (header line first).
-// Pictures: component covariance ellipses (2 sigma) in the map's xy plane, opacity =
-// weight, view centres as dots, over the trajectory (TUM file) when given; x to the
-// right, y up, a metre scale bar.
+// Pictures (MapToSvg, MapToImage; one drawing, two back ends): the floor plan when known
+// (walls as dark lines, shelves and boxes as grey blocks), ground truth and the estimated
+// trajectory, every view component as a dot coloured by its weight (or by the health of
+// its area), 2-sigma covariance ellipses only where they stay readable (the strongest
+// components whose ellipse on the page is neither hidden under its dot nor large enough
+// to cover the picture), a legend and a metre scale bar; x to the right, y up.
 //
 // Pure functions of their inputs; thread-safe.
 #ifndef OMNICML_MAP_EXPORT_H_
@@ -74,12 +77,50 @@ struct MapExportOptions {
 nlohmann::ordered_json MapToJson(const CmlEngine& engine, const MapExportOptions& options = {});
 std::string MapToCsv(const EnvironmentModel& model);
 
+// A floor plan drawn under the map picture: outlines in the map frame (metres). The
+// simulator's worlds give one (experiments/floor_plan.h); real logs usually have none.
+struct FloorPlanShape {
+  enum class Kind { kWall, kShelf, kBox };
+  Kind kind = Kind::kWall;
+  std::vector<Eigen::Vector2d> points_m;  // at least 2 vertices
+  bool closed = true;                     // polygon (filled) or open polyline (a wall)
+};
+struct FloorPlan {
+  std::string name;                                   // e.g. the world name, for the legend
+  Eigen::Vector2d min_m = Eigen::Vector2d::Zero();    // the floor's extent
+  Eigen::Vector2d max_m = Eigen::Vector2d::Zero();    // (max <= min: from the shapes)
+  std::vector<FloorPlanShape> shapes;
+  bool empty() const { return shapes.empty(); }
+};
+
+// What the colour of a component's dot shows.
+enum class MapColoring {
+  kWeight,  // the component weight, pale (0) to dark blue (1)
+  kHealth,  // the health of its area (ComputeMapHealth: ok, changed, new, stale)
+};
+std::string ToString(MapColoring coloring);                   // weight|health
+MapColoring MapColoringFromString(const std::string& text);  // throws omnicml::Error
+
 struct MapPictureOptions {
   int width_px = 900;          // picture width; height follows the map's aspect ratio
   double ellipse_sigma = 2.0;  // ellipses drawn at this many standard deviations
   std::string title;           // drawn at the top when not empty
+  FloorPlan floor_plan;        // drawn under everything when not empty
+  std::vector<Pose2> ground_truth;  // drawn under the estimate when not empty
+  MapColoring coloring = MapColoring::kWeight;
+  // kHealth: the session the health refers to; -1 = the latest session a view was
+  // created or seen in. Cells of health_cell_m metres.
+  int latest_session = -1;
+  double health_cell_m = 2.0;
+  // Ellipses: at most max_ellipses (0 = none), strongest components first, only of
+  // components of weight >= min_ellipse_weight whose major semi-axis on the page is
+  // within [min_ellipse_px, max_ellipse_fraction x picture width].
+  int max_ellipses = 40;
+  double min_ellipse_weight = 0.2;
+  double min_ellipse_px = 4.0;
+  double max_ellipse_fraction = 0.08;
 };
-// SVG element of the map over the trajectory (trajectory may be empty).
+// SVG element of the map over the estimated trajectory (may be empty).
 std::string MapToSvg(const EnvironmentModel& model, const std::vector<Pose2>& trajectory,
                      const MapPictureOptions& options = {});
 // The same picture as a BGR image (for PNG).

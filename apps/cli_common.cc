@@ -4,6 +4,7 @@
 #include <string>
 
 #include "omnicml/common/common.h"
+#include "omnicml/common/limits.h"
 #include "omnicml/engine/engine_io.h"
 
 namespace omnicml::app {
@@ -15,13 +16,16 @@ void AddRunInputFlags(CLI::App* cmd, RunSettings* f, bool with_forgetting) {
   cmd->add_option("--world", f->input.world,
                   "Built-in simulated world (home_store, institute, store_large) "
                   "or a world YAML file, instead of LOGDIR");
-  cmd->add_option("--days", f->input.days, "Simulated days (with --world)")->capture_default_str();
+  cmd->add_option("--days", f->input.days,
+                  StrCat("Simulated days (with --world), at most ", kMaxDays))
+      ->capture_default_str();
   cmd->add_option("--first-day", f->input.first_day,
                   "First simulated day, 0-based (with --world; resume with --map-in)")
       ->capture_default_str();
   cmd->add_option("--frames-per-day", f->input.frames_per_day,
-                  "Simulated frames per day (0 = the simulator default, 300; one lap is about 285 "
-                  "on home_store, 180 on institute, 1425 on store_large)")
+                  StrCat("Simulated frames per day (0 = the simulator default, 300; one lap is "
+                         "about 285 on home_store, 180 on institute, 1425 on store_large), at most ",
+                         kMaxFramesPerDay, "; days x frames at most ", kMaxSimulatedFrames))
       ->capture_default_str();
   cmd->add_option("--seed", f->input.seed, "Simulator seed")->capture_default_str();
   cmd->add_flag("--skip-unreadable-frames", f->input.skip_unreadable_frames,
@@ -45,9 +49,12 @@ void AddRunInputFlags(CLI::App* cmd, RunSettings* f, bool with_forgetting) {
       "Descriptor: fourier | ifh | color (set --e-max to suit it)");
   cmd->add_option_function<int>(
       "--threads", [f](int v) { f->overrides.threads = v; },
-      "Engine threads: 1 = no worker, 2 = map updates on a background worker "
-      "(default 2 on a multi-core machine unless --config sets it)");
-  cmd->add_option("--out", f->out_dir, "Run directory (default runs/<command>-<date>-<time>)");
+      StrCat("Engine threads: 1 = no worker, 2 = map updates on a background worker "
+             "(default 2 on a multi-core machine unless --config sets it), at most ",
+             kMaxThreads));
+  cmd->add_option("--out", f->out_dir,
+                  "Run directory (default runs/<command>-<date>-<time>); checked, with every "
+                  "other output, before the first frame");
   cmd->add_flag("--quiet", f->quiet, "No progress output");
   cmd->add_flag("--no-progress-bar", f->no_progress_bar, "Plain log lines even on a terminal");
   cmd->add_option("--log-every", f->log_every_frames, "Frames between plain progress lines")
@@ -55,8 +62,11 @@ void AddRunInputFlags(CLI::App* cmd, RunSettings* f, bool with_forgetting) {
 }
 
 std::unique_ptr<CmlEngine> LoadMapForReading(const std::string& path) {
-  if (!std::filesystem::is_regular_file(path))
-    throw Error(StrCat("map file '", path, "' does not exist"));
+  std::error_code ec;
+  if (!std::filesystem::is_regular_file(path, ec)) {
+    throw Error(StrCat("map file '", path, "' ",
+                       ec ? ec.message() : "does not exist or is not a regular file"));
+  }
   std::unique_ptr<CmlEngine> engine = LoadEngine(path);
   engine->Finish();
   return engine;

@@ -9,12 +9,15 @@
 //   omnicml mcl LOGDIR --map map.yaml ...   (panorama sessions with ground truth)
 //   omnicml mcl --world home_store --experiment tracking|global|kidnap|noise --runs 20
 //       prints the [W] experiment tables (see README "Baselines").
+//   --config RUNDIR/config.yaml   the filter's options of an earlier run (MclOptions).
 #include <iostream>
 #include <memory>
 
 #include <CLI/CLI.hpp>
 
 #include "command_registry.h"
+#include "omnicml/common/common.h"
+#include "omnicml/common/limits.h"
 #include "omnicml/experiments/mcl_experiment.h"
 
 namespace omnicml::app {
@@ -34,9 +37,28 @@ void RunMclCommand(const MclExperimentOptions& options) {
   }
 }
 
+// --config FILE: the filter's options from the file (LoadMclOptions), then the filter
+// flags given on the command line.
+void ApplyConfig(const std::string& path, const CLI::App& cmd, MclExperimentOptions* a) {
+  const MclExperimentOptions given = *a;
+  SetMclFilterOptions(LoadMclOptions(path), a);
+  const auto keep = [&](const char* flag, auto member) {
+    if (cmd.count(flag) > 0) a->*member = given.*member;
+  };
+  keep("--particles", &MclExperimentOptions::particles);
+  keep("--random-samples", &MclExperimentOptions::random_samples);
+  keep("--heading-gate-deg", &MclExperimentOptions::heading_gate_deg);
+  keep("--top-k", &MclExperimentOptions::top_k);
+  keep("--prior-fraction", &MclExperimentOptions::prior_fraction);
+  keep("--min-likelihood", &MclExperimentOptions::min_likelihood);
+  keep("--visibility-radius", &MclExperimentOptions::max_distance_from_reference_m);
+  keep("--mcl-seed", &MclExperimentOptions::mcl_seed);
+}
+
 const CommandRegistration kRegistration{
     "mcl", [](CLI::App& app) {
       auto a = std::make_shared<MclExperimentOptions>();
+      auto config = std::make_shared<std::string>();
       CLI::App* cmd = app.add_subcommand(
           "mcl", "Monte Carlo localization with image retrieval and visibility areas [W]");
       cmd->add_option("logdirs", a->log_dirs, "Panorama log directories (instead of --world)");
@@ -44,8 +66,13 @@ const CommandRegistration kRegistration{
                       "Occupancy grid in map_server format (YAML + PGM); default: rasterised "
                       "from the world");
       cmd->add_option("--world", a->world, "Built-in world or world YAML")->capture_default_str();
-      cmd->add_option("--days", a->days, "Simulated days")->capture_default_str();
-      cmd->add_option("--frames-per-day", a->frames_per_day, "Simulated frames per day")
+      cmd->add_option("--config", *config,
+                      "MclOptions YAML (keys = option names; RUNDIR/config.yaml of any mcl run "
+                      "loads back); the filter flags given override it");
+      cmd->add_option("--days", a->days, StrCat("Simulated days, at most ", kMaxDays))
+          ->capture_default_str();
+      cmd->add_option("--frames-per-day", a->frames_per_day,
+                      StrCat("Simulated frames per day, at most ", kMaxFramesPerDay))
           ->capture_default_str();
       cmd->add_option("--seed", a->seed, "Simulator seed")->capture_default_str();
       cmd->add_option("--train-day", a->train_day, "Day of the reference images (1-based)")
@@ -62,7 +89,9 @@ const CommandRegistration kRegistration{
           ->capture_default_str();
       cmd->add_option("--grid-resolution", a->grid_resolution_m, "Occupancy grid cell size, m")
           ->capture_default_str();
-      cmd->add_option("--particles", a->particles, "Number of particles")->capture_default_str();
+      cmd->add_option("--particles", a->particles,
+                      StrCat("Number of particles, at most ", kMaxParticles))
+          ->capture_default_str();
       cmd->add_option("--random-samples", a->random_samples, "Random samples injected per step")
           ->capture_default_str();
       cmd->add_option("--heading-gate-deg", a->heading_gate_deg,
@@ -81,12 +110,16 @@ const CommandRegistration kRegistration{
       cmd->add_option("--mcl-seed", a->mcl_seed, "Seed of the filter")->capture_default_str();
       cmd->add_option("--out", a->out_dir, "Run directory (single run)");
       cmd->add_option("--experiment", a->experiment, "tracking | global | kidnap | noise");
-      cmd->add_option("--runs", a->runs, "Runs per experiment (per noise level)")
+      cmd->add_option("--runs", a->runs,
+                      StrCat("Runs per experiment (per noise level), at most ", kMaxRuns))
           ->capture_default_str();
       cmd->add_option("--noise-levels", a->noise_levels,
                       "Noise experiment: comma-separated multiples of the world's a1..a4")
           ->capture_default_str();
-      cmd->callback([a] { RunMclCommand(*a); });
+      cmd->callback([a, config, cmd] {
+        if (!config->empty()) ApplyConfig(*config, *cmd, a.get());
+        RunMclCommand(*a);
+      });
     }};
 
 }  // namespace

@@ -1,11 +1,12 @@
 // `omnicml simulate --world NAME|FILE --days N --frames-per-day M --seed S --out DIR
-//   [--panorama] [--preview PNG] [--start known|continue|global] [--step-m D] [--overwrite]`
+//   [--panorama] [--preview PNG] [--start known|continue|global] [--step-m D] [--overwrite]
+//   [--config SIMULATION.yaml]`
 // writes a simulated multi-day log (one session per day: day_001, day_002, ...) with
 // ground truth, plus simulation.yaml (the effective options) and world.yaml (the world
 // used) next to the sessions. `omnicml simulate --list` lists the built-in worlds.
+#include <algorithm>
 #include <chrono>
 #include <filesystem>
-#include <fstream>
 #include <iomanip>
 #include <iostream>
 #include <sstream>
@@ -17,6 +18,8 @@
 
 #include "command_registry.h"
 #include "omnicml/common/common.h"
+#include "omnicml/common/file_io.h"
+#include "omnicml/common/limits.h"
 #include "omnicml/logs/log_format.h"
 #include "omnicml/unwrap/omni_unwrapper.h"
 #include "omnicml/sim/renderer.h"
@@ -38,6 +41,7 @@ struct SimulateArgs {
   double step_m = 0.2;
   bool overwrite = false;
   bool list = false;
+  std::string config;  // SimulatorOptions YAML; flags given override it
 };
 
 // Samples of one day for the preview strip.
@@ -75,23 +79,43 @@ cv::Mat ComposePreview(const SimulatedFrameSource& source, const std::vector<Day
   return canvas;
 }
 
+// simulation.yaml: every SimulatorOptions field (loadable with --config, whose loader
+// skips world_name) and the name of the world.
 std::string OptionsYaml(const SimulatorOptions& o, const World& world) {
-  std::ostringstream os;
-  os << "# Effective options of `omnicml simulate` (SimulatorOptions).\n"
-     << "world: \"" << o.world << "\"\n"
-     << "world_name: " << world.name << "\n"
-     << "days: " << o.days << "\n"
-     << "frames_per_day: " << o.frames_per_day << "\n"
-     << "seed: " << o.seed << "\n"
-     << "output: " << (o.output == ImageKind::kRawRing ? "raw_ring" : "panorama") << "\n"
-     << "step_m: " << FormatRoundTrip(o.step_m) << "\n"
-     << "later_days_start: " << ToString(o.later_days_start) << "\n"
-     << "sensor_noise: " << (o.sensor_noise ? "true" : "false") << "\n"
-     << "people: " << (o.people ? "true" : "false") << "\n";
-  return os.str();
+  return StrCat("# Effective options of `omnicml simulate` (SimulatorOptions); loads back with\n",
+                "# `omnicml simulate --config simulation.yaml --out DIR`.\n",
+                SimulatorOptionsToYaml(o), "world_name: \"", world.name, "\"\n");
 }
 
-void RunSimulate(const SimulateArgs& args) {
+// The options of a run: the --config file (or the defaults), then every flag given on the
+// command line (without --config, every flag, so the flags' defaults apply).
+SimulatorOptions ResolveOptions(const SimulateArgs& args, const CLI::App& cmd) {
+  SimulatorOptions options;
+  if (!args.config.empty()) options = LoadSimulatorOptions(args.config);
+  const auto given = [&](const char* flag) { return args.config.empty() || cmd.count(flag) > 0; };
+  if (given("--world")) options.world = args.world;
+  if (given("--days")) {
+    CheckLimit("--days", args.days, 1, kMaxDays);
+    options.days = args.days;
+  }
+  if (given("--frames-per-day")) {
+    CheckLimit("--frames-per-day", args.frames_per_day, 1, kMaxFramesPerDay);
+    options.frames_per_day = args.frames_per_day;
+  }
+  if (given("--seed")) options.seed = args.seed;
+  if (given("--panorama")) options.output = args.panorama ? ImageKind::kPanorama : ImageKind::kRawRing;
+  if (given("--step-m")) options.step_m = args.step_m;
+  if (given("--start")) options.later_days_start = SessionStartModeFromString(args.start);
+  if (static_cast<std::int64_t>(options.days) * options.frames_per_day > kMaxSimulatedFrames) {
+    throw Error(StrCat("--days x --frames-per-day = ", options.days, " x ", options.frames_per_day,
+                       " exceeds the limit of ", kMaxSimulatedFrames, " frames"));
+  }
+  if (!options.render_images) throw Error("simulate: render_images: false writes no images");
+  options.Validate();
+  return options;
+}
+
+void RunSimulate(const SimulateArgs& args, const CLI::App& cmd) {
   if (args.list) {
     for (const auto& name : BuiltinWorldNames()) {
       const World w = LoadBuiltinWorld(name);
@@ -104,20 +128,29 @@ void RunSimulate(const SimulateArgs& args) {
     return;
   }
   if (args.out.empty()) throw Error("simulate: --out DIR is required (or --list)");
-  SimulatorOptions options;
-  options.world = args.world;
-  options.days = args.days;
-  options.frames_per_day = args.frames_per_day;
-  options.seed = args.seed;
-  options.output = args.panorama ? ImageKind::kPanorama : ImageKind::kRawRing;
-  options.step_m = args.step_m;
-  options.later_days_start = SessionStartModeFromString(args.start);
-  options.Validate();
+  const SimulatorOptions options = ResolveOptions(args, cmd);
+  // Outputs are checked before the first frame is rendered.
+  if (!args.overwrite) {
+    std::error_code ec;
+    if (std::filesystem::exists(std::filesystem::symlink_status(args.out, ec))) {
+      throw Error(StrCat("--out '", args.out, "': already exists (remove it or give --overwrite)"));
+    }
+  }
+  CheckOutputDirectory(args.out, "--out");
+  CheckOutputFile(args.preview, "--preview");
   const World world = LoadWorld(options.world);
+  // The world's text, saved next to the sessions (read now, so a bad file fails first).
+  const std::vector<std::string> builtins = BuiltinWorldNames();
+  const bool builtin =
+      std::find(builtins.begin(), builtins.end(), options.world) != builtins.end();
+  const std::string world_text = builtin ? BuiltinWorldText(options.world)
+                                         : ReadTextFile(options.world, kMaxTextFileBytes, "world");
   SimulatedFrameSource source(options, world);
 
   const auto t0 = std::chrono::steady_clock::now();
   LogWriter writer(args.out, args.overwrite);
+  writer.AddFile("simulation.yaml", OptionsYaml(options, world));
+  writer.AddFile("world.yaml", world_text);
   std::vector<DaySamples> samples(options.days);
   Frame frame;
   int session = -1;
@@ -142,22 +175,6 @@ void RunSimulate(const SimulateArgs& args) {
     }
   }
   writer.Finish();
-  namespace fs = std::filesystem;
-  {
-    std::ofstream(fs::path(args.out) / "simulation.yaml") << OptionsYaml(options, world);
-    std::string world_text;
-    bool builtin = false;
-    for (const auto& n : BuiltinWorldNames()) builtin |= n == options.world;
-    if (builtin) {
-      world_text = BuiltinWorldText(options.world);
-    } else {
-      std::ifstream in(options.world);
-      std::stringstream ss;
-      ss << in.rdbuf();
-      world_text = ss.str();
-    }
-    std::ofstream(fs::path(args.out) / "world.yaml") << world_text;
-  }
   if (!args.preview.empty()) WriteImage(args.preview, ComposePreview(source, samples));
   const double seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
@@ -173,10 +190,17 @@ const CommandRegistration kRegistration{
       CLI::App* cmd =
           app.add_subcommand("simulate", "Write a simulated multi-day log with ground truth");
       cmd->add_flag("--list", args->list, "List the built-in worlds and exit");
+      cmd->add_option("--config", args->config,
+                      "SimulatorOptions YAML (keys = option names; DIR/simulation.yaml of any "
+                      "simulated log loads back); the flags given override it");
       cmd->add_option("--world", args->world, "Built-in world name or world YAML file")
           ->capture_default_str();
-      cmd->add_option("--days", args->days, "Number of days (sessions)")->capture_default_str();
-      cmd->add_option("--frames-per-day", args->frames_per_day, "Frames per day")
+      cmd->add_option("--days", args->days,
+                      StrCat("Number of days (sessions), at most ", kMaxDays))
+          ->capture_default_str();
+      cmd->add_option("--frames-per-day", args->frames_per_day,
+                      StrCat("Frames per day, at most ", kMaxFramesPerDay, " (and days x frames ",
+                             "at most ", kMaxSimulatedFrames, ")"))
           ->capture_default_str();
       cmd->add_option("--seed", args->seed, "Seed of every random stream")->capture_default_str();
       cmd->add_option("--out", args->out, "Output log directory");
@@ -189,7 +213,7 @@ const CommandRegistration kRegistration{
       cmd->add_option("--step-m", args->step_m, "Distance between frames, m")
           ->capture_default_str();
       cmd->add_flag("--overwrite", args->overwrite, "Replace an existing log directory");
-      cmd->callback([args] { RunSimulate(*args); });
+      cmd->callback([args, cmd] { RunSimulate(*args, *cmd); });
     }};
 
 }  // namespace

@@ -8,7 +8,8 @@
 //       }};
 //
 // Exit codes (apps/omnicml_main.cc): 0 success; 2 bad usage or bad input (CLI11 parse
-// errors and omnicml::Error, one line on stderr); 1 internal error.
+// errors, omnicml::Error, std::filesystem::filesystem_error naming its path and
+// YAML::Exception; one line on stderr, at most 1000 characters); 1 internal error.
 #ifndef OMNICML_APPS_COMMAND_REGISTRY_H_
 #define OMNICML_APPS_COMMAND_REGISTRY_H_
 

@@ -2,12 +2,16 @@
 // codes. Subcommands live in apps/cmd_*.cc (see command_registry.h).
 #include <algorithm>
 #include <exception>
+#include <filesystem>
 #include <iostream>
+#include <string>
 
 #include <CLI/CLI.hpp>
+#include <yaml-cpp/exceptions.h>
 
 #include "command_registry.h"
 #include "omnicml/common/common.h"
+#include "omnicml/common/file_io.h"
 
 namespace omnicml::app {
 std::vector<RegisteredCommand>& CommandRegistry() {
@@ -15,6 +19,20 @@ std::vector<RegisteredCommand>& CommandRegistry() {
   return registry;
 }
 }  // namespace omnicml::app
+
+namespace {
+
+// Longest error message printed; longer ones (an excerpt of a huge bad input) are cut.
+constexpr std::size_t kMaxMessageChars = 1000;
+
+std::string FilesystemMessage(const std::filesystem::filesystem_error& e) {
+  std::string message = e.code().message();
+  if (!e.path1().empty()) message = "'" + e.path1().string() + "': " + message;
+  if (!e.path2().empty()) message += " ('" + e.path2().string() + "')";
+  return message;
+}
+
+}  // namespace
 
 int main(int argc, char** argv) {
   CLI::App app{"omnicml: omniview-based concurrent map building and localization"};
@@ -29,10 +47,22 @@ int main(int argc, char** argv) {
   } catch (const CLI::Success& e) {
     return app.exit(e);
   } catch (const CLI::ParseError& e) {
-    app.exit(e);
+    // One line, like every other error (CLI11 would add "Run with --help ...").
+    std::cerr << "omnicml: error: " << omnicml::Excerpt(e.what(), kMaxMessageChars)
+              << " (see --help)\n";
     return 2;
   } catch (const omnicml::Error& e) {
-    std::cerr << "omnicml: error: " << e.what() << "\n";
+    std::cerr << "omnicml: error: " << omnicml::Excerpt(e.what(), kMaxMessageChars) << "\n";
+    return 2;
+  } catch (const std::filesystem::filesystem_error& e) {
+    // A file system call on a path the user gave (a symbolic-link loop, a directory where
+    // a file belongs, permissions): bad input, named by its path.
+    std::cerr << "omnicml: error: " << omnicml::Excerpt(FilesystemMessage(e), kMaxMessageChars)
+              << "\n";
+    return 2;
+  } catch (const YAML::Exception& e) {
+    // yaml-cpp only ever parses user files (configurations, worlds, places, sessions).
+    std::cerr << "omnicml: error: YAML: " << omnicml::Excerpt(e.what(), kMaxMessageChars) << "\n";
     return 2;
   } catch (const std::exception& e) {
     std::cerr << "omnicml: internal error: " << e.what() << "\n";

@@ -8,6 +8,11 @@ function(omnicml_target_defaults target)
     target_compile_options(${target} PRIVATE -fsanitize=${_san} -fno-omit-frame-pointer)
     target_link_options(${target} PRIVATE -fsanitize=${_san})
   endif()
+  # libFuzzer builds (OMNICML_FUZZ, clang only): coverage instrumentation for every target;
+  # the harnesses under fuzz/ link the libFuzzer runtime itself (-fsanitize=fuzzer).
+  if(OMNICML_FUZZ)
+    target_compile_options(${target} PRIVATE -fsanitize=fuzzer-no-link)
+  endif()
 endfunction()
 
 # omnicml_add_library(NAME SOURCES a.cc b.cc DEPS lib...)

@@ -406,4 +406,100 @@ bool LineReader::Next(std::string* line) {
   }
 }
 
+// ---------------------------------------------------------------------------------------
+// Output checks
+
+namespace {
+
+// The status of `path` (following links); throws naming flag and path when it cannot be
+// determined (a link loop, a file as a parent directory) or `path` is a dangling link.
+fs::file_status StatusOrThrow(const fs::path& path, std::string_view flag) {
+  std::error_code ec;
+  const fs::file_status st = fs::status(path, ec);
+  if (ec && ec != std::errc::no_such_file_or_directory) {
+    throw Error(StrCat(flag, " '", path.string(), "': ", ec.message()));
+  }
+  if (!fs::exists(st)) {
+    std::error_code lec;
+    if (fs::is_symlink(fs::symlink_status(path, lec))) {
+      throw Error(StrCat(flag, " '", path.string(), "': dangling symbolic link"));
+    }
+  }
+  return st;
+}
+
+void CheckWritableDirectory(const fs::path& dir, const fs::path& path, std::string_view flag) {
+  if (::access(dir.c_str(), W_OK | X_OK) != 0) {
+    throw Error(StrCat(flag, " '", path.string(), "': directory '", dir.string(),
+                       "' is not writable: ", std::strerror(errno)));
+  }
+}
+
+fs::path OutputParentOf(const fs::path& path) {
+  fs::path p = path.lexically_normal();
+  if (!p.has_filename()) p = p.parent_path();
+  fs::path parent = p.parent_path();
+  return parent.empty() ? fs::path(".") : parent;
+}
+
+}  // namespace
+
+void CheckOutputFile(const fs::path& path, std::string_view flag,
+                     const fs::path& will_create_dir) {
+  if (path.empty()) return;
+  const fs::file_status st = StatusOrThrow(path, flag);
+  if (fs::is_directory(st)) throw Error(StrCat(flag, " '", path.string(), "': is a directory"));
+  if (fs::exists(st) && !fs::is_regular_file(st)) {
+    throw Error(StrCat(flag, " '", path.string(), "': exists and is not a regular file"));
+  }
+  const fs::path dir = OutputParentOf(path);
+  if (!will_create_dir.empty()) {
+    std::error_code ec;
+    const fs::path a = fs::weakly_canonical(fs::absolute(dir), ec);
+    const fs::path b = fs::weakly_canonical(fs::absolute(will_create_dir), ec);
+    if (!ec && a == b) {
+      CheckOutputDirectory(will_create_dir, flag);
+      return;
+    }
+  }
+  const fs::file_status dst = StatusOrThrow(dir, flag);
+  if (!fs::exists(dst)) {
+    throw Error(StrCat(flag, " '", path.string(), "': directory '", dir.string(),
+                       "' does not exist"));
+  }
+  if (!fs::is_directory(dst)) {
+    throw Error(StrCat(flag, " '", path.string(), "': '", dir.string(), "' is not a directory"));
+  }
+  CheckWritableDirectory(dir, path, flag);
+}
+
+void CheckOutputDirectory(const fs::path& path, std::string_view flag) {
+  if (path.empty()) return;
+  const fs::file_status st = StatusOrThrow(path, flag);
+  if (fs::exists(st)) {
+    if (!fs::is_directory(st)) {
+      throw Error(StrCat(flag, " '", path.string(), "': exists and is not a directory"));
+    }
+    CheckWritableDirectory(path, path, flag);
+    return;
+  }
+  // The nearest existing ancestor must be a writable directory.
+  fs::path ancestor = OutputParentOf(path);
+  for (int depth = 0; depth < 256; ++depth) {
+    const fs::file_status ast = StatusOrThrow(ancestor, flag);
+    if (fs::exists(ast)) {
+      if (!fs::is_directory(ast)) {
+        throw Error(StrCat(flag, " '", path.string(), "': '", ancestor.string(),
+                           "' is not a directory"));
+      }
+      CheckWritableDirectory(ancestor, path, flag);
+      return;
+    }
+    const fs::path up = OutputParentOf(ancestor);
+    if (up == ancestor) break;
+    ancestor = up;
+  }
+  throw Error(StrCat(flag, " '", path.string(), "': no existing parent directory"));
+}
+
 }  // namespace omnicml

@@ -4,12 +4,20 @@
 #include <charconv>
 #include <cmath>
 #include <filesystem>
-#include <fstream>
 #include <sstream>
 
 #include <yaml-cpp/yaml.h>
 
+#include "omnicml/common/file_io.h"
+
 namespace omnicml {
+
+OptionValue::OptionValue() = default;
+OptionValue::~OptionValue() = default;
+OptionValue::OptionValue(const OptionValue&) = default;
+OptionValue::OptionValue(OptionValue&&) noexcept = default;
+OptionValue& OptionValue::operator=(const OptionValue&) = default;
+OptionValue& OptionValue::operator=(OptionValue&&) noexcept = default;
 
 OptionValue OptionValue::Scalar(std::string text, bool quoted) {
   OptionValue v;
@@ -174,14 +182,8 @@ void EncodeOptionValue(BinaryWriter& out, const OptionValue& v) {
 OptionValue DecodeOptionValue(BinaryReader& in, const char* what) { return Decode(in, what, 0); }
 
 std::string ReadOptionFile(const std::string& path) {
-  if (!std::filesystem::is_regular_file(path)) {
-    throw Error(StrCat("configuration file '", path, "' does not exist"));
-  }
-  std::ifstream in(path, std::ios::binary);
-  std::ostringstream ss;
-  ss << in.rdbuf();
-  if (!in && !in.eof()) throw Error(StrCat(path, ": cannot read"));
-  return ss.str();
+  // A regular file of at most kMaxTextFileBytes (no FIFO, device, directory or link loop).
+  return ReadTextFile(path, kMaxTextFileBytes, "configuration file");
 }
 
 namespace options_internal {

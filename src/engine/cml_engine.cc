@@ -8,6 +8,7 @@
 #include <Eigen/LU>
 
 #include "omnicml/common/common.h"
+#include "omnicml/common/limits.h"
 
 namespace omnicml {
 namespace {
@@ -68,7 +69,9 @@ void CmlEngineOptions::Validate() const {
   if (update_delay_frames < 1) {
     throw Error(StrCat("CmlEngineOptions.update_delay_frames must be >= 1, got ", update_delay_frames));
   }
-  if (threads < 1) throw Error(StrCat("CmlEngineOptions.threads must be >= 1, got ", threads));
+  if (threads < 1 || threads > kMaxThreads) {
+    throw Error(StrCat("CmlEngineOptions.threads must lie in [1, ", kMaxThreads, "], got ", threads));
+  }
   if (max_pending_multimodal_frames < 1) {
     throw Error(StrCat("CmlEngineOptions.max_pending_multimodal_frames must be >= 1, got ",
                        max_pending_multimodal_frames));
@@ -127,7 +130,9 @@ std::unique_ptr<MapUpdater> CmlEngine::MakeUpdater(int threads) {
 }
 
 void CmlEngine::SetThreads(int threads) {
-  if (threads < 1) throw Error(StrCat("CmlEngineOptions.threads must be >= 1, got ", threads));
+  if (threads < 1 || threads > kMaxThreads) {
+    throw Error(StrCat("CmlEngineOptions.threads must lie in [1, ", kMaxThreads, "], got ", threads));
+  }
   if (threads == options_.threads) return;
   // Between calls the worker holds no batch (every call ends at a barrier or a flush), so
   // the queue is all the work not yet applied. Build the new updater first: a failure to

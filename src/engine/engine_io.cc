@@ -312,11 +312,9 @@ std::unique_ptr<CmlEngine> DecodeEngine(const std::vector<std::uint8_t>& bytes, 
   return EngineStateAccess::Read(in);
 }
 
-void WriteFileAtomically(const std::string& path, const std::vector<std::uint8_t>& bytes) {
-  WriteFileAtomic(path, bytes);
+void SaveEngine(const CmlEngine& engine, const std::string& path) {
+  WriteFileAtomic(path, EncodeEngine(engine));
 }
-
-void SaveEngine(const CmlEngine& engine, const std::string& path) { WriteFileAtomically(path, EncodeEngine(engine)); }
 
 std::unique_ptr<CmlEngine> LoadEngine(const std::string& path) {
   // A regular file no larger than kMaxMapFileBytes, checked before allocating.

@@ -84,10 +84,9 @@ void WriteFramesCsvRow(std::ostream& os, const FrameRecord& r) {
 }
 
 FramesTable ReadFramesCsv(const fs::path& path) {
-  std::ifstream in(path);
-  if (!in) throw Error(StrCat("cannot read '", path.string(), "'"));
+  LineReader in(path, "run frames");  // a regular file, bounded lines
   std::string line;
-  if (!std::getline(in, line))
+  if (!in.Next(&line))
     throw Error(StrCat(path.string(), ":1: empty file, expected a header"));
   const std::vector<std::string> header = SplitCsv(line);
   std::map<std::string, std::size_t> col;
@@ -107,7 +106,7 @@ FramesTable ReadFramesCsv(const fs::path& path) {
     }
   }
   int line_no = 1;
-  while (std::getline(in, line)) {
+  while (in.Next(&line)) {
     ++line_no;
     if (line.empty() || line == "\r") continue;
     const std::vector<std::string> cells = SplitCsv(line);
@@ -122,7 +121,7 @@ FramesTable ReadFramesCsv(const fs::path& path) {
       const double v = std::strtod(s.c_str(), &end);
       if (end == s.c_str() || *end != '\0') {
         throw Error(
-            StrCat(path.string(), ":", line_no, ": column '", name, "': cannot parse '", s, "'"));
+            StrCat(path.string(), ":", line_no, ": column '", name, "': cannot parse '", Excerpt(s), "'"));
       }
       return v;
     };

@@ -10,6 +10,7 @@
 #include <thread>
 
 #include "omnicml/common/common.h"
+#include "omnicml/common/limits.h"
 #include "omnicml/experiments/run_experiment.h"
 #include "omnicml/experiments/run_recorder.h"
 #include "omnicml/experiments/run_report.h"
@@ -187,6 +188,7 @@ CompareExperimentResult RunCompareExperiment(const CompareExperimentOptions& opt
   // results are identical to a sequential run. Progress then comes as plain log lines.
   const int jobs = std::clamp(
       options.jobs > 0 ? options.jobs : static_cast<int>(std::thread::hardware_concurrency()), 1,
+  CheckLimit("--jobs", options.jobs, 0, kMaxThreads);
       static_cast<int>(modes.size()));
   std::vector<char> dir_made(modes.size(), 0);
   try {

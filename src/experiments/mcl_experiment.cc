@@ -10,6 +10,7 @@
 #include <sstream>
 
 #include "omnicml/common/common.h"
+#include "omnicml/common/limits.h"
 #include "omnicml/descriptors/descriptor_factory.h"
 #include "omnicml/logs/log_format.h"
 #include "omnicml/report/report.h"
@@ -31,11 +32,14 @@ std::string F(double v, int prec = 3) {
 }
 
 MclOptions MakeOptions(const MclExperimentOptions& a) {
-  MclOptions o;
+  MclOptions o = a.filter;
   o.num_particles = a.particles;
   o.random_samples_per_step = a.random_samples;
   o.heading_independent = a.heading_gate_deg <= 0;
-  if (a.heading_gate_deg > 0) o.heading_gate_half_width_rad = a.heading_gate_deg * kPi / 180;
+  // Degrees to radians only when they differ (a gate loaded with --config stays bit-exact).
+  if (a.heading_gate_deg > 0 && a.heading_gate_deg != Deg(o.heading_gate_half_width_rad)) {
+    o.heading_gate_half_width_rad = a.heading_gate_deg * kPi / 180;
+  }
   o.top_k = a.top_k;
   o.prior_fraction = a.prior_fraction;
   o.min_likelihood = a.min_likelihood;
@@ -110,8 +114,9 @@ MclPrepared PrepareMcl(const MclExperimentOptions& a) {
 }
 
 std::string ConfigYaml(const MclExperimentOptions& a, const MclPrepared& p) {
-  const MclOptions& o = p.options;
   std::ostringstream os;
+  // The inputs (kMclRunKeys, skipped by LoadMclOptions), then every MclOptions field, so
+  // that `omnicml mcl --config RUNDIR/config.yaml` with the same inputs repeats the run.
   os << "# Effective configuration of `omnicml mcl` (MclOptions and inputs).\n"
      << "input: \"" << p.input << "\"\n"
      << "train_day: " << a.train_day << "\ntest_day: " << a.test_day << "\n"
@@ -121,27 +126,7 @@ std::string ConfigYaml(const MclExperimentOptions& a, const MclPrepared& p) {
      << "descriptor: " << a.descriptor << "\n"
      << "grid_resolution_m: " << FormatRoundTrip(p.grid.resolution_m()) << "\n"
      << "start: " << (a.global ? "global" : "known") << "\n"
-     << "num_particles: " << o.num_particles << "\n"
-     << "random_samples_per_step: " << o.random_samples_per_step << "\n"
-     << "motion: {a1: " << FormatRoundTrip(o.motion.a1) << ", a2: " << FormatRoundTrip(o.motion.a2)
-     << ", a3: " << FormatRoundTrip(o.motion.a3) << ", a4: " << FormatRoundTrip(o.motion.a4)
-     << "}\n"
-     << "heading_gate_half_width_rad: " << FormatRoundTrip(o.heading_gate_half_width_rad) << "\n"
-     << "heading_independent: " << (o.heading_independent ? "true" : "false") << "\n"
-     << "top_k: " << o.top_k << "\n"
-     << "prior_fraction: " << FormatRoundTrip(o.prior_fraction) << "\n"
-     << "min_likelihood: " << FormatRoundTrip(o.min_likelihood) << "\n"
-     << "axis_offset_rad: " << FormatRoundTrip(o.axis_offset_rad) << "\n"
-     << "visibility: {max_ray_range_m: " << FormatRoundTrip(o.visibility.max_ray_range_m)
-     << ", max_distance_m: " << FormatRoundTrip(o.visibility.max_distance_m)
-     << ", max_view_angle_rad: " << FormatRoundTrip(o.visibility.max_view_angle_rad)
-     << ", max_distance_from_reference_m: "
-     << FormatRoundTrip(o.visibility.max_distance_from_reference_m) << "}\n"
-     << "cluster_cell_m: " << FormatRoundTrip(o.cluster_cell_m) << "\n"
-     << "cluster_radius_m: " << FormatRoundTrip(o.cluster_radius_m) << "\n"
-     << "init_sigma_xy_m: " << FormatRoundTrip(o.init_sigma_xy_m) << "\n"
-     << "init_sigma_phi_rad: " << FormatRoundTrip(o.init_sigma_phi_rad) << "\n"
-     << "seed: " << o.seed << "\n";
+     << MclOptionsToYaml(p.options);
   return os.str();
 }
 
@@ -525,7 +510,19 @@ void ExperimentNoise(const MclExperimentOptions& a, const MclPrepared& p,
 }  // namespace
 
 MclPrepared PrepareMclExperiment(const MclExperimentOptions& a) {
-  if (a.runs < 1) throw Error("mcl: --runs must be >= 1");
+  CheckLimit("mcl: --runs", a.runs, 1, kMaxRuns);
+  CheckLimit("mcl: --particles", a.particles, 1, kMaxParticles);
+  CheckLimit("mcl: --random-samples", a.random_samples, 0, kMaxParticles);
+  CheckLimit("mcl: --ref-every", a.ref_every, 1, kMaxFramesPerDay);
+  if (a.log_dirs.empty()) {
+    CheckLimit("mcl: --days", a.days, 1, kMaxDays);
+    CheckLimit("mcl: --frames-per-day", a.frames_per_day, 1, kMaxFramesPerDay);
+    if (static_cast<std::int64_t>(std::max(a.train_day, a.test_day)) * a.frames_per_day >
+        kMaxSimulatedFrames) {
+      throw Error(StrCat("mcl: simulated days x --frames-per-day exceeds the limit of ",
+                         kMaxSimulatedFrames, " frames"));
+    }
+  }
   if (!a.experiment.empty() && a.experiment != "tracking" && a.experiment != "global" &&
       a.experiment != "kidnap" && a.experiment != "noise") {
     throw Error(
@@ -534,6 +531,18 @@ MclPrepared PrepareMclExperiment(const MclExperimentOptions& a) {
   if (a.experiment.empty()) CheckRunDir(a.out_dir);
   return PrepareMcl(a);
 }
+void SetMclFilterOptions(const MclOptions& filter, MclExperimentOptions* a) {
+  a->filter = filter;
+  a->particles = filter.num_particles;
+  a->random_samples = filter.random_samples_per_step;
+  a->heading_gate_deg = filter.heading_independent ? 0.0 : Deg(filter.heading_gate_half_width_rad);
+  a->top_k = filter.top_k;
+  a->prior_fraction = filter.prior_fraction;
+  a->min_likelihood = filter.min_likelihood;
+  a->max_distance_from_reference_m = filter.visibility.max_distance_from_reference_m;
+  a->mcl_seed = filter.seed;
+}
+
 
 std::string DescribeMclPrepared(const MclPrepared& p) {
   int empty = 0;
@@ -542,6 +551,7 @@ std::string DescribeMclPrepared(const MclPrepared& p) {
     empty += r.visibility.empty() ? 1 : 0;
     cells += static_cast<double>(r.visibility.size());
   }
+  if (!a.out_dir.empty()) CheckOutputDirectory(a.out_dir, "--out");
   std::ostringstream os;
   os << "mcl: visibility areas: " << empty << " empty, mean "
      << F(cells / p.refs.size() * p.grid.resolution_m() * p.grid.resolution_m(), 2) << " m^2\n";

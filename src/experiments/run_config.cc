@@ -15,6 +15,8 @@
 #include <vector>
 
 #include "omnicml/common/common.h"
+#include "omnicml/common/file_io.h"
+#include "omnicml/common/limits.h"
 #include "omnicml/common/options.h"
 #include "omnicml/logs/log_format.h"
 #include "omnicml/report/report.h"
@@ -75,13 +77,20 @@ void RunInput::Validate() const {
     throw Error("give either LOGDIR... or --world NAME, not both");
   }
   for (const std::string& dir : log_dirs) {
-    if (!std::filesystem::is_directory(dir))
-      throw Error(StrCat("log directory '", dir, "' does not exist"));
+    std::error_code ec;
+    if (!std::filesystem::is_directory(dir, ec)) {
+      throw Error(StrCat("log directory '", dir, "' ",
+                         ec ? ec.message() : "does not exist or is not a directory"));
+    }
   }
-  if (days < 1) throw Error(StrCat("--days must be >= 1 (got ", days, ")"));
-  if (first_day < 0) throw Error(StrCat("--first-day must be >= 0 (got ", first_day, ")"));
-  if (frames_per_day < 0)
-    throw Error(StrCat("--frames-per-day must be >= 0 (got ", frames_per_day, ")"));
+  CheckLimit("--days", days, 1, kMaxDays);
+  CheckLimit("--first-day", first_day, 0, kMaxDays - days);
+  CheckLimit("--frames-per-day", frames_per_day, 0, kMaxFramesPerDay);
+  const std::int64_t fpd = frames_per_day > 0 ? frames_per_day : SimulatorOptions{}.frames_per_day;
+  if (log_dirs.empty() && (first_day + static_cast<std::int64_t>(days)) * fpd > kMaxSimulatedFrames) {
+    throw Error(StrCat("--days x --frames-per-day = ", first_day + days, " x ", fpd,
+                       " exceeds the limit of ", kMaxSimulatedFrames, " simulated frames"));
+  }
   if (!log_dirs.empty() && (first_day != 0)) throw Error("--first-day applies to --world only");
 }
 
@@ -136,9 +145,13 @@ std::unique_ptr<FrameSource> OpenFrameSource(const RunInput& input) {
   }
   const std::vector<std::string> names = BuiltinWorldNames();
   const bool builtin = std::find(names.begin(), names.end(), input.world) != names.end();
-  if (!builtin && !std::filesystem::is_regular_file(input.world)) {
+  std::error_code ec;
+  if (!builtin && !std::filesystem::is_regular_file(input.world, ec)) {
     std::string list;
     for (std::size_t i = 0; i < names.size(); ++i) list += (i ? ", " : "") + names[i];
+    if (ec && ec != std::errc::no_such_file_or_directory) {
+      throw Error(StrCat("--world '", input.world, "': ", ec.message()));
+    }
     throw Error(
         StrCat("unknown world '", input.world, "' (built-in: ", list, "; or a world YAML file)"));
   }
@@ -162,12 +175,16 @@ std::optional<std::int64_t> CountFrames(const RunInput& input, const FrameSource
   if (reader == nullptr) return std::nullopt;
   std::int64_t total = 0;
   for (int s = 0; s < reader->NumSessions(); ++s) {
-    std::ifstream in(std::filesystem::path(reader->SessionDirectory(s)) / "frames.csv");
-    if (!in) return std::nullopt;
-    std::string line;
-    std::getline(in, line);  // header
-    while (std::getline(in, line)) {
-      if (!line.empty() && line != "\r") ++total;
+    try {
+      LineReader in(std::filesystem::path(reader->SessionDirectory(s)) / "frames.csv",
+                    "log frames");
+      std::string line;
+      in.Next(&line);  // header
+      while (in.Next(&line)) {
+        if (!line.empty()) ++total;
+      }
+    } catch (const Error&) {
+      return std::nullopt;  // the reader reports the problem when it gets there
     }
   }
   return total;

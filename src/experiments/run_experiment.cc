@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "omnicml/common/common.h"
+#include "omnicml/common/file_io.h"
 #include "omnicml/engine/engine_io.h"
 
 namespace omnicml {
@@ -44,15 +45,7 @@ OptionOverrides WithDefaultThreads(OptionOverrides overrides) {
 }
 
 void CheckOutputParent(const std::string& path, const char* flag, const std::string& run_dir) {
-  if (path.empty()) return;
-  const std::filesystem::path parent = std::filesystem::path(path).parent_path();
-  if (!run_dir.empty() && !parent.empty() &&
-      std::filesystem::weakly_canonical(parent) == std::filesystem::weakly_canonical(run_dir)) {
-    return;
-  }
-  if (!parent.empty() && !std::filesystem::is_directory(parent)) {
-    throw Error(StrCat(flag, " '", path, "': directory '", parent.string(), "' does not exist"));
-  }
+  CheckOutputFile(path, flag, run_dir);
 }
 
 namespace {
@@ -70,8 +63,10 @@ std::unique_ptr<CmlEngine> MakeRunEngine(const RunExperimentOptions& o) {
                        "--forgetting may change (drop --config, --e-max, --update-delay, "
                        "--descriptor)"));
   }
-  if (!std::filesystem::is_regular_file(o.map_in)) {
-    throw Error(StrCat("--map-in '", o.map_in, "' does not exist"));
+  std::error_code ec;
+  if (!std::filesystem::is_regular_file(o.map_in, ec)) {
+    throw Error(StrCat("--map-in '", o.map_in, "' ",
+                       ec ? ec.message() : "does not exist or is not a regular file"));
   }
   std::unique_ptr<CmlEngine> engine = LoadEngine(o.map_in);
   // Parse both before changing anything, so a bad value leaves no half-changed engine.
@@ -87,8 +82,12 @@ std::unique_ptr<CmlEngine> MakeRunEngine(const RunExperimentOptions& o) {
 RunExperimentResult RunExperiment(const RunExperimentOptions& o) {
   const RunSettings& f = o.settings;
   f.input.Validate();
-  CheckOutputParent(o.map_out, "--map-out", f.out_dir);
-  CheckOutputParent(o.trajectory_out, "--trajectory-out", f.out_dir);
+  // Every output is checked before the first frame: a run of hours must not fail at its
+  // end on an unwritable --map-out, nor leave a half run directory behind.
+  const std::string run_dir = f.out_dir.empty() ? DefaultRunDir("run") : f.out_dir;
+  CheckOutputDirectory(run_dir, "--out");
+  CheckOutputParent(o.map_out, "--map-out", run_dir);
+  CheckOutputParent(o.trajectory_out, "--trajectory-out", run_dir);
   if (f.log_every_frames < 1) throw Error("--log-every must be >= 1");
 
   std::unique_ptr<CmlEngine> engine = MakeRunEngine(o);
@@ -100,7 +99,7 @@ RunExperimentResult RunExperiment(const RunExperimentOptions& o) {
 
   std::unique_ptr<FrameSource> source = OpenFrameSource(f.input);
   RunExperimentResult result;
-  result.run_dir = f.out_dir.empty() ? DefaultRunDir("run") : f.out_dir;
+  result.run_dir = run_dir;
   RunRecorderOptions ro;
   ro.run_dir = result.run_dir;
   ro.trajectory_path = o.trajectory_out;
@@ -125,7 +124,7 @@ RunExperimentResult RunExperiment(const RunExperimentOptions& o) {
   result.threads = engine->options().threads;
   recorder.Commit(*engine,
                   {{"wall time", result.timing}, {"threads", std::to_string(result.threads)}});
-  if (!o.map_out.empty()) WriteFileAtomically(o.map_out, map_bytes);
+  if (!o.map_out.empty()) WriteFileAtomic(o.map_out, map_bytes);
 
   FramesTable table;
   table.stage_names = StageNames();

@@ -6,6 +6,8 @@
 #include <sstream>
 
 #include "omnicml/common/common.h"
+#include "omnicml/common/file_io.h"
+#include "omnicml/common/limits.h"
 #include "omnicml/logs/log_format.h"
 #include "omnicml/report/report.h"
 #include "omnicml/sim/simulator.h"
@@ -31,20 +33,23 @@ std::string ConfigYaml(const TopoExperimentOptions& a, const TopologicalOptions&
      << "\nplaces: \"" << places_from << "\"\n"
      << "reference_stride_frames: " << c.reference_stride_frames << "\n"
      << "known_start: " << (c.known_start ? "true" : "false") << "\n"
-     << "histogram: {bins: " << o.histogram.bins << ", filter_width: " << o.histogram.filter_width
-     << ", normalized_rgb: " << (o.histogram.normalized_rgb ? "true" : "false")
-     << ", distance: " << ToString(o.histogram.distance) << "}\n"
-     << "band_threshold: [";
-  for (int b = 0; b < ColorHistogram::kBands; ++b) {
-    os << (b ? ", " : "") << FormatRoundTrip(o.band_threshold[b]);
-  }
-  os << "]\naction_threshold: " << FormatRoundTrip(o.action_threshold) << "\n"
-     << "restrict_to_neighbours: " << (o.restrict_to_neighbours ? "true" : "false") << "\n"
-     << "global_search_after_frames: " << o.global_search_after_frames << "\n";
+     << TopologicalOptionsToYaml(o);
   return os.str();
 }
 
 }  // namespace
+
+void SetTopoLocalizerOptions(const TopologicalOptions& localizer, TopoExperimentOptions* a) {
+  a->localizer = localizer;
+  a->bins = localizer.histogram.bins;
+  a->filter_width = localizer.histogram.filter_width;
+  a->normalized_rgb = localizer.histogram.normalized_rgb;
+  a->distance = ToString(localizer.histogram.distance);
+  a->band_threshold = localizer.band_threshold[0];
+  a->action_threshold = localizer.action_threshold;
+  a->all_places = !localizer.restrict_to_neighbours;
+  a->global_search_after = localizer.global_search_after_frames;
+}
 
 TopoExperimentResult RunTopoExperiment(const TopoExperimentOptions& experiment) {
   TopoExperimentOptions a = experiment;
@@ -55,12 +60,24 @@ TopoExperimentResult RunTopoExperiment(const TopoExperimentOptions& experiment) 
   if (a.train_day == a.test_day) {
     std::cerr << "warning: training and test day are the same (not a cross-sequence test)\n";
   }
-  TopologicalOptions options;
+  if (a.log.empty()) {
+    CheckLimit("topo: --days", a.days, 0, kMaxDays);
+    CheckLimit("topo: --frames-per-day", a.frames_per_day, 1, kMaxFramesPerDay);
+    const std::int64_t days = a.days > 0 ? a.days : std::max(a.train_day, a.test_day);
+    if (days * a.frames_per_day > kMaxSimulatedFrames) {
+      throw Error(StrCat("topo: days x --frames-per-day exceeds the limit of ",
+                         kMaxSimulatedFrames, " frames"));
+    }
+  }
+  CheckOutputDirectory(a.out_dir, "--out");
+  TopologicalOptions options = a.localizer;
   options.histogram.bins = a.bins;
   options.histogram.filter_width = a.filter_width;
   options.histogram.normalized_rgb = a.normalized_rgb;
   options.histogram.distance = HistogramDistanceFromString(a.distance);
-  options.band_threshold.fill(a.band_threshold);
+  // One value for every band, unless it is the first band's of `localizer` (which keeps
+  // per-band thresholds of a configuration file).
+  if (a.band_threshold != options.band_threshold[0]) options.band_threshold.fill(a.band_threshold);
   options.action_threshold = a.action_threshold;
   options.restrict_to_neighbours = !a.all_places;
   options.global_search_after_frames = a.global_search_after;

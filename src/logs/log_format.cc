@@ -19,6 +19,7 @@
 #include "logs/internal/csv_util.h"
 #include "omnicml/common/common.h"
 #include "omnicml/common/file_io.h"
+#include "omnicml/common/limits.h"
 #include "omnicml/unwrap/omni_unwrapper.h"
 
 namespace omnicml {
@@ -38,10 +39,11 @@ class YamlFile {
   explicit YamlFile(std::string path) : path_(std::move(path)) {}
   const std::string& path() const { return path_; }
 
+  // Throws "<path>:<line>: <what>", `what` cut to one short line (it may quote the input).
   [[noreturn]] void Fail(const YAML::Node& node, const std::string& what) const {
     const int line = node.IsDefined() ? node.Mark().line + 1 : 0;
-    if (line > 0) throw Error(StrCat(path_, ":", line, ": ", what));
-    throw Error(StrCat(path_, ": ", what));
+    if (line > 0) throw Error(StrCat(path_, ":", line, ": ", Excerpt(what, 300)));
+    throw Error(StrCat(path_, ": ", Excerpt(what, 300)));
   }
 
   // Checks that `node` is a map whose keys are all in `allowed`.
@@ -156,10 +158,22 @@ template <typename Fail>
 void CheckStart(const SessionStart& start, Fail fail) {
   if (start.mode != SessionStartMode::kKnownPose) return;
   if (!start.map_T_robot.allFinite()) fail("start.pose is not finite");
+  if (std::abs(start.map_T_robot.x()) > kMaxPositionM ||
+      std::abs(start.map_T_robot.y()) > kMaxPositionM ||
+      std::abs(start.map_T_robot.z()) > kMaxHeadingRad) {
+    fail(StrCat("start.pose is out of range (|x|, |y| at most ", kMaxPositionM, " m, |phi| at most ",
+                kMaxHeadingRad, " rad)"));
+  }
+  // A diagonal covariance is symmetric positive definite iff its diagonal is positive.
   for (int i = 0; i < 3; ++i) {
     const double v = start.covariance(i, i);
     if (!std::isfinite(v) || v <= 0.0)
       fail("start.covariance_diagonal must be positive and finite");
+    const double max = i < 2 ? kMaxPositionVarianceM2 : kMaxHeadingVarianceRad2;
+    if (v > max) {
+      fail(StrCat("start.covariance_diagonal[", i, "] = ", v, " is too large (at most ", max,
+                  i < 2 ? " m^2)" : " rad^2)"));
+    }
   }
 }
 
@@ -359,7 +373,15 @@ LogReader::LogReader(const std::vector<std::string>& log_dirs, LogReaderOptions 
       SessionInfo info = ReadSessionYaml((fs::path(dir) / "session.yaml").string());
       info.name = fs::path(dir).filename().string();
       if (info.name.empty()) info.name = fs::path(dir).parent_path().filename().string();
-      OpenFramesCsv((fs::path(dir) / "frames.csv").string());
+      {
+        // A session without a single row is an error here, not an empty day later.
+        const std::string csv = (fs::path(dir) / "frames.csv").string();
+        std::unique_ptr<LineReader> in = OpenFramesCsv(csv);
+        std::string line;
+        bool any = false;
+        while (!any && in->Next(&line)) any = !internal::Trim(line).empty();
+        if (!any) throw Error(StrCat(csv, ": no frames (only the header line): an empty session"));
+      }
       sessions_.push_back(std::move(info));
       session_dirs_.push_back(dir);
     }
@@ -443,17 +465,32 @@ void LogReader::ParseRow(const std::string& line, Frame* frame) {
   };
   const double stamp_s = number(0);
   if (have_last_stamp_ && !(stamp_s > last_stamp_s_)) {
-    fail(StrCat("stamp_s ", fields[0], " does not increase (previous ",
+    fail(StrCat("stamp_s ", Excerpt(fields[0]), " does not increase (previous ",
                 FormatRoundTrip(last_stamp_s_), ")"));
   }
   const std::string image_name(internal::Trim(fields[1]));
   if (image_name.empty()) fail("empty image file name");
-  const Pose2 odom = MakePose(number(2), number(3), number(4));
+  // Poses within kMaxPositionM / kMaxHeadingRad (common/limits.h): 1e300 is finite but
+  // breaks every later computation.
+  const auto in_range = [&](int first_column) {
+    const double x = number(first_column), y = number(first_column + 1),
+                 phi = number(first_column + 2);
+    for (int k = 0; k < 3; ++k) {
+      const double v = k == 0 ? x : k == 1 ? y : phi;
+      const double max = k < 2 ? kMaxPositionM : kMaxHeadingRad;
+      if (std::abs(v) > max) {
+        fail(StrCat("column ", kNames[first_column + k], ": ", Excerpt(fields[first_column + k]),
+                    " is out of range (at most ", max, k < 2 ? " m)" : " rad)"));
+      }
+    }
+    return MakePose(x, y, phi);
+  };
+  const Pose2 odom = in_range(2);
   std::optional<Pose2> truth;
   const int empty_gt = static_cast<int>(internal::Trim(fields[5]).empty()) +
                        internal::Trim(fields[6]).empty() + internal::Trim(fields[7]).empty();
   if (empty_gt == 0) {
-    truth = MakePose(number(5), number(6), number(7));
+    truth = in_range(5);
   } else if (empty_gt != 3) {
     fail("ground truth columns must be all empty or all numbers");
   }

@@ -5,6 +5,7 @@
 
 #include "omnicml/common/options.h"
 #include "omnicml/common/common.h"
+#include "omnicml/common/limits.h"
 
 namespace omnicml {
 namespace {
@@ -29,6 +30,12 @@ void SimulatorOptions::Validate() const {
   if (days < 1) throw Error(StrCat("SimulatorOptions.days: ", days, " (must be >= 1)"));
   if (frames_per_day < 1)
     throw Error(StrCat("SimulatorOptions.frames_per_day: ", frames_per_day, " (must be >= 1)"));
+  CheckLimit("SimulatorOptions.days", days, 1, kMaxDays);
+  CheckLimit("SimulatorOptions.frames_per_day", frames_per_day, 1, kMaxFramesPerDay);
+  if (static_cast<std::int64_t>(days) * frames_per_day > kMaxSimulatedFrames) {
+    throw Error(StrCat("SimulatorOptions: days x frames_per_day = ", days, " x ", frames_per_day,
+                       " exceeds the limit of ", kMaxSimulatedFrames, " frames"));
+  }
   if (!(step_m > 0) || !std::isfinite(step_m) || step_m > 100) {
     throw Error(StrCat("SimulatorOptions.step_m: ", step_m, " (must lie in (0, 100] m)"));
   }

@@ -301,3 +301,67 @@ TEST(Excerpt, CutsAndEscapes) {
 
 }  // namespace
 }  // namespace omnicml
+
+namespace omnicml {
+namespace {
+
+// Outputs are checked before a run: directories, non-regular files, missing or
+// non-directory parents and link loops are refused naming flag and path; nothing is
+// created; a file inside a run directory still to be made needs that directory creatable.
+TEST(CheckOutput, RefusesWhatCannotBeWritten) {
+  const fs::path dir = FreshDir("check_output");
+  const fs::path file = dir / "file";
+  std::ofstream(file) << "x";
+  const fs::path loop = dir / "loop";
+  fs::create_symlink(loop, loop);
+  const fs::path fifo = dir / "fifo";
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
+  const struct {
+    fs::path path;
+    const char* reason;
+  } bad_files[] = {{dir, "is a directory"},
+                   {fifo, "not a regular file"},
+                   {loop, "symbolic links"},
+                   {dir / "missing" / "map.omap", "does not exist"},
+                   {file / "map.omap", "Not a directory"}};
+  for (const auto& c : bad_files) {
+    SCOPED_TRACE(c.path.string());
+    const std::string message = ErrorOf([&] { CheckOutputFile(c.path, "--map-out"); });
+    EXPECT_THAT(message, HasSubstr("--map-out"));
+    EXPECT_THAT(message, HasSubstr(c.path.string()));
+    EXPECT_THAT(message, HasSubstr(c.reason));
+  }
+  EXPECT_EQ(ErrorOf([&] { CheckOutputFile(file, "--map-out"); }), "");  // replaced atomically
+  EXPECT_EQ(ErrorOf([&] { CheckOutputFile(dir / "new.omap", "--map-out"); }), "");
+  // Inside a run directory the run creates (and its parents, created with it).
+  EXPECT_EQ(ErrorOf([&] { CheckOutputFile(dir / "run" / "m.omap", "--map-out", dir / "run"); }),
+            "");
+  EXPECT_THAT(ErrorOf([&] { CheckOutputFile(file / "run" / "m", "--map-out", file / "run"); }),
+              HasSubstr("Not a directory"));
+
+  EXPECT_EQ(ErrorOf([&] { CheckOutputDirectory(dir, "--out"); }), "");
+  EXPECT_EQ(ErrorOf([&] { CheckOutputDirectory(dir / "a" / "b" / "c", "--out"); }), "");
+  EXPECT_THAT(ErrorOf([&] { CheckOutputDirectory(file, "--out"); }),
+              HasSubstr("exists and is not a directory"));
+  EXPECT_THAT(ErrorOf([&] { CheckOutputDirectory(file / "sub", "--out"); }),
+              HasSubstr(file.string()));
+  EXPECT_THAT(ErrorOf([&] { CheckOutputDirectory(loop, "--out"); }), HasSubstr("symbolic links"));
+  const fs::path dangling = dir / "dangling";
+  fs::create_symlink(dir / "nowhere", dangling);
+  EXPECT_THAT(ErrorOf([&] { CheckOutputDirectory(dangling, "--out"); }),
+              HasSubstr("dangling symbolic link"));
+  if (::geteuid() != 0) {  // root may write anywhere
+    const fs::path locked = dir / "locked";
+    fs::create_directory(locked);
+    fs::permissions(locked, fs::perms::owner_read | fs::perms::owner_exec);
+    EXPECT_THAT(ErrorOf([&] { CheckOutputFile(locked / "m", "--map-out"); }),
+                HasSubstr("not writable"));
+    EXPECT_THAT(ErrorOf([&] { CheckOutputDirectory(locked / "run", "--out"); }),
+                HasSubstr("not writable"));
+    fs::permissions(locked, fs::perms::owner_all);
+  }
+  EXPECT_EQ(Entries(dir), (std::vector<std::string>{"dangling", "fifo", "file", "loop"}));
+}
+
+}  // namespace
+}  // namespace omnicml

@@ -124,6 +124,20 @@ std::filesystem::path StagingDirFor(const std::filesystem::path& target, pid_t p
 // with a recycled pid). Returns how many were removed; never throws.
 int RemoveStaleStagingDirs(const std::filesystem::path& target);
 
+// Checks, before any work starts, that an output file can be written: `path` is not a
+// directory and, if it exists, a regular file (after following symbolic links; a loop is
+// an error), and its directory exists and is writable. `flag` names the output in the
+// message ("--map-out"): "--map-out 'x': is a directory". Creates nothing. When the
+// directory is `will_create_dir` (a run directory that is made later), only that
+// directory's creatability is checked (CheckOutputDirectory). Throws omnicml::Error.
+void CheckOutputFile(const std::filesystem::path& path, std::string_view flag,
+                     const std::filesystem::path& will_create_dir = {});
+// Checks, before any work starts, that `path` can be an output directory: an existing
+// writable directory, or a path whose nearest existing ancestor is a writable directory
+// (so that it can be created); never a file, a dangling link or a link loop. Creates
+// nothing. Throws omnicml::Error "<flag> '<path>': ...".
+void CheckOutputDirectory(const std::filesystem::path& path, std::string_view flag);
+
 // fsyncs a directory so that a rename or a new entry in it is durable. Best effort.
 void SyncDirectory(const std::filesystem::path& dir);
 // Flushes all written data of the file system holding `path` (syncfs): one call makes

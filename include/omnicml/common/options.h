@@ -58,6 +58,15 @@ struct OptionValue {
   std::vector<std::pair<std::string, OptionValue>> members;  // kMap
   int line = 0;  // 1-based line in the source text; 0 when unknown (binary, built)
 
+  // Declared here, defaulted in options.cc: clang with libstdc++ cannot instantiate the
+  // implicit ones while OptionValue is still incomplete (std::pair of it in `members`).
+  OptionValue();
+  ~OptionValue();
+  OptionValue(const OptionValue&);
+  OptionValue(OptionValue&&) noexcept;
+  OptionValue& operator=(const OptionValue&);
+  OptionValue& operator=(OptionValue&&) noexcept;
+
   static OptionValue Scalar(std::string text, bool quoted = false);
   static OptionValue List();
   static OptionValue Map();

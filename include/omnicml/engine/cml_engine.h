@@ -87,7 +87,7 @@ struct CmlEngineOptions {
   int update_delay_frames = 8;
   // 1: map updates are applied on the calling thread at the barrier; >= 2: one
   // background worker applies them while the next frame is unwrapped and described.
-  // Results are identical either way. Must be >= 1.
+  // Results are identical either way. Must lie in [1, kMaxThreads = 64] (common/limits.h).
   int threads = 1;
   // Reconstruct multimodal stretches at the next unimodal estimate and update the map
   // with them; false: multimodal frames never update the map.
@@ -309,7 +309,7 @@ class CmlEngine {
   // map, tracker, queued updates, pending frames and counters are kept, and the engine
   // goes on as one constructed with the new option and fed the same frames would.
   //
-  // options().threads := threads (>= 1, else omnicml::Error and no change). The
+  // options().threads := threads (in [1, kMaxThreads], else omnicml::Error and no change). The
   // map-update worker is stopped (joined) and a new updater (with a worker when
   // threads >= 2) takes over the queued updates in order; its applied-updates count
   // restarts at 0, as after LoadEngine. Results do not depend on threads.

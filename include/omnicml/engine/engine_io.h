@@ -62,10 +62,6 @@ std::unique_ptr<CmlEngine> DecodeEngine(const std::vector<std::uint8_t>& bytes, 
 void WriteEngineOptions(BinaryWriter& out, const CmlEngineOptions& options);
 CmlEngineOptions ReadEngineOptions(BinaryReader& in);
 
-// Writes `bytes` to `path` atomically; kept for existing callers, forwards to
-// WriteFileAtomic (omnicml/common/file_io.h). Throws omnicml::Error naming the path.
-void WriteFileAtomically(const std::string& path, const std::vector<std::uint8_t>& bytes);
-
 }  // namespace omnicml
 
 #endif  // OMNICML_ENGINE_IO_H_

@@ -62,7 +62,18 @@ struct MclExperimentOptions {
   double success_error_m = 2.0;
   double success_heading_deg = 35.0;
   double converge_error_m = 1.0;
+  // The filter's options the fields particles ... mcl_seed above are applied to (the
+  // fields without a flag: motion, clustering, visibility ray limits, ...): the defaults,
+  // or a configuration file's (SetMclFilterOptions).
+  MclOptions filter;
 };
+
+// Takes the filter's options from `filter` (a configuration file: LoadMclOptions; the
+// config.yaml of an `omnicml mcl` run directory loads back): sets options->filter and the
+// flag fields particles, random_samples, heading_gate_deg, top_k, prior_fraction,
+// min_likelihood, max_distance_from_reference_m and mcl_seed from it, so that the run
+// uses exactly `filter` unless a flag field is changed afterwards.
+void SetMclFilterOptions(const MclOptions& filter, MclExperimentOptions* options);
 
 // Everything the runs share, prepared once: rendered or read frames, descriptors, the
 // grid, references with their visibility areas.
@@ -77,7 +88,8 @@ struct MclPrepared {
   double prepare_s = 0;
 };
 
-// Validates the options (runs >= 1, days, experiment name, out_dir's parent exists) and
+// Validates the options (runs, particles, days and frames within common/limits.h,
+// experiment name, out_dir creatable) and
 // prepares the frames. Throws omnicml::Error naming the flag or file.
 MclPrepared PrepareMclExperiment(const MclExperimentOptions& options);
 // Two lines for stderr: empty and mean visibility areas; references, queries, grid and

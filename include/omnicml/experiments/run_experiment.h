@@ -36,9 +36,10 @@ ProgressOptions MakeProgressOptions(const RunSettings& settings, const std::stri
 // machine has a second core; results are identical with 1 or 2 threads.
 OptionOverrides WithDefaultThreads(OptionOverrides overrides);
 
-// Fails early (before a long run) when the directory of output file `path` does not
-// exist and is not `run_dir` (which the run creates). `flag` names the option in the
-// omnicml::Error. No-op for an empty path.
+// Fails early (before a long run) when output file `path` cannot be written
+// (CheckOutputFile: a directory, not a regular file, its directory missing or not
+// writable); a file inside `run_dir`, which the run creates, needs run_dir to be
+// creatable. `flag` names the option in the omnicml::Error. No-op for an empty path.
 void CheckOutputParent(const std::string& path, const char* flag, const std::string& run_dir = "");
 
 struct RunExperimentOptions {

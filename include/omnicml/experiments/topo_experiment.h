@@ -47,7 +47,19 @@ struct TopoExperimentOptions {
   int reference_stride = 1;          // every k-th labelled training frame is a reference
   bool global_start = false;         // test day starts with no belief
   bool people = true;                // simulate walking people
+  // The localizer's options the fields bins ... global_search_after are applied to: the
+  // defaults, or a configuration file's (SetTopoLocalizerOptions). band_threshold
+  // replaces all six per-band thresholds unless it equals the first one of this.
+  TopologicalOptions localizer;
 };
+
+// Takes the localizer's options from `localizer` (a configuration file:
+// LoadTopologicalOptions; the topo_config.yaml of an `omnicml topo` run directory loads
+// back): sets options->localizer and the flag fields bins, filter_width,
+// normalized_rgb, distance, band_threshold, action_threshold, all_places and
+// global_search_after from it, so that the run uses exactly `localizer` unless a flag
+// field is changed afterwards.
+void SetTopoLocalizerOptions(const TopologicalOptions& localizer, TopoExperimentOptions* options);
 
 struct TopoExperimentResult {
   CrossSequenceResult cross;  // per-frame decisions and the [UN] Table 1 counts

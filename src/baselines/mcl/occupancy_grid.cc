@@ -290,7 +290,7 @@ void SaveOccupancyGrid(const OccupancyGrid& grid, const std::string& yaml_path) 
   const fs::path pgm = fs::path(yaml).replace_extension(".pgm");
   {
     AtomicFile file(pgm);  // temporary, fsync, rename (common/file_io.h)
-    std::ofstream& out = file.stream();
+    std::ostream& out = file.stream();
     out << "P5\n# omnicml occupancy grid\n" << grid.width() << " " << grid.height() << "\n255\n";
     std::vector<std::uint8_t> row(grid.width());
     for (int r = 0; r < grid.height(); ++r) {

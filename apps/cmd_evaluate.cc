@@ -34,7 +34,8 @@ void Evaluate(const EvaluateFlags& f) {
   if (!std::filesystem::is_regular_file(csv)) {
     throw Error(StrCat("'", f.run_dir, "' is not a run directory (no frames.csv)"));
   }
-  const FramesTable table = ReadFramesCsv(csv);
+  FramesTable table = ReadFramesCsv(csv);
+  ReadSkippedFrames(dir / "days.csv", &table);  // unreadable input frames, when recorded
   if (table.records.empty()) throw Error(StrCat(csv.string(), ": no frames"));
   const EvaluationResult result = omnicml::Evaluate(table, alignment, f.bins);
   if (result.overall.position_m.count == 0) {

@@ -10,6 +10,8 @@
 #include <Eigen/Geometry>
 
 #include "omnicml/common/common.h"
+#include "omnicml/common/file_io.h"
+#include "omnicml/report/map_export.h"
 #include "omnicml/report/report.h"
 #include "omnicml/report/svg_plot.h"
 
@@ -29,6 +31,12 @@ const std::vector<std::string>& FixedColumns() {
   return kColumns;
 }
 
+// Columns added after the fixed ones and the stage timings; optional when reading.
+const std::vector<std::string>& LaterColumns() {
+  static const std::vector<std::string> kColumns = {"localized", "run_stamp_s", "odom_x_m",
+                                                    "odom_y_m", "odom_phi_rad"};
+  return kColumns;
+}
 
 std::vector<std::string> SplitCsv(const std::string& line) {
   std::vector<std::string> cells;
@@ -58,6 +66,7 @@ void WriteFramesCsvHeader(std::ostream& os, const std::vector<std::string>& stag
   const auto& cols = FixedColumns();
   for (std::size_t i = 0; i < cols.size(); ++i) os << (i ? "," : "") << cols[i];
   for (const auto& s : stage_names) os << ",time_" << s << "_us";
+  for (const auto& c : LaterColumns()) os << ',' << c;
   os << "\n";
 }
 
@@ -80,6 +89,14 @@ void WriteFramesCsvRow(std::ostream& os, const FrameRecord& r) {
      << ',' << r.views << ',' << r.map_components << ',' << r.hypotheses << ','
      << r.mixture_components;
   for (double t : r.stage_times_us) os << ',' << ShortestDouble(t);
+  os << ',' << (r.has_estimate ? 1 : 0) << ','
+     << ShortestDouble(std::isfinite(r.run_stamp_s) ? r.run_stamp_s : r.stamp_s) << ',';
+  if (r.has_odometry) {
+    os << ShortestDouble(r.odometry.x()) << ',' << ShortestDouble(r.odometry.y()) << ','
+       << ShortestDouble(r.odometry.z());
+  } else {
+    os << ",,";
+  }
   os << '\n';
 }
 
@@ -105,17 +122,23 @@ FramesTable ReadFramesCsv(const fs::path& path) {
       time_cols.push_back(i);
     }
   }
+  // Rows must hold every fixed and timing column; the later columns may be missing.
+  std::size_t required_cells = 0;
+  for (const auto& name : FixedColumns()) required_cells = std::max(required_cells, col[name] + 1);
+  for (std::size_t c : time_cols) required_cells = std::max(required_cells, c + 1);
+  const std::string kEmpty;
   int line_no = 1;
   while (in.Next(&line)) {
     ++line_no;
     if (line.empty() || line == "\r") continue;
     const std::vector<std::string> cells = SplitCsv(line);
-    if (cells.size() < header.size()) {
+    if (cells.size() < required_cells) {
       throw Error(StrCat(path.string(), ":", line_no, ": ", cells.size(), " cells, expected ",
                          header.size()));
     }
     auto num = [&](const std::string& name) -> double {
-      const std::string& s = cells[col.at(name)];
+      const std::size_t c = col.at(name);
+      const std::string& s = c < cells.size() ? cells[c] : kEmpty;
       if (s.empty()) return kNaN;
       char* end = nullptr;
       const double v = std::strtod(s.c_str(), &end);
@@ -137,6 +160,12 @@ FramesTable ReadFramesCsv(const fs::path& path) {
     r.frame = integer("frame");
     r.global_frame = integer("global_frame");
     r.stamp_s = num("stamp_s");
+    if (col.count("run_stamp_s")) r.run_stamp_s = num("run_stamp_s");
+    if (col.count("odom_x_m") && col.count("odom_y_m") && col.count("odom_phi_rad")) {
+      const double ox = num("odom_x_m"), oy = num("odom_y_m"), ophi = num("odom_phi_rad");
+      r.has_odometry = std::isfinite(ox) && std::isfinite(oy) && std::isfinite(ophi);
+      if (r.has_odometry) r.odometry = Pose2(ox, oy, ophi);
+    }
     const double ex = num("est_x_m"), ey = num("est_y_m"), ephi = num("est_phi_rad");
     r.has_estimate = std::isfinite(ex) && std::isfinite(ey) && std::isfinite(ephi);
     if (r.has_estimate) {
@@ -160,6 +189,98 @@ FramesTable ReadFramesCsv(const fs::path& path) {
     table.records.push_back(std::move(r));
   }
   return table;
+}
+
+void ReadSkippedFrames(const fs::path& days_csv, FramesTable* table) {
+  table->skipped_frames.clear();
+  std::error_code ec;
+  if (!fs::exists(days_csv, ec)) return;
+  LineReader in(days_csv, "run days");
+  std::string line;
+  if (!in.Next(&line)) return;
+  const std::vector<std::string> header = SplitCsv(line);
+  const auto session_it = std::find(header.begin(), header.end(), "session");
+  const auto skipped_it = std::find(header.begin(), header.end(), "frames_skipped");
+  if (session_it == header.end() || skipped_it == header.end()) return;
+  const std::size_t session_col = static_cast<std::size_t>(session_it - header.begin());
+  const std::size_t skipped_col = static_cast<std::size_t>(skipped_it - header.begin());
+  while (in.Next(&line)) {
+    const std::size_t line_no = in.line_number();
+    if (line.empty()) continue;
+    const std::vector<std::string> cells = SplitCsv(line);
+    auto integer = [&](std::size_t c, const char* name) -> std::int64_t {
+      const std::string s = c < cells.size() ? cells[c] : std::string();
+      char* end = nullptr;
+      const long long v = std::strtoll(s.c_str(), &end, 10);
+      if (s.empty() || *end != '\0' || v < 0) {
+        throw Error(StrCat(days_csv.string(), ":", line_no, ": column '", name,
+                           "': cannot parse '", s, "'"));
+      }
+      return v;
+    };
+    const std::int64_t skipped = integer(skipped_col, "frames_skipped");
+    const int session = static_cast<int>(integer(session_col, "session"));
+    if (skipped > 0) table->skipped_frames[session] += skipped;
+  }
+}
+
+double RunStampClock::Next(int session, double stamp_s) {
+  if (session != session_) {
+    if (session_ >= 0 && have_last_) {
+      // The previous session's frame period; 1 s when it had a single frame.
+      double period = 1.0;
+      if (session_frames_ >= 2) {
+        const double p = (session_last_stamp_s_ - session_first_stamp_s_) /
+                         static_cast<double>(session_frames_ - 1);
+        if (std::isfinite(p) && p > 0) period = p;
+      }
+      offset_s_ = stamp_s > last_run_stamp_s_ ? 0.0 : last_run_stamp_s_ + period - stamp_s;
+    } else {
+      offset_s_ = 0.0;
+    }
+    session_ = session;
+    session_first_stamp_s_ = stamp_s;
+    session_frames_ = 0;
+  }
+  session_last_stamp_s_ = stamp_s;
+  ++session_frames_;
+  last_run_stamp_s_ = stamp_s + offset_s_;
+  have_last_ = true;
+  return last_run_stamp_s_;
+}
+
+namespace {
+const Pose2* TumPose(const FrameRecord& r, TumContent content) {
+  if (!r.has_estimate) return nullptr;
+  switch (content) {
+    case TumContent::kEstimate:
+      return &r.estimate;
+    case TumContent::kGroundTruth:
+      return r.has_truth ? &r.truth : nullptr;
+    case TumContent::kOdometry:
+      return r.has_odometry ? &r.odometry : nullptr;
+  }
+  return nullptr;
+}
+}  // namespace
+
+void WriteTum(std::ostream& os, const std::vector<FrameRecord>& records, TumContent content) {
+  static const char* const kWhat[] = {"estimate (strongest component)", "ground truth",
+                                      "odometry (as logged)"};
+  os << "# omnicml " << kWhat[static_cast<int>(content)]
+     << " (TUM): stamp x y z qx qy qz qw; run-unique stamps; localized frames only\n";
+  for (const FrameRecord& r : records) {
+    const Pose2* pose = TumPose(r, content);
+    if (pose == nullptr) continue;
+    os << TumLine(std::isfinite(r.run_stamp_s) ? r.run_stamp_s : r.stamp_s, *pose) << '\n';
+  }
+}
+
+bool HasTumContent(const std::vector<FrameRecord>& records, TumContent content) {
+  for (const FrameRecord& r : records) {
+    if (TumPose(r, content) != nullptr) return true;
+  }
+  return false;
 }
 
 void RecomputeErrors(std::vector<FrameRecord>* records) {
@@ -282,9 +403,13 @@ std::vector<double> HistogramCounts(const std::vector<double>& values,
 }
 
 DayEvaluation EvaluateDay(const std::vector<FrameRecord>& records, int session,
-                          const std::vector<std::string>& stage_names) {
+                          const std::vector<std::string>& stage_names,
+                          const std::map<int, std::int64_t>& skipped_frames) {
   DayEvaluation d;
   d.session = session;
+  for (const auto& [s, n] : skipped_frames) {
+    if (session < 0 || s == session) d.frames_skipped += n;
+  }
   std::vector<double> pos, head, odo, times;
   int unimodal = 0;
   std::size_t total_col = stage_names.size();
@@ -305,6 +430,8 @@ DayEvaluation EvaluateDay(const std::vector<FrameRecord>& records, int session,
     d.map_components_at_end = r.map_components;
   }
   if (d.frames > 0) d.unimodal_fraction = static_cast<double>(unimodal) / d.frames;
+  d.frames_unlocalized = d.frames - d.frames_with_estimate;
+  if (d.frames > 0) d.coverage = static_cast<double>(d.frames_with_estimate) / d.frames;
   d.position_m = ComputeStats(pos);
   d.heading_rad = ComputeStats(head);
   d.odometry_m = ComputeStats(odo);
@@ -326,8 +453,9 @@ EvaluationResult Evaluate(const FramesTable& table, Alignment alignment, int his
     }
   }
   std::sort(sessions.begin(), sessions.end());
-  for (int s : sessions) result.days.push_back(EvaluateDay(records, s, table.stage_names));
-  result.overall = EvaluateDay(records, -1, table.stage_names);
+  for (int s : sessions)
+    result.days.push_back(EvaluateDay(records, s, table.stage_names, table.skipped_frames));
+  result.overall = EvaluateDay(records, -1, table.stage_names, table.skipped_frames);
 
   // Common bins: 0 .. the run's p99 (rounded up to a nice value), so outliers do not
   // squash the histogram; larger errors land in the last bin.
@@ -386,6 +514,9 @@ std::vector<std::string> DayRow(const DayEvaluation& d, const DayEvaluation* pre
   }
   return {d.session < 0 ? "all" : std::to_string(d.session + 1),
           std::to_string(d.frames),
+          std::to_string(d.frames_with_estimate),
+          Fixed(d.coverage * 100, 1),
+          std::to_string(d.frames_skipped),
           Fixed(d.unimodal_fraction * 100, 1),
           Fixed(d.position_m.mean, 3),
           Fixed(d.position_m.median, 3),
@@ -400,8 +531,9 @@ std::vector<std::string> DayRow(const DayEvaluation& d, const DayEvaluation* pre
 
 const std::vector<std::string>& DayHeader() {
   static const std::vector<std::string> kHeader = {
-      "day",   "frames",        "unimodal%",    "mean_m",      "median_m", "p95_m",
-      "max_m", "head_mean_deg", "head_p95_deg", "odom_mean_m", "d_mean_m", "views"};
+      "day",    "frames",   "localized",     "coverage%",    "skipped",     "unimodal%",
+      "mean_m", "median_m", "p95_m",         "max_m",        "head_mean_deg", "head_p95_deg",
+      "odom_mean_m", "d_mean_m", "views"};
   return kHeader;
 }
 
@@ -456,8 +588,9 @@ std::string FormatEvaluation(const EvaluationResult& result, bool with_histogram
        << Fixed(result.alignment_transform.y(), 3) << " m, theta "
        << Fixed(result.alignment_transform.z() * 180 / kPi, 2) << " deg)";
   }
-  os << "\nposition error per day (metres; heading in degrees; d_mean_m = change of the mean from "
-        "the previous day)\n";
+  os << "\nposition error per day (metres; heading in degrees) over the localized frames; "
+        "coverage% = localized / frames; skipped = unreadable input frames left out; d_mean_m = "
+        "change of the mean from the previous day\n";
   std::vector<std::vector<std::string>> rows;
   for (std::size_t i = 0; i < result.days.size(); ++i) {
     rows.push_back(DayRow(result.days[i], i > 0 ? &result.days[i - 1] : nullptr));
@@ -485,18 +618,19 @@ std::string FormatEvaluation(const EvaluationResult& result, bool with_histogram
 void WriteDaysCsv(std::ostream& os, const std::vector<FrameRecord>& records,
                   const std::vector<std::string>& stage_names,
                   const std::vector<std::string>& extra_columns,
-                  const std::function<std::vector<std::string>(int session)>& extra_values) {
+                  const std::function<std::vector<std::string>(int session)>& extra_values,
+                  const std::map<int, std::int64_t>& skipped_frames) {
   os << "session,frames,frames_with_truth,unimodal_fraction,position_error_mean_m,"
         "position_error_median_m,position_error_p95_m,position_error_max_m,heading_error_mean_"
         "rad,odometry_error_mean_m,views_at_end,map_components_at_end,";
   for (const std::string& c : extra_columns) os << c << ',';
-  os << "mean_frame_time_us\n";
+  os << "mean_frame_time_us,frames_localized,frames_unlocalized,coverage,frames_skipped\n";
   std::vector<int> sessions;
   for (const FrameRecord& r : records) {
     if (sessions.empty() || sessions.back() != r.session) sessions.push_back(r.session);
   }
   for (int s : sessions) {
-    const DayEvaluation d = EvaluateDay(records, s, stage_names);
+    const DayEvaluation d = EvaluateDay(records, s, stage_names, skipped_frames);
     os << s << ',' << d.frames << ',' << d.frames_with_truth << ','
        << ShortestDouble(d.unimodal_fraction) << ',' << ShortestDouble(d.position_m.mean) << ','
        << ShortestDouble(d.position_m.median) << ',' << ShortestDouble(d.position_m.p95) << ','
@@ -508,7 +642,9 @@ void WriteDaysCsv(std::ostream& os, const std::vector<FrameRecord>& records,
       OMNICML_CHECK(values.size() == extra_columns.size()) << "WriteDaysCsv: extra values";
       for (const std::string& v : values) os << v << ',';
     }
-    os << ShortestDouble(d.mean_frame_time_us) << '\n';
+    os << ShortestDouble(d.mean_frame_time_us) << ',' << d.frames_with_estimate << ','
+       << d.frames_unlocalized << ',' << ShortestDouble(d.coverage) << ',' << d.frames_skipped
+       << '\n';
   }
 }
 
@@ -530,8 +666,10 @@ std::string RenderEvaluationHtml(const EvaluationResult& result, const FramesTab
   HtmlReport report(title);
   report.AddParagraph(
       "Alignment of the estimate to ground truth: " + ToString(result.alignment) +
-      ". Errors of the strongest hypothesis; d_mean_m is the change of the mean position "
-      "error from the previous day.");
+      ". Errors of the strongest hypothesis over the localized frames (frames with an "
+      "estimate); coverage% = localized / frames, so read every error with its coverage; "
+      "skipped = unreadable input frames the log reader left out (not counted in frames); "
+      "d_mean_m is the change of the mean position error from the previous day.");
   std::vector<std::vector<std::string>> rows;
   for (std::size_t i = 0; i < result.days.size(); ++i) {
     rows.push_back(DayRow(result.days[i], i > 0 ? &result.days[i - 1] : nullptr));

@@ -59,6 +59,14 @@ std::vector<std::vector<std::string>> TableRows(const std::vector<CompareModeRes
     row.push_back(FormatFixed(r.evaluation.overall.unimodal_fraction * 100, 1));
     // Dead reckoning on the same frames (the same in every row): the bar to beat.
     row.push_back(FormatFixed(r.evaluation.overall.odometry_m.mean, 3));
+    // Coverage: the errors above are over the localized frames only; the worst day shows
+    // a failed day that the run's overall fraction would hide.
+    row.push_back(FormatFixed(r.evaluation.overall.coverage * 100, 1));
+    double worst_day = kNaN;
+    for (const DayEvaluation& d : r.evaluation.days) {
+      if (std::isfinite(d.coverage) && !(worst_day <= d.coverage)) worst_day = d.coverage;
+    }
+    row.push_back(FormatFixed(worst_day * 100, 1));
     rows.push_back(row);
   }
   return rows;
@@ -68,7 +76,8 @@ std::vector<std::string> TableHeader(const std::vector<std::int64_t>& steps) {
   std::vector<std::string> header = {"forgetting"};
   for (std::int64_t s : steps) header.push_back("views@" + std::to_string(s));
   for (const char* h :
-       {"views_end", "mean_err_m", "max_err_m", "head_mean_deg", "unimodal%", "odom_err_m"})
+       {"views_end", "mean_err_m", "max_err_m", "head_mean_deg", "unimodal%", "odom_err_m",
+        "coverage%", "min_day_coverage%"})
     header.push_back(h);
   return header;
 }
@@ -101,9 +110,14 @@ std::string RenderCompareReport(const std::string& input,
                       "report.html) is in "
                       "the sub-directory named after it.");
   report.AddHeading("Reference views at steps, errors");
+  report.AddParagraph(
+      "Errors are over the localized frames (frames with an estimate); coverage% = localized "
+      "/ frames over the run, min_day_coverage% = the lowest coverage of a day.");
   report.AddTable(TableHeader(steps), TableRows(results, steps));
 
-  report.AddHeading("Per day: mean position error (m) / views at the end of the day");
+  report.AddHeading(
+      "Per day: mean position error (m, localized frames) / coverage % / views at the end of "
+      "the day");
   std::vector<std::string> header = {"day"};
   for (const auto& r : results) header.push_back(r.mode);
   std::vector<std::vector<std::string>> rows;
@@ -114,6 +128,7 @@ std::string RenderCompareReport(const std::string& input,
     for (const auto& r : results) {
       row.push_back(d < r.evaluation.days.size()
                         ? FormatFixed(r.evaluation.days[d].position_m.mean, 3) + " / " +
+                              FormatFixed(r.evaluation.days[d].coverage * 100, 1) + " / " +
                               std::to_string(r.evaluation.days[d].views_at_end)
                         : "-");
     }
@@ -225,6 +240,7 @@ CompareExperimentResult RunCompareExperiment(const CompareExperimentOptions& opt
       FramesTable table;
       table.stage_names = StageNames();
       table.records = recorder.records();
+      table.skipped_frames = recorder.skipped_frames();
       result.evaluation = Evaluate(table, Alignment::kNone);
       result.records = recorder.records();
       result.wall_s = summary.wall_s;
@@ -284,8 +300,13 @@ std::string FormatCompareExperimentResult(const CompareExperimentResult& result)
   os << "input: " << result.input << "\n" << result.table_text;
   for (const auto& r : result.modes) {
     os << r.mode << ": " << r.records.size() << " frames in " << FormatFixed(r.wall_s, 1)
-       << " s; per-day mean error m:";
+       << " s";
+    if (r.evaluation.overall.frames_skipped > 0)
+      os << " (" << r.evaluation.overall.frames_skipped << " unreadable frames skipped)";
+    os << "; per-day mean error m (localized frames):";
     for (const auto& d : r.evaluation.days) os << " " << FormatFixed(d.position_m.mean, 3);
+    os << "; per-day coverage %:";
+    for (const auto& d : r.evaluation.days) os << " " << FormatFixed(d.coverage * 100, 1);
     os << "\n";
   }
   os << "report: " << (std::filesystem::path(result.out_dir) / "report.html").string() << "\n";

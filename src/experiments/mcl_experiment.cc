@@ -165,6 +165,7 @@ std::vector<FrameRecord> MakeFrameRecords(const MclPrepared& p,
   std::int64_t first_index = 0;
   bool have_anchor = false;
   Pose2 anchor_truth = Pose2::Zero(), anchor_odom = Pose2::Zero();
+  RunStampClock clock;
   for (std::size_t i = 0; i < rec.size(); ++i) {
     const MclFrame& f = p.test[i];
     const MclStepRecord& s = rec[i];
@@ -178,7 +179,10 @@ std::vector<FrameRecord> MakeFrameRecords(const MclPrepared& p,
     r.frame = f.index - first_index;
     r.global_frame = f.index;
     r.stamp_s = s.stamp_s;
-    r.has_estimate = true;
+    r.run_stamp_s = clock.Next(f.session, s.stamp_s);
+    r.has_odometry = true;
+    r.odometry = f.odom_T_robot;
+    r.has_estimate = true;  // a particle filter always has an estimate: coverage 1
     r.estimate = s.estimate.cluster;
     r.mean_estimate = s.estimate.mean;
     r.unimodal = s.estimate.cluster_weight >= kUnimodalClusterWeight;
@@ -221,6 +225,9 @@ std::string ReportHtml(const MclExperimentOptions& a, const MclPrepared& p,
       {"references",
        StrCat(p.refs.size(), " (day ", a.train_day, ", every ", a.ref_every, ". frame)")},
       {"queries", StrCat(records.size(), " (day ", a.test_day, ")")},
+      {"localized queries (coverage)",
+       StrCat(eval.overall.frames_with_estimate, " of ", eval.overall.frames, " (",
+              Fx(eval.overall.coverage * 100, 1), " %; the filter always has an estimate)")},
       {"particles", std::to_string(p.options.num_particles)},
       {"start", a.global ? "global" : "known"},
       {"descriptor", a.descriptor},
@@ -239,14 +246,15 @@ std::string ReportHtml(const MclExperimentOptions& a, const MclPrepared& p,
   std::vector<std::vector<std::string>> rows;
   for (const DayEvaluation& d : eval.days) {
     rows.push_back({std::to_string(d.session + 1), std::to_string(d.frames),
-                    std::to_string(d.frames_with_truth), Fx(d.unimodal_fraction * 100, 1),
+                    std::to_string(d.frames_with_truth), std::to_string(d.frames_with_estimate),
+                    Fx(d.coverage * 100, 1), Fx(d.unimodal_fraction * 100, 1),
                     Fx(d.position_m.mean, 3), Fx(d.position_m.median, 3), Fx(d.position_m.p95, 3),
                     Fx(d.position_m.max, 3), Fx(d.heading_rad.mean * 180 / kPi, 2),
                     Fx(d.odometry_m.mean, 3), std::to_string(d.views_at_end),
                     Fx(d.mean_frame_time_us / 1000.0, 2)});
   }
   report.AddTable(
-      {"day", "frames", "with truth", "best cluster >= 50 % of weight, %", "mean m", "median m",
+      {"day", "frames", "with truth", "localized", "coverage %", "best cluster >= 50 % of weight, %", "mean m", "median m",
        "p95 m", "max m", "heading mean deg", "odometry mean m", "references", "ms per step"},
       rows);
 
@@ -319,6 +327,8 @@ MclSingleResult RunSingle(const MclExperimentOptions& a, const MclPrepared& p) {
       << "references: " << p.refs.size() << " (day " << a.train_day << "), queries: " << rec.size()
       << " (day " << a.test_day << "), particles: " << p.options.num_particles
       << ", start: " << (a.global ? "global" : "known") << "\n"
+      << "localized queries: " << rec.size() << " of " << rec.size()
+      << " (coverage 100 %: the filter has an estimate at every step)\n"
       << "position error (cluster) m: mean " << F(e.mean) << " median " << F(e.median) << " max "
       << F(e.max) << "\n"
       << "heading error deg: mean " << F(h.mean, 2) << " median " << F(h.median, 2) << " max "
@@ -606,6 +616,12 @@ void WriteMclRunDirectory(const MclExperimentOptions& a, const MclPrepared& p,
     WriteFramesCsvHeader(csv, MclStageNames());
     for (const FrameRecord& r : result.records) WriteFramesCsvRow(csv, r);
     WriteDaysCsv(add("days.csv"), result.records, MclStageNames());
+    // evo-ready TUM files on shared stamps (run_recorder.h).
+    WriteTum(add("trajectory.tum"), result.records, TumContent::kEstimate);
+    if (HasTumContent(result.records, TumContent::kGroundTruth))
+      WriteTum(add("groundtruth.tum"), result.records, TumContent::kGroundTruth);
+    if (HasTumContent(result.records, TumContent::kOdometry))
+      WriteTum(add("odometry.tum"), result.records, TumContent::kOdometry);
     add("config.yaml") << config;
     add("summary.txt") << result.summary_text;
     add("report.html") << ReportHtml(a, p, result.records, result.summary_text, config);

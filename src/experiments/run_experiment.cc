@@ -13,6 +13,7 @@
 #include "omnicml/common/common.h"
 #include "omnicml/common/file_io.h"
 #include "omnicml/engine/engine_io.h"
+#include "omnicml/experiments/run_report.h"
 
 namespace omnicml {
 
@@ -129,6 +130,7 @@ RunExperimentResult RunExperiment(const RunExperimentOptions& o) {
   FramesTable table;
   table.stage_names = StageNames();
   table.records = recorder.records();
+  table.skipped_frames = recorder.skipped_frames();
   result.evaluation = Evaluate(table, Alignment::kNone);
   result.views = engine->model().NumViews();
   result.components = engine->model().NumComponents();
@@ -139,11 +141,22 @@ std::string FormatRunExperimentResult(const RunExperimentOptions& options,
                                       const RunExperimentResult& result) {
   std::ostringstream os;
   os << FormatEvaluation(result.evaluation, /*with_histogram=*/false);
-  os << "frames: " << result.summary.frames << " in " << result.summary.sessions << " session(s), "
-     << result.timing << "\n";
+  const RunSummary& s = result.summary;
+  os << "frames: " << s.frames << " in " << s.sessions << " session(s), " << s.frames_localized
+     << " localized ("
+     << FormatFixed(s.frames > 0 ? 100.0 * static_cast<double>(s.frames_localized) /
+                                       static_cast<double>(s.frames)
+                                 : 0.0,
+                    1)
+     << " % coverage; errors above are over the localized frames)";
+  if (s.frames_skipped > 0 || options.settings.input.skip_unreadable_frames)
+    os << ", " << s.frames_skipped << " unreadable input frames skipped";
+  os << ", " << result.timing << "\n";
   os << "map: " << result.views << " views, " << result.components << " components\n";
   os << "run directory: " << result.run_dir
-     << "\nreport: " << (std::filesystem::path(result.run_dir) / "report.html").string() << "\n";
+     << "\nreport: " << (std::filesystem::path(result.run_dir) / "report.html").string()
+     << "\nTUM (evo): " << (std::filesystem::path(result.run_dir) / "trajectory.tum").string()
+     << " (+ groundtruth.tum, odometry.tum when the input has them)\n";
   if (!options.map_out.empty()) os << "map saved: " << options.map_out << "\n";
   if (!options.trajectory_out.empty()) os << "trajectory (TUM): " << options.trajectory_out << "\n";
   return os.str();

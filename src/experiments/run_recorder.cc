@@ -13,6 +13,7 @@
 #include "omnicml/common/common.h"
 #include "omnicml/evaluation/evaluation.h"
 #include "omnicml/experiments/run_report.h"
+#include "omnicml/logs/log_format.h"
 #include "omnicml/report/map_export.h"
 
 namespace omnicml {
@@ -82,6 +83,9 @@ void RunRecorder::Record(const Frame& frame, const FrameResult& result) {
   r.frame = frame.index_in_session;
   r.global_frame = result.frame;
   r.stamp_s = frame.stamp_s;
+  r.run_stamp_s = clock_.Next(result.session, frame.stamp_s);
+  r.has_odometry = true;
+  r.odometry = frame.odom_T_robot;
   if (result.estimate) {
     r.has_estimate = true;
     r.estimate = result.estimate->strongest.mean;
@@ -115,8 +119,12 @@ void RunRecorder::Record(const Frame& frame, const FrameResult& result) {
   r.stage_times_us = StageTimes(s);
   if (frames_csv_) WriteFramesCsvRow(frames_csv_->stream(), r);
   if (trajectory_ && r.has_estimate)
-    trajectory_->stream() << TumLine(r.stamp_s, r.estimate) << "\n";
+    trajectory_->stream() << TumLine(r.run_stamp_s, r.estimate) << "\n";
   records_.push_back(std::move(r));
+}
+
+void RunRecorder::RecordSkippedFrames(int session, std::int64_t count) {
+  if (count > 0) skipped_frames_[session] += count;
 }
 
 void RunRecorder::Commit(const CmlEngine& engine,
@@ -129,8 +137,23 @@ void RunRecorder::Commit(const CmlEngine& engine,
     files.push_back(std::move(config));
 
     auto days = std::make_unique<AtomicFile>(options_.run_dir / "days.csv");
-    WriteRunDaysCsv(days->stream(), records_, engine.model());
+    WriteRunDaysCsv(days->stream(), records_, engine.model(), skipped_frames_);
     files.push_back(std::move(days));
+
+    // evo-ready TUM files on shared run-unique stamps (see the header).
+    for (const auto& [name, content] :
+         {std::pair{"trajectory.tum", TumContent::kEstimate},
+          std::pair{"groundtruth.tum", TumContent::kGroundTruth},
+          std::pair{"odometry.tum", TumContent::kOdometry}}) {
+      if (content != TumContent::kEstimate && !HasTumContent(records_, content)) {
+        std::error_code ec;
+        fs::remove(options_.run_dir / name, ec);
+        continue;
+      }
+      auto tum = std::make_unique<AtomicFile>(options_.run_dir / name);
+      WriteTum(tum->stream(), records_, content);
+      files.push_back(std::move(tum));
+    }
 
     auto events = std::make_unique<AtomicFile>(options_.run_dir / "events.csv");
     WriteEventsCsv(events->stream(), engine.model());
@@ -139,7 +162,7 @@ void RunRecorder::Commit(const CmlEngine& engine,
     if (options_.write_report) {
       auto html = std::make_unique<AtomicFile>(options_.run_dir / "report.html");
       html->stream() << RenderRunReport(options_.title, options_.input_description, records_,
-                                        engine, notes);
+                                        engine, notes, skipped_frames_);
       files.push_back(std::move(html));
     }
   }
@@ -161,7 +184,25 @@ RunSummary RunEngineOverSource(CmlEngine& engine, FrameSource& source, RunRecord
   RunSummary summary;
   int current_session = -1;
   double error_sum = 0;
-  std::int64_t error_count = 0, session_frames = 0;
+  std::int64_t error_count = 0, session_frames = 0, session_localized = 0;
+  // Skipped unreadable frames (logs only), per source session.
+  const LogReader* reader = dynamic_cast<const LogReader*>(&source);
+  std::int64_t session_skipped = 0;
+  auto count_skipped = [&](int source_session, const FrameResult* last) {
+    if (reader == nullptr || source_session < 0) return std::int64_t{0};
+    const std::int64_t n = reader->NumSkippedFrames(source_session);
+    summary.frames_skipped += n;
+    if (recorder != nullptr && last != nullptr) recorder->RecordSkippedFrames(last->session, n);
+    return n;
+  };
+  // "97.3 % localized" (of the frames so far); next to every mean error.
+  auto localized_text = [&] {
+    return FormatFixed(summary.frames > 0 ? 100.0 * static_cast<double>(summary.frames_localized) /
+                                                static_cast<double>(summary.frames)
+                                          : 0.0,
+                       1) +
+           " % localized";
+  };
   const std::string prefix = progress.label.empty() ? "" : progress.label + ": ";
   auto elapsed = [&] { return std::chrono::duration<double>(Clock::now() - start).count(); };
   auto status = [&](const FrameResult& r) {
@@ -171,9 +212,10 @@ RunSummary RunEngineOverSource(CmlEngine& engine, FrameSource& source, RunRecord
     os << summary.frames;
     if (progress.total_frames) os << "/" << *progress.total_frames;
     os << " frames, day " << current_session + 1 << ", " << FormatFixed(fps, 1) << " frames/s, "
-       << r.stats.num_views << " views";
+       << r.stats.num_views << " views, " << localized_text();
     if (error_count > 0)
-      os << ", mean error " << FormatFixed(error_sum / static_cast<double>(error_count), 2) << " m";
+      os << ", mean error " << FormatFixed(error_sum / static_cast<double>(error_count), 2)
+         << " m (localized frames)";
     if (progress.total_frames && fps > 0) {
       os << ", ETA "
          << FormatDuration(static_cast<double>(*progress.total_frames - summary.frames) / fps);
@@ -185,12 +227,20 @@ RunSummary RunEngineOverSource(CmlEngine& engine, FrameSource& source, RunRecord
       // One write per line, so runs in parallel threads (compare) never split a line.
       std::ostringstream line;
       if (progress.progress_bar) line << "\r\033[K";
-      line << prefix << "day " << current_session + 1 << " done: " << session_frames << " frames, "
-           << last->stats.num_views << " views, " << engine.model().NumComponents()
+      line << prefix << "day " << current_session + 1 << " done: " << session_frames
+           << " frames (" << session_localized << " localized, "
+           << FormatFixed(session_frames > 0 ? 100.0 * static_cast<double>(session_localized) /
+                                                   static_cast<double>(session_frames)
+                                             : 0.0,
+                          1)
+           << " %";
+      if (session_skipped > 0) line << "; " << session_skipped << " unreadable skipped";
+      line << "), " << last->stats.num_views << " views, " << engine.model().NumComponents()
            << " components";
       if (error_count > 0)
         line << ", mean error so far "
-             << FormatFixed(error_sum / static_cast<double>(error_count), 3) << " m";
+             << FormatFixed(error_sum / static_cast<double>(error_count), 3)
+             << " m over localized frames (" << localized_text() << ")";
       line << "\n";
       std::cerr << line.str();
     }
@@ -200,12 +250,17 @@ RunSummary RunEngineOverSource(CmlEngine& engine, FrameSource& source, RunRecord
   bool have_last = false;
   while (source.Next(&frame)) {
     if (frame.session_index != current_session) {
+      // Sessions the reader passed without delivering a frame (every frame skipped).
+      for (int s = current_session + 1; s < frame.session_index; ++s) count_skipped(s, nullptr);
       if (current_session >= 0) {
+        session_skipped = count_skipped(current_session, have_last ? &last : nullptr);
         end_session(have_last ? &last : nullptr);
         if (on_session_end) on_session_end(engine, current_session);
       }
       current_session = frame.session_index;
       session_frames = 0;
+      session_localized = 0;
+      session_skipped = 0;
       engine.BeginSession(source.Session(current_session));
       ++summary.sessions;
     }
@@ -213,6 +268,10 @@ RunSummary RunEngineOverSource(CmlEngine& engine, FrameSource& source, RunRecord
     have_last = true;
     ++summary.frames;
     ++session_frames;
+    if (last.estimate) {
+      ++summary.frames_localized;
+      ++session_localized;
+    }
     if (recorder != nullptr) recorder->Record(frame, last);
     if (last.estimate && frame.map_T_robot_truth) {
       error_sum +=
@@ -238,7 +297,14 @@ RunSummary RunEngineOverSource(CmlEngine& engine, FrameSource& source, RunRecord
       std::cerr << (prefix + status(last) + "\n");
     }
   }
-  if (current_session >= 0) end_session(have_last ? &last : nullptr);
+  if (current_session >= 0) {
+    session_skipped = count_skipped(current_session, have_last ? &last : nullptr);
+    end_session(have_last ? &last : nullptr);
+  }
+  if (reader != nullptr) {
+    for (int s = std::max(current_session + 1, 0); s < reader->NumSessions(); ++s)
+      count_skipped(s, nullptr);
+  }
   summary.wall_s = elapsed();
   return summary;
 }

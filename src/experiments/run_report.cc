@@ -50,8 +50,14 @@ std::string RunConfigYaml(const std::string& input_description, const CmlEngineO
          "\n" + EngineOptionsToYaml(options);
 }
 
+std::string CoverageText(const DayEvaluation& day) {
+  return std::to_string(day.frames_with_estimate) + " of " + std::to_string(day.frames) + " (" +
+         FormatFixed(day.coverage * 100, 1) + " %)";
+}
+
 void WriteRunDaysCsv(std::ostream& out, const std::vector<FrameRecord>& records,
-                     const EnvironmentModel& model) {
+                     const EnvironmentModel& model,
+                     const std::map<int, std::int64_t>& skipped_frames) {
   const auto events = EventCountsBySession(model);
   WriteDaysCsv(out, records, StageNames(),
                {"views_inserted", "views_removed", "components_removed"}, [&](int session) {
@@ -61,7 +67,8 @@ void WriteRunDaysCsv(std::ostream& out, const std::vector<FrameRecord>& records,
                  return std::vector<std::string>{std::to_string(ev.views_inserted),
                                                  std::to_string(ev.views_removed),
                                                  std::to_string(ev.components_removed)};
-               });
+               },
+               skipped_frames);
 }
 
 void WriteEventsCsv(std::ostream& out, const EnvironmentModel& model) {
@@ -76,16 +83,20 @@ void WriteEventsCsv(std::ostream& out, const EnvironmentModel& model) {
 
 std::string RenderRunReport(const std::string& title, const std::string& input,
                             const std::vector<FrameRecord>& records, const CmlEngine& engine,
-                            const std::vector<std::pair<std::string, std::string>>& notes) {
+                            const std::vector<std::pair<std::string, std::string>>& notes,
+                            const std::map<int, std::int64_t>& skipped_frames) {
   HtmlReport report(title);
   FramesTable table;
   table.stage_names = StageNames();
   table.records = records;
+  table.skipped_frames = skipped_frames;
   const EvaluationResult eval = Evaluate(table, Alignment::kNone);
   const EnvironmentModel& model = engine.model();
   std::vector<std::pair<std::string, std::string>> summary = {
       {"input", input},
       {"frames", std::to_string(records.size())},
+      {"localized frames (coverage)", CoverageText(eval.overall)},
+      {"unreadable frames skipped", std::to_string(eval.overall.frames_skipped)},
       {"sessions (days)", std::to_string(eval.days.size())},
       {"descriptor", ToString(engine.options().descriptor.kind)},
       {"forgetting", ToString(model.options().forgetting)},
@@ -93,7 +104,7 @@ std::string RenderRunReport(const std::string& title, const std::string& input,
       {"map components at the end", std::to_string(model.NumComponents())},
       {"map memory", FormatFixed(model.MemoryBytes() / 1024.0, 1) + " KiB"},
       {"unimodal frames", FormatFixed(eval.overall.unimodal_fraction * 100, 1) + " %"},
-      {"position error mean / p95 / max", FormatFixed(eval.overall.position_m.mean, 3) + " / " +
+      {"position error mean / p95 / max (localized frames)", FormatFixed(eval.overall.position_m.mean, 3) + " / " +
                                               FormatFixed(eval.overall.position_m.p95, 3) + " / " +
                                               FormatFixed(eval.overall.position_m.max, 3) + " m"},
       {"odometry-only error mean", FormatFixed(eval.overall.odometry_m.mean, 3) + " m"},
@@ -104,12 +115,18 @@ std::string RenderRunReport(const std::string& title, const std::string& input,
   report.AddKeyValues(summary);
 
   report.AddHeading("Per day");
+  report.AddParagraph(
+      "Errors are over the localized frames (the engine produced a pose); coverage % = "
+      "localized / frames. Skipped = unreadable input frames left out "
+      "(--skip-unreadable-frames), not counted in frames.");
   const auto events = EventCountsBySession(model);
   std::vector<std::vector<std::string>> rows;
   for (const DayEvaluation& d : eval.days) {
     const auto it = events.find(d.session);
     const SessionEventCounts ev = it == events.end() ? SessionEventCounts{} : it->second;
     rows.push_back({std::to_string(d.session + 1), std::to_string(d.frames),
+                    std::to_string(d.frames_with_estimate), FormatFixed(d.coverage * 100, 1),
+                    std::to_string(d.frames_skipped),
                     FormatFixed(d.unimodal_fraction * 100, 1), FormatFixed(d.position_m.mean, 3),
                     FormatFixed(d.position_m.median, 3), FormatFixed(d.position_m.p95, 3),
                     FormatFixed(d.position_m.max, 3),
@@ -119,7 +136,7 @@ std::string RenderRunReport(const std::string& title, const std::string& input,
                     std::to_string(ev.components_removed)});
   }
   report.AddTable(
-      {"day", "frames", "unimodal %", "mean m", "median m", "p95 m", "max m", "heading mean deg",
+      {"day", "frames", "localized", "coverage %", "skipped", "unimodal %", "mean m", "median m", "p95 m", "max m", "heading mean deg",
        "odometry mean m", "views at end", "views inserted", "views removed", "components removed"},
       rows);
 

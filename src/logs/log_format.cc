@@ -435,6 +435,9 @@ bool LogReader::Next(Frame* frame) {
     } catch (const Error& e) {
       if (!options_.skip_unreadable_frames) throw;
       ++num_skipped_;
+      if (skipped_per_session_.size() <= static_cast<std::size_t>(session_))
+        skipped_per_session_.resize(static_cast<std::size_t>(session_) + 1, 0);
+      ++skipped_per_session_[static_cast<std::size_t>(session_)];
       if (skipped_messages_.size() < kMaxSkippedMessages) skipped_messages_.push_back(e.what());
       continue;
     }

@@ -221,5 +221,143 @@ TEST(Align, StartRemovesEachSessionsInitialOffset) {
   EXPECT_THROW(AlignmentFromString("affine"), Error);
 }
 
+TEST(Evaluate, CoverageCountsFramesWithoutEstimateAndErrorsStayOverLocalizedFrames) {
+  // A day with unlocalized frames: localized + unlocalized = frames, coverage = their
+  // ratio, the mean error is over the localized frames only, skipped frames are separate
+  // (days.csv columns and the text table).
+  FramesTable table;
+  table.stage_names = {"total"};
+  for (int i = 0; i < 10; ++i) table.records.push_back(MakeRecord(0, i, Pose2(1, 0, 0), Pose2(0, 0, 0)));
+  for (int i = 0; i < 10; ++i) {
+    FrameRecord r = MakeRecord(1, i, Pose2(0.5, 0, 0), Pose2(0, 0, 0));
+    r.has_estimate = i >= 7;  // a global start that localizes at frame 7
+    r.stage_times_us = {1.0};
+    table.records.push_back(r);
+  }
+  for (auto& r : table.records) r.stage_times_us = {1.0};
+  RecomputeErrors(&table.records);
+  table.skipped_frames = {{1, 4}};
+  const EvaluationResult e = Evaluate(table, Alignment::kNone);
+  ASSERT_EQ(e.days.size(), 2u);
+  EXPECT_EQ(e.days[0].frames_with_estimate, 10);
+  EXPECT_EQ(e.days[0].frames_unlocalized, 0);
+  EXPECT_DOUBLE_EQ(e.days[0].coverage, 1.0);
+  EXPECT_EQ(e.days[1].frames, 10);
+  EXPECT_EQ(e.days[1].frames_with_estimate, 3);
+  EXPECT_EQ(e.days[1].frames_unlocalized, 7);
+  EXPECT_DOUBLE_EQ(e.days[1].coverage, 0.3);
+  EXPECT_EQ(e.days[1].position_m.count, 3);
+  EXPECT_DOUBLE_EQ(e.days[1].position_m.mean, 0.5);
+  EXPECT_EQ(e.days[1].frames_skipped, 4);
+  EXPECT_EQ(e.days[0].frames_skipped, 0);
+  EXPECT_EQ(e.overall.frames_with_estimate + e.overall.frames_unlocalized, e.overall.frames);
+  EXPECT_DOUBLE_EQ(e.overall.coverage, 13.0 / 20.0);
+  EXPECT_EQ(e.overall.frames_skipped, 4);
+
+  std::ostringstream days;
+  WriteDaysCsv(days, table.records, table.stage_names, {}, {}, table.skipped_frames);
+  std::istringstream in(days.str());
+  std::string header, day1, day2;
+  std::getline(in, header);
+  std::getline(in, day1);
+  std::getline(in, day2);
+  const std::string suffix = "mean_frame_time_us,frames_localized,frames_unlocalized,coverage,frames_skipped";
+  EXPECT_EQ(header.substr(header.size() - suffix.size()), suffix);
+  EXPECT_EQ(header.rfind("session,frames,frames_with_truth,unimodal_fraction,", 0), 0u);
+  EXPECT_EQ(day2.substr(day2.size() - 12), ",1,3,7,0.3,4");
+  EXPECT_EQ(day2.rfind("1,10,10,", 0), 0u);
+  EXPECT_NE(day2.find(",0.5,"), std::string::npos);  // position_error_mean_m
+
+  const std::string text = FormatEvaluation(e, false);
+  EXPECT_NE(text.find("coverage%"), std::string::npos) << text;
+  EXPECT_NE(text.find("30.0"), std::string::npos) << text;
+}
+
+TEST(RunStampClock, KeepsIncreasingStampsAndShiftsSessionsThatRestart) {
+  // Stamps already increasing over sessions stay as they are; a session starting again
+  // at 0 follows the previous one by one frame period; run stamps increase strictly.
+  RunStampClock keep;
+  EXPECT_EQ(keep.Next(0, 10.0), 10.0);
+  EXPECT_EQ(keep.Next(0, 10.5), 10.5);
+  EXPECT_EQ(keep.Next(1, 100.0), 100.0);
+  RunStampClock shift;
+  std::vector<double> out;
+  for (int s = 0; s < 3; ++s) {
+    for (int i = 0; i < 5; ++i) out.push_back(shift.Next(s, 0.25 * i));
+  }
+  for (std::size_t i = 1; i < out.size(); ++i) EXPECT_GT(out[i], out[i - 1]) << i;
+  EXPECT_DOUBLE_EQ(out[5], 1.0 + 0.25);  // day 1 ends at 1.0, period 0.25
+  EXPECT_DOUBLE_EQ(out[10], 2.25 + 0.25);
+  RunStampClock single;  // one-frame session: a period of 1 s
+  single.Next(0, 3.0);
+  EXPECT_DOUBLE_EQ(single.Next(1, 0.0), 4.0);
+}
+
+TEST(WriteTum, LocalizedFramesOnlyOnSharedRunStamps) {
+  // Estimate, truth and odometry files list the same stamps (run stamps), leave out frames
+  // without an estimate and write a planar pose with a yaw quaternion.
+  std::vector<FrameRecord> records;
+  for (int i = 0; i < 4; ++i) {
+    FrameRecord r = MakeRecord(0, i, Pose2(i, 1, 0.5), Pose2(i, 2, kPi / 2));
+    r.run_stamp_s = 100 + i;
+    r.has_odometry = true;
+    r.odometry = Pose2(-i, 0, 0);
+    records.push_back(r);
+  }
+  records[1].has_estimate = false;
+  std::ostringstream est, gt, odo;
+  WriteTum(est, records, TumContent::kEstimate);
+  WriteTum(gt, records, TumContent::kGroundTruth);
+  WriteTum(odo, records, TumContent::kOdometry);
+  auto stamps = [](const std::string& text) {
+    std::vector<std::string> out;
+    std::istringstream in(text);
+    std::string line;
+    while (std::getline(in, line)) {
+      if (!line.empty() && line[0] != '#') out.push_back(line.substr(0, line.find(' ')));
+    }
+    return out;
+  };
+  EXPECT_EQ(stamps(est.str()), (std::vector<std::string>{"100", "102", "103"}));
+  EXPECT_EQ(stamps(gt.str()), stamps(est.str()));
+  EXPECT_EQ(stamps(odo.str()), stamps(est.str()));
+  EXPECT_NE(gt.str().find("\n100 0 2 0 0 0 "), std::string::npos) << gt.str();
+  EXPECT_TRUE(HasTumContent(records, TumContent::kGroundTruth));
+  for (auto& r : records) r.has_truth = false;
+  EXPECT_FALSE(HasTumContent(records, TumContent::kGroundTruth));
+}
+
+TEST(FramesCsv, RoundTripsTheLaterColumns) {
+  // run_stamp_s and the odometry pose read back; a file without them still reads.
+  const fs::path dir = TempDir("later");
+  FrameRecord r = MakeRecord(1, 2, Pose2(1, 2, 0.3), Pose2(1, 2, 0.3));
+  r.run_stamp_s = 12345.678;
+  r.stage_times_us = {10.0};
+  r.has_odometry = true;
+  r.odometry = Pose2(0.1, -0.2, 0.3);
+  {
+    std::ofstream os(dir / "frames.csv");
+    WriteFramesCsvHeader(os, {"total"});
+    WriteFramesCsvRow(os, r);
+  }
+  const FramesTable t = ReadFramesCsv(dir / "frames.csv");
+  ASSERT_EQ(t.records.size(), 1u);
+  EXPECT_EQ(t.stage_names, (std::vector<std::string>{"total"}));
+  EXPECT_EQ(t.records[0].run_stamp_s, 12345.678);
+  EXPECT_TRUE(t.records[0].has_odometry);
+  EXPECT_EQ(t.records[0].odometry, r.odometry);
+  EXPECT_EQ(t.records[0].stage_times_us, r.stage_times_us);
+  {
+    std::ofstream os(dir / "days.csv");
+    os << "session,frames,frames_skipped\n0,5,0\n1,5,3\n";
+  }
+  FramesTable with_days = t;
+  ReadSkippedFrames(dir / "days.csv", &with_days);
+  EXPECT_EQ(with_days.skipped_frames, (std::map<int, std::int64_t>{{1, 3}}));
+  ReadSkippedFrames(dir / "absent.csv", &with_days);
+  EXPECT_TRUE(with_days.skipped_frames.empty());
+  fs::remove_all(dir);
+}
+
 }  // namespace
 }  // namespace omnicml

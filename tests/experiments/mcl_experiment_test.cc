@@ -130,8 +130,9 @@ TEST_F(MclExperimentTest, SingleRunWritesEveryFileOfTheRunDirectory) {
   for (const auto& e : fs::directory_iterator(dir)) names.push_back(e.path().filename().string());
   std::sort(names.begin(), names.end());
   EXPECT_EQ(names,
-            (std::vector<std::string>{"config.yaml", "days.csv", "frames.csv", "map.pgm",
-                                      "map.yaml", "notes.txt", "report.html", "summary.txt"}));
+            (std::vector<std::string>{"config.yaml", "days.csv", "frames.csv", "groundtruth.tum",
+                                      "map.pgm", "map.yaml", "notes.txt", "odometry.tum",
+                                      "report.html", "summary.txt", "trajectory.tum"}));
   EXPECT_EQ(ReadTextFile(dir / "summary.txt"), r.summary_text);
   EXPECT_EQ(Lines(ReadTextFile(dir / "frames.csv")), 1 + prepared_->test.size());
   EXPECT_EQ(ReadTextFile(dir / "notes.txt"), "mine\n");

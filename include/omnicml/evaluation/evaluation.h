@@ -13,7 +13,20 @@
 //                                            first ground-truth pose) vs truth
 //   views, map_components, hypotheses, mixture_components
 //   time_<stage>_us ...                      wall time of each engine stage, microseconds
+//   localized                                1 when the frame has an estimate (est_* set)
+//   run_stamp_s                              stamp made unique over the run (RunStampClock);
+//                                            the stamp of the TUM files
+//   odom_x_m, odom_y_m, odom_phi_rad         odometry pose as delivered by the log
+// (The last five columns were added later; readers accept files without them.)
 // Errors are computed from the strongest component (what a robot would act on).
+//
+// Metrics and frames without an estimate (docs/experiments.md, "Metrics"): a frame is
+// localized when the engine produced a pose for it (FrameResult::estimate; after a
+// global start there is none until the first confident p(x|y) seeds the tracker).
+// Coverage = localized frames / frames. Error statistics are over the localized frames
+// with ground truth only and are never reported without the coverage next to them.
+// Frames the log reader skipped as unreadable (--skip-unreadable-frames) are not frames
+// of the run; they are counted separately (frames_skipped).
 //
 // All functions are pure; thread-compatible.
 #ifndef OMNICML_EVALUATION_H_
@@ -23,6 +36,7 @@
 #include <filesystem>
 #include <functional>
 #include <limits>
+#include <map>
 #include <ostream>
 #include <string>
 #include <vector>
@@ -38,7 +52,8 @@ struct FrameRecord {
   int session = 0;                // 0-based session (day) index
   std::int64_t frame = 0;         // index within the session
   std::int64_t global_frame = 0;  // index over the whole run
-  double stamp_s = 0.0;
+  double stamp_s = 0.0;                 // as delivered by the source
+  double run_stamp_s = kNaN;            // unique over the run (RunStampClock); NaN = stamp_s
   bool has_estimate = false;            // false while a global start has not localized yet
   Pose2 estimate = Pose2::Zero();       // strongest component's mean
   Pose2 mean_estimate = Pose2::Zero();  // moment-matched mean
@@ -48,6 +63,8 @@ struct FrameRecord {
   double position_error_m = kNaN;   // NaN without estimate or truth
   double heading_error_rad = kNaN;  // |WrapAngle(est - truth)|
   double odometry_error_m = kNaN;
+  bool has_odometry = false;
+  Pose2 odometry = Pose2::Zero();  // odom_T_robot as delivered (the session's odometry frame)
   int views = 0;                       // reference views in the map after this frame
   int map_components = 0;              // components over all views
   int hypotheses = 0;                  // components of p(x|y)
@@ -63,10 +80,57 @@ void WriteFramesCsvRow(std::ostream& os, const FrameRecord& record);
 struct FramesTable {
   std::vector<std::string> stage_names;
   std::vector<FrameRecord> records;
+  // Input frames skipped as unreadable, per session (from days.csv, see
+  // ReadSkippedFrames); sessions absent = none or unknown.
+  std::map<int, std::int64_t> skipped_frames;
 };
 // Throws omnicml::Error naming file and line on a missing column, a short row or an
 // unparsable number.
 FramesTable ReadFramesCsv(const std::filesystem::path& path);
+// Fills table->skipped_frames from the frames_skipped column of a run's days.csv. A
+// missing file or a file without that column (older runs) leaves it empty; an
+// unparsable cell throws omnicml::Error naming file and line.
+void ReadSkippedFrames(const std::filesystem::path& days_csv, FramesTable* table);
+
+// Run-unique stamps. Sessions of a log may each start at 0 (two imported days), so raw
+// stamps repeat over a multi-day run. The clock keeps each stamp as it is while the run
+// stays strictly increasing; when the first stamp of a session is not after the last
+// run stamp, the whole session is shifted by one offset so its first frame comes one
+// frame period after the previous session's last frame. The frame period is that of the
+// previous session ((last - first) / (frames - 1)), 1 s when it has one frame.
+// Stamps within a session must increase strictly (the log reader and the simulator
+// guarantee it); then run stamps increase strictly over the whole run. A run resumed
+// with --map-in starts its own clock.
+class RunStampClock {
+ public:
+  // The run stamp of the next frame, delivered in order; `session` changes start a new
+  // session (offset chosen from its first stamp).
+  double Next(int session, double stamp_s);
+  // Offset (seconds) added to the stamps of the current session.
+  double offset_s() const { return offset_s_; }
+
+ private:
+  int session_ = -1;
+  bool have_last_ = false;
+  double offset_s_ = 0.0;
+  double last_run_stamp_s_ = 0.0;
+  double session_first_stamp_s_ = 0.0;
+  double session_last_stamp_s_ = 0.0;
+  std::int64_t session_frames_ = 0;
+};
+
+// evo-ready TUM files ("stamp x y z qx qy qz qw", z = 0, yaw quaternion; report/
+// map_export.h TumLine) of records in order, on run stamps (run_stamp_s, stamp_s when
+// NaN). Only localized frames are written, so all three files share their stamps:
+//   kEstimate      the strongest estimate of every localized frame
+//   kGroundTruth   the truth of every localized frame that has it (every one when the
+//                  log has ground truth throughout)
+//   kOdometry      the odometry of every localized frame (in each session's odometry
+//                  frame: compare per session or align, e.g. evo_ape ... --align)
+enum class TumContent { kEstimate, kGroundTruth, kOdometry };
+void WriteTum(std::ostream& os, const std::vector<FrameRecord>& records, TumContent content);
+// Whether records hold any line for `content` (ground truth / odometry known somewhere).
+bool HasTumContent(const std::vector<FrameRecord>& records, TumContent content);
 
 // Recomputes position and heading errors of records with estimate and truth.
 void RecomputeErrors(std::vector<FrameRecord>* records);
@@ -105,13 +169,17 @@ std::vector<double> HistogramCounts(const std::vector<double>& values,
 
 struct DayEvaluation {
   int session = 0;
-  int frames = 0;
+  int frames = 0;  // frames delivered to the engine (= localized + unlocalized)
   int frames_with_truth = 0;
-  int frames_with_estimate = 0;
+  int frames_with_estimate = 0;  // localized frames
+  int frames_unlocalized = 0;    // frames - frames_with_estimate
+  double coverage = kNaN;        // frames_with_estimate / frames; NaN without frames
+  std::int64_t frames_skipped = 0;  // input frames skipped as unreadable (not in `frames`)
   double unimodal_fraction = kNaN;
   ErrorStats position_m;
   ErrorStats heading_rad;
   ErrorStats odometry_m;
+  // position_m / heading_rad: over localized frames with ground truth (count = those).
   int views_at_end = 0;
   int map_components_at_end = 0;
   double mean_frame_time_us = kNaN;  // of the time_total_us column when present
@@ -130,19 +198,25 @@ struct EvaluationResult {
   std::vector<std::vector<double>> heading_histograms;  // per day
 };
 
-// Per-day statistics of already aligned records.
+// Per-day statistics of already aligned records (session -1 = every record);
+// frames_skipped from `skipped_frames` (summed over sessions for -1).
 DayEvaluation EvaluateDay(const std::vector<FrameRecord>& records, int session,
-                          const std::vector<std::string>& stage_names);
+                          const std::vector<std::string>& stage_names,
+                          const std::map<int, std::int64_t>& skipped_frames = {});
 
 // days.csv of a run directory: a header, then one row per session of `records` in order
 // of appearance (EvaluateDay with stage_names): session, frames, frames_with_truth,
 // unimodal_fraction, position_error_{mean,median,p95,max}_m, heading_error_mean_rad,
 // odometry_error_mean_m, views_at_end, map_components_at_end, then `extra_columns`
-// (values from extra_values(session), as many as columns), then mean_frame_time_us.
+// (values from extra_values(session), as many as columns), then mean_frame_time_us,
+// then the coverage columns frames_localized, frames_unlocalized, coverage (fraction
+// 0..1) and frames_skipped (from `skipped_frames`). The error columns are over the
+// localized frames with ground truth; read them together with coverage.
 void WriteDaysCsv(std::ostream& os, const std::vector<FrameRecord>& records,
                   const std::vector<std::string>& stage_names,
                   const std::vector<std::string>& extra_columns = {},
-                  const std::function<std::vector<std::string>(int session)>& extra_values = {});
+                  const std::function<std::vector<std::string>(int session)>& extra_values = {},
+                  const std::map<int, std::int64_t>& skipped_frames = {});
 
 // Aligns (a copy of) the records and evaluates every day and the whole run.
 EvaluationResult Evaluate(const FramesTable& table, Alignment alignment, int histogram_bins = 20);
@@ -157,8 +231,9 @@ std::string FormatTextTable(const std::vector<std::string>& header,
                             const std::vector<std::vector<std::string>>& rows,
                             bool left_align_first = false);
 
-// Text table: one line per day (frames, mean/median/p95/max position error, heading
-// error, odometry-only mean, change of the mean from the previous day), then the run,
+// Text table: one line per day (frames, localized frames, coverage %, skipped frames,
+// mean/median/p95/max position error over the localized frames, heading error,
+// odometry-only mean, change of the mean from the previous day), then the run,
 // then (with_histogram) the position histogram as counts per bin and day.
 std::string FormatEvaluation(const EvaluationResult& result, bool with_histogram = true);
 

@@ -7,7 +7,8 @@
 // at the end of day 1). A map static from the start would stay empty.
 //
 // OUTDIR layout (every file written atomically; a failure removes what the call created):
-//   passive/, active/, static/   each mode's full run directory (run_recorder.h)
+//   passive/, active/, static/   each mode's full run directory (run_recorder.h; with
+//                                trajectory.tum, groundtruth.tum, odometry.tum)
 //   table.txt                    the table as printed
 //   report.html                  the table, per-day errors and views, growth and error
 //                                plots, the error histogram of all modes
@@ -66,12 +67,15 @@ struct CompareExperimentResult {
 CompareExperimentResult RunCompareExperiment(const CompareExperimentOptions& options);
 
 // The table (header "forgetting", "views@<step>"..., views_end, mean_err_m, max_err_m,
-// head_mean_deg, unimodal%, odom_err_m; one row per mode) as plain text.
+// head_mean_deg, unimodal%, odom_err_m, coverage%, min_day_coverage%; one row per mode)
+// as plain text. The errors are over the localized frames (evaluation.h); coverage% is
+// localized / frames over the run, min_day_coverage% the lowest day's.
 std::string FormatCompareTable(const std::vector<CompareModeResult>& modes,
                                const std::vector<std::int64_t>& steps);
 
-// What `omnicml compare` prints on stdout: the input, the table, per-mode frames, wall
-// time and per-day mean errors, the report path.
+// What `omnicml compare` prints on stdout: the input, the table, per-mode frames (and
+// skipped unreadable frames), wall time, per-day mean errors and coverage, the report
+// path.
 std::string FormatCompareExperimentResult(const CompareExperimentResult& result);
 
 }  // namespace omnicml

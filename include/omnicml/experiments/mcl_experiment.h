@@ -115,7 +115,10 @@ MclSingleResult RunMclSingle(const MclExperimentOptions& options, const MclPrepa
 //                  hypotheses = references retrieved per query, mixture_components =
 //                  particles; stages "correct" and "total" = one filter step
 //                  (descriptors are computed beforehand, excluded)
-//   days.csv     per-day statistics (evaluation.h WriteDaysCsv)
+//   days.csv     per-day statistics (evaluation.h WriteDaysCsv; coverage is 1: the
+//                filter has an estimate at every step)
+//   trajectory.tum, groundtruth.tum, odometry.tum
+//                evo-ready TUM files on the same run-unique stamps (run_recorder.h)
 //   config.yaml  the effective MclOptions and inputs
 //   report.html  summary, per-day table, error over frames, error histogram, configuration
 //   summary.txt  the text printed on stdout

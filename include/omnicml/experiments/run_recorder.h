@@ -5,8 +5,17 @@
 //   frames.csv       one row per frame (schema in evaluation.h), written as frames come
 //   config.yaml, days.csv, events.csv, report.html
 //                    written at Commit from the engine's final state (run_report.h)
-// and, when asked, a trajectory in TUM format (stamp x y z qx qy qz qw; z = 0; the
-// strongest estimate; frames without estimate are left out).
+//   trajectory.tum   the strongest estimate, TUM (stamp x y z qx qy qz qw; z = 0, yaw
+//                    quaternion), written at Commit
+//   groundtruth.tum  ground truth on the same stamps (when the input has ground truth)
+//   odometry.tum     the input's odometry on the same stamps (each session in its own
+//                    odometry frame)
+// The TUM files hold the localized frames only (frames without an estimate are left
+// out of all three) and use run-unique stamps (evaluation.h RunStampClock; frames.csv
+// keeps stamp_s and adds run_stamp_s), so `evo_ape tum groundtruth.tum trajectory.tum`
+// works on a multi-day run. A TUM file not written (no ground truth) is removed from
+// an existing run directory so it never belongs to an earlier run. When asked, the
+// estimate goes to a further TUM file (trajectory_path, same content as trajectory.tum).
 //
 // If the recorder is destroyed without Commit() (an error unwound the stack), every
 // temporary file is removed and a run directory it created is removed when empty, so no
@@ -19,6 +28,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <functional>
+#include <map>
 #include <optional>
 #include <string>
 #include <vector>
@@ -55,6 +65,9 @@ class RunRecorder {
 
   // Records one processed frame (the frame as delivered and the engine's result).
   void Record(const Frame& frame, const FrameResult& result);
+  // Input frames of engine session `session` that the source skipped as unreadable
+  // (added to what was recorded for it before); for days.csv and the report.
+  void RecordSkippedFrames(int session, std::int64_t count);
 
   // Writes the remaining files from the engine's final state (configuration, events,
   // map drawing) and renames everything into place. `notes` are extra lines for the
@@ -63,6 +76,7 @@ class RunRecorder {
               const std::vector<std::pair<std::string, std::string>>& notes = {});
 
   const std::vector<FrameRecord>& records() const { return records_; }
+  const std::map<int, std::int64_t>& skipped_frames() const { return skipped_frames_; }
   const RunRecorderOptions& options() const { return options_; }
 
  private:
@@ -72,6 +86,8 @@ class RunRecorder {
   std::unique_ptr<AtomicFile> frames_csv_;
   std::unique_ptr<AtomicFile> trajectory_;
   std::vector<FrameRecord> records_;
+  std::map<int, std::int64_t> skipped_frames_;  // by engine session
+  RunStampClock clock_;
   // Dead-reckoning baseline per engine session: anchor (truth, odometry) of its first
   // frame with ground truth.
   int anchor_session_ = -1;
@@ -94,13 +110,19 @@ struct ProgressOptions {
 bool StderrIsTerminal();
 
 struct RunSummary {
-  std::int64_t frames = 0;
+  std::int64_t frames = 0;            // frames delivered and processed
+  std::int64_t frames_localized = 0;  // of those, frames with an estimate
+  std::int64_t frames_skipped = 0;    // input frames skipped as unreadable (LogReader)
   int sessions = 0;
   double wall_s = 0.0;
 };
 
 // Drives `engine` over every frame of `source`: BeginSession at each new session,
-// ProcessFrame, recorder->Record (when not null), progress. Does not call Finish.
+// ProcessFrame, recorder->Record (when not null), progress. When `source` is a
+// LogReader, its per-session counts of skipped unreadable frames go to the summary and
+// recorder->RecordSkippedFrames (a session of which every frame was skipped counts in
+// the summary only: it has no engine session). Progress lines show the localized
+// fraction next to every mean error. Does not call Finish.
 // `on_session_end(engine, session_index)` (optional) runs after the last frame of each
 // session but the last, before the next BeginSession, e.g. to change the engine's mode
 // (CmlEngine::SetForgettingMode; the engine is between frames there). Throws what the

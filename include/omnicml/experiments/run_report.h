@@ -16,6 +16,7 @@
 #ifndef OMNICML_EXPERIMENTS_RUN_REPORT_H_
 #define OMNICML_EXPERIMENTS_RUN_REPORT_H_
 
+#include <cstdint>
 #include <map>
 #include <ostream>
 #include <string>
@@ -42,9 +43,11 @@ std::map<int, SessionEventCounts> EventCountsBySession(const EnvironmentModel& m
 std::string RunConfigYaml(const std::string& input_description, const CmlEngineOptions& options);
 
 // days.csv of `records` (stage columns in StageNames() order) with the event columns
-// views_inserted, views_removed, components_removed of `model`.
+// views_inserted, views_removed, components_removed of `model`, and the coverage
+// columns of WriteDaysCsv (frames_skipped from `skipped_frames`, by engine session).
 void WriteRunDaysCsv(std::ostream& out, const std::vector<FrameRecord>& records,
-                     const EnvironmentModel& model);
+                     const EnvironmentModel& model,
+                     const std::map<int, std::int64_t>& skipped_frames = {});
 
 // events.csv: header "type,frame,session,view_id,component_id,x_m,y_m,phi_rad,weight,reason"
 // and one row per event, doubles in shortest round-trip form, reasons quoted when they
@@ -52,10 +55,15 @@ void WriteRunDaysCsv(std::ostream& out, const std::vector<FrameRecord>& records,
 void WriteEventsCsv(std::ostream& out, const EnvironmentModel& model);
 
 // The self-contained HTML report of a run. `notes` are extra (key, value) lines of the
-// summary (e.g. wall time, threads).
+// summary (e.g. wall time, threads). Every error is shown next to the coverage
+// (localized frames / frames) and the count of skipped unreadable frames.
 std::string RenderRunReport(const std::string& title, const std::string& input_description,
                             const std::vector<FrameRecord>& records, const CmlEngine& engine,
-                            const std::vector<std::pair<std::string, std::string>>& notes);
+                            const std::vector<std::pair<std::string, std::string>>& notes,
+                            const std::map<int, std::int64_t>& skipped_frames = {});
+
+// "297 of 300 (99.0 %)": localized frames of `day` and the coverage, for tables.
+std::string CoverageText(const DayEvaluation& day);
 
 // printf("%.*f") of v, "-" when v is not finite (tables of reports and printed results).
 std::string FormatFixed(double v, int decimals);

@@ -95,6 +95,12 @@ class LogReader : public FrameSource {
   // Frames skipped so far (only with skip_unreadable_frames) and their error messages
   // (the first 1000 are kept).
   std::int64_t NumSkippedFrames() const { return num_skipped_; }
+  // Frames of session `index` skipped so far (0 for a session not read yet).
+  std::int64_t NumSkippedFrames(int session) const {
+    return session >= 0 && session < static_cast<int>(skipped_per_session_.size())
+               ? skipped_per_session_[static_cast<std::size_t>(session)]
+               : 0;
+  }
   const std::vector<std::string>& SkippedFrameMessages() const { return skipped_messages_; }
 
  private:
@@ -116,6 +122,7 @@ class LogReader : public FrameSource {
   bool have_last_stamp_ = false;
   int session_channels_ = 0;  // channel count of the session's first image
   std::int64_t num_skipped_ = 0;
+  std::vector<std::int64_t> skipped_per_session_;
   std::vector<std::string> skipped_messages_;
 };
 

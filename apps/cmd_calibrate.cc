@@ -3,7 +3,6 @@
 // derives the engine's spatial thresholds from it (engine/calibration.h). Prints the
 // measurements and the derived values; --out saves them as an engine configuration that
 // `omnicml run --config` loads (explicit values in a later --config still win).
-#include <fstream>
 #include <iostream>
 #include <memory>
 #include <string>
@@ -12,6 +11,7 @@
 
 #include "command_registry.h"
 #include "omnicml/common/common.h"
+#include "omnicml/common/file_io.h"
 #include "omnicml/engine/calibration.h"
 #include "omnicml/experiments/run_config.h"
 
@@ -51,8 +51,7 @@ const CommandRegistration kRegistration{
         const std::string yaml = c.ToYaml();
         std::cout << yaml;
         if (!f->out.empty()) {
-          std::ofstream out(f->out);
-          if (!(out << yaml)) throw Error(StrCat("cannot write '", f->out, "'"));
+          WriteFileAtomic(f->out, yaml);
           std::cout << "written: " << f->out << "\n";
         }
       });

@@ -84,6 +84,9 @@ Fixture MakeFixture(std::size_t num_views, std::int64_t which_extractor = 0) {
   EnvironmentModelOptions o;
   o.e_max = 1.0;  // random views are ~3.3 apart; a perturbed copy is ~0.4 from its view
   o.d_for_m = 2.0;
+  o.top_k = 0;
+  o.beta = 0.1;
+  o.d_gain_m = 0.2;
   // Random descriptors never match their neighbours, so with the default gain active
   // forgetting would empty the neighbourhood of the repeated query poses within the
   // benchmark's iterations; a tiny gain keeps the map size constant (same work per call).

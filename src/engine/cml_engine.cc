@@ -23,37 +23,6 @@ bool IsFinitePose(const Pose2& p) { return p.allFinite(); }
 
 }  // namespace
 
-EnvironmentModelOptions CmlEngineOptions::DefaultModelOptions() {
-  EnvironmentModelOptions m;
-  // Tuned on simulated logs with the default Fourier signature (tests/end_to_end_test.cc).
-  // Fourier signature (4 bands x 16, L2, normalised bands) on 360 x 60 panoramas of
-  // home_store: the same place on another day (people, restocked shelves) gives E ~ 0.1,
-  // 0.3 m away ~ 0.25, 3 m away ~ 0.67 (medians). With normalised columns (the default
-  // since format version 3) the same place under other lights on `institute` still gives
-  // E ~ 0.5, so e_max 0.45 (was 0.3): institute, 2 days x 1500 frames, seed 1, mean error
-  // 0.46 m and 450 views (0.3: 1.31 m, 1657 views; 0.5: 0.68 m; 0.6: 1.37 m); home_store,
-  // 3 days x 1000 frames, seed 1: 0.241 m and 277 views (0.3: 0.303 m, 597 views).
-  m.e_max = 0.45;
-  m.top_k = 8;
-  m.beta = 0.2;
-  m.d_max = 3.0;
-  // Active forgetting (18)-(19) acts on views within d_for of mu_t that do not match y_t.
-  // d_for = 0.5 m keeps it off the neighbouring views of the same lap (views are ~0.3 m
-  // apart and stop matching beyond that); beta_for and d_gain_m make a place that
-  // changed for good fade after a few passes. Measured on home_store (3 days x 1000
-  // frames, seed 1): 427 views in active mode against 737 in passive, active map no
-  // longer growing on day 3, mean error 0.226 m against 0.234 m. With beta_for 0.1,
-  // d_gain_m 0.2, d_for 1 m no view was ever removed; with d_for 1 m and the values
-  // below, the robot's own fresh neighbours were forgotten and the error rose.
-  m.d_for_m = 0.5;
-  m.beta_for = 0.5;
-  m.d_gain_m = 1.0;
-  m.w_min = 0.01;
-  m.merge_delta = 1.0;
-  m.spatial_cell_m = 1.0;
-  return m;
-}
-
 void CmlEngineOptions::Validate() const {
   auto nested = [](const char* prefix, auto&& validate) {
     try {

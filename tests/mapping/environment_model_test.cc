@@ -57,6 +57,20 @@ double TestSquaredMahalanobis(const Pose2& a, const Pose2& b, const Eigen::Matri
   return d.dot(s.inverse() * d);
 }
 
+// The options these tests were written against, given explicitly (the struct's
+// defaults are the engine's, docs/design.md "Defaults and their measurements").
+EnvironmentModelOptions TestOptions() {
+  EnvironmentModelOptions o;
+  o.e_max = 1.0;
+  o.top_k = 0;
+  o.beta = 0.1;
+  o.d_max = 3.0;
+  o.d_for_m = 2.0;
+  o.beta_for = 0.1;
+  o.d_gain_m = 0.2;
+  return o;
+}
+
 // Each invalid option is rejected with an Error naming its field.
 TEST(EnvironmentModelOptions, ValidateNamesTheField) {
   EXPECT_NO_THROW(EnvironmentModelOptions{}.Validate());
@@ -109,7 +123,7 @@ TEST(EnvironmentModelOptions, ValidateNamesTheField) {
 // Insertion happens exactly when every E >= e_max (boundary E == e_max inserts).
 TEST(EnvironmentModel, InsertionExactlyWhenEveryDistanceAtLeastEmax) {
   auto fx = MakeFakeExtractor(2);
-  EnvironmentModelOptions o;
+  EnvironmentModelOptions o = TestOptions();
   o.e_max = 1.0;
   EnvironmentModel m(o, fx);
   EXPECT_TRUE(m.Update(fx->Make({0, 0}), Est(0, 0, 0), {0, 0}).view_inserted);
@@ -128,7 +142,7 @@ TEST(EnvironmentModel, InsertionExactlyWhenEveryDistanceAtLeastEmax) {
   std::mt19937 rng(7);
   std::uniform_real_distribution<float> u(0.0f, 4.0f);
   auto f4 = MakeFakeExtractor(4);
-  EnvironmentModelOptions o4;
+  EnvironmentModelOptions o4 = TestOptions();
   o4.e_max = 1.0;
   o4.forgetting = ForgettingMode::kPassive;
   EnvironmentModel r(o4, f4);
@@ -148,7 +162,7 @@ TEST(EnvironmentModel, InsertionExactlyWhenEveryDistanceAtLeastEmax) {
 // weight is raised from 0 by (16) to beta * S_i.
 TEST(EnvironmentModel, EtaFollowsEq11) {
   auto fx = MakeFakeExtractor(2);
-  EnvironmentModelOptions o;
+  EnvironmentModelOptions o = TestOptions();
   o.e_max = 2.0;
   EnvironmentModel m(o, fx);
   m.Update(fx->Make({0, 0}), Est(0, 0, 0), {0, 0});
@@ -175,7 +189,7 @@ TEST(EnvironmentModel, EtaFollowsEq11) {
 // Rule (16): a component within d_max of mu_t moves to beta S + (1 - beta S) w.
 TEST(EnvironmentModel, WeightIncreaseEq16) {
   auto fx = MakeFakeExtractor(2);
-  EnvironmentModelOptions o;
+  EnvironmentModelOptions o = TestOptions();
   o.merge_delta = 0.0;  // keep components apart so each rule acts on its own component
   EnvironmentModel m(o, fx);
   m.Update(fx->Make({0, 0}), Est(0, 0, 0), {0, 0});
@@ -195,7 +209,7 @@ TEST(EnvironmentModel, WeightIncreaseEq16) {
 // Rule (17): a component of a matching view farther than d_max from mu_t decays by (1 - beta S).
 TEST(EnvironmentModel, PassiveForgettingEq17) {
   auto fx = MakeFakeExtractor(2);
-  EnvironmentModelOptions o;
+  EnvironmentModelOptions o = TestOptions();
   o.merge_delta = 0.0;
   EnvironmentModel m(o, fx);
   m.Update(fx->Make({0, 0}), Est(0, 0, 0), {0, 0});
@@ -221,7 +235,7 @@ TEST(EnvironmentModel, PassiveForgettingEq17) {
 // farther ones are untouched; b is clamped to 1 (then the view disappears, logged).
 TEST(EnvironmentModel, ActiveForgettingEq18And19) {
   auto fx = MakeFakeExtractor(2);
-  EnvironmentModelOptions o;
+  EnvironmentModelOptions o = TestOptions();
   o.d_for_m = 2.0;
   o.beta_for = 0.5;
   o.d_gain_m = 0.2;
@@ -273,7 +287,7 @@ TEST(EnvironmentModel, ActiveForgettingEq18And19) {
 // raised by (16).
 TEST(EnvironmentModel, MergeKeepsEtaMeanAndCovariance) {
   auto fx = MakeFakeExtractor(2);
-  EnvironmentModelOptions o;
+  EnvironmentModelOptions o = TestOptions();
   o.merge_delta = 1.0;
   EnvironmentModel m(o, fx);
   const Descriptor y = fx->Make({0, 0});
@@ -316,7 +330,7 @@ TEST(EnvironmentModel, MergeKeepsEtaMeanAndCovariance) {
 // by a later Update that leaves it below w_min.
 TEST(EnvironmentModel, NewComponentExemptFromRemovalOnce) {
   auto fx = MakeFakeExtractor(2);
-  EnvironmentModelOptions o;
+  EnvironmentModelOptions o = TestOptions();
   o.w_min = 0.05;
   o.beta = 0.1;
   EnvironmentModel m(o, fx);
@@ -338,7 +352,7 @@ TEST(EnvironmentModel, NewComponentExemptFromRemovalOnce) {
 // rotated by the relative heading and wrapped; stored headings are view-relative.
 TEST(EnvironmentModel, HypothesisRotatesHeadingsAndWeighsBySimilarity) {
   auto fx = MakeFakeExtractor(2);
-  EnvironmentModelOptions o;
+  EnvironmentModelOptions o = TestOptions();
   o.e_max = 2.0;
   o.merge_delta = 0.0;
   EnvironmentModel m(o, fx);
@@ -385,7 +399,7 @@ TEST(EnvironmentModel, HypothesisRotatesHeadingsAndWeighsBySimilarity) {
 // Descriptors without heading: headings are kept and the heading variance is inflated.
 TEST(EnvironmentModel, HypothesisWithoutHeadingInflatesHeadingVariance) {
   auto fx = MakeFakeExtractor(2, /*provides_heading=*/false);
-  EnvironmentModelOptions o;
+  EnvironmentModelOptions o = TestOptions();
   o.heading_sigma_no_rotation_rad = 1.5;
   EnvironmentModel m(o, fx);
   const Gaussian g = Est(1, 2, 2.5, 0.1, 0.2, 0.3);
@@ -401,7 +415,7 @@ TEST(EnvironmentModel, HypothesisWithoutHeadingInflatesHeadingVariance) {
 // top_k limits the hypothesis to the k most similar views; ties are broken by view id.
 TEST(EnvironmentModel, TopKAndDeterministicOrder) {
   auto fx = MakeFakeExtractor(2);
-  EnvironmentModelOptions o;
+  EnvironmentModelOptions o = TestOptions();
   o.e_max = 1.5;
   o.top_k = 2;
   EnvironmentModel m(o, fx);
@@ -428,7 +442,7 @@ TEST(EnvironmentModel, FindMatchesEqualsBruteForce) {
   std::mt19937 rng(3);
   std::uniform_real_distribution<float> u(0.0f, 3.0f);
   auto fx = MakeFakeExtractor(3);
-  EnvironmentModelOptions o;
+  EnvironmentModelOptions o = TestOptions();
   o.e_max = 0.8;
   EnvironmentModel m(o, fx);
   for (int t = 0; t < 400; ++t)
@@ -457,7 +471,7 @@ TEST(EnvironmentModel, ActiveForgetsChangedPlacePassiveKeepsIt) {
   std::mt19937 rng(11);
   std::normal_distribution<double> jitter(0.0, 0.05);
   for (const ForgettingMode mode : {ForgettingMode::kActive, ForgettingMode::kPassive}) {
-    EnvironmentModelOptions o;
+    EnvironmentModelOptions o = TestOptions();
     o.forgetting = mode;
     EnvironmentModel m(o, fx);
     const Descriptor before_change = fx->Make({0, 0});
@@ -515,9 +529,9 @@ TEST(EnvironmentModel, ActiveForgetsChangedPlacePassiveKeepsIt) {
   }
 }
 
-// The forgetting gains of the engine's defaults (CmlEngineOptions::DefaultModelOptions).
+// The forgetting gains of the engine's defaults (the EnvironmentModelOptions defaults).
 EnvironmentModelOptions EngineLikeOptions() {
-  EnvironmentModelOptions o;
+  EnvironmentModelOptions o = TestOptions();
   o.d_for_m = 0.5;
   o.beta_for = 0.5;
   o.d_gain_m = 1.0;
@@ -562,7 +576,7 @@ TEST(EnvironmentModel, StaticWorldIsNotForgotten) {
 // during a single pass but matches again on the next keeps its weight rising.
 TEST(EnvironmentModel, OneMissedPassDoesNotForget) {
   auto fx = MakeFakeExtractor(1);
-  EnvironmentModelOptions o;
+  EnvironmentModelOptions o = TestOptions();
   o.d_for_m = 1.0;
   EnvironmentModel m(o, fx);
   for (int k = 0; k < 5; ++k) m.Update(fx->Make({0}), Est(0, 0, 0), {k, 0});
@@ -620,7 +634,7 @@ TEST(EnvironmentModel, ChangedWorldIsForgotten) {
 // Footprints survive Serialize/Deserialize and grow with the matches.
 TEST(EnvironmentModel, FootprintFollowsMatches) {
   auto fx = MakeFakeExtractor(1);
-  EnvironmentModel m(EnvironmentModelOptions{}, fx);
+  EnvironmentModel m(TestOptions(), fx);
   for (int k = 0; k < 11; ++k) m.Update(fx->Make({0}), Est(0.1 * k, 0, 0), {k, 0});
   ASSERT_EQ(m.NumViews(), 1u);
   const ViewFootprint& f = m.views()[0].footprint;
@@ -631,7 +645,7 @@ TEST(EnvironmentModel, FootprintFollowsMatches) {
   m.Serialize(w);
   const std::vector<std::uint8_t> bytes = w.Release();
   BinaryReader r(bytes);
-  const EnvironmentModel back = EnvironmentModel::Deserialize(r, EnvironmentModelOptions{}, fx);
+  const EnvironmentModel back = EnvironmentModel::Deserialize(r, TestOptions(), fx);
   EXPECT_EQ(back.views()[0].footprint, f);
 }
 
@@ -640,7 +654,7 @@ TEST(EnvironmentModel, StaticModeNeverChangesTheMap) {
   auto fx = MakeFakeExtractor(2);
   std::mt19937 rng(5);
   std::uniform_real_distribution<float> u(0.0f, 4.0f);
-  EnvironmentModel m(EnvironmentModelOptions{}, fx);
+  EnvironmentModel m(TestOptions(), fx);
   for (int t = 0; t < 50; ++t) m.Update(fx->Make({u(rng), u(rng)}), Est(u(rng), u(rng), 0), {t, 0});
   const std::vector<std::uint8_t> frozen = Bytes(m);
   m.SetForgettingMode(ForgettingMode::kStatic);
@@ -649,7 +663,7 @@ TEST(EnvironmentModel, StaticModeNeverChangesTheMap) {
     EXPECT_FALSE(s.view_inserted);
   }
   EXPECT_EQ(Bytes(m), frozen);
-  EnvironmentModelOptions o;
+  EnvironmentModelOptions o = TestOptions();
   o.forgetting = ForgettingMode::kStatic;
   EnvironmentModel empty(o, fx);
   empty.Update(fx->Make({1, 1}), Est(0, 0, 0), {0, 0});
@@ -668,7 +682,7 @@ TEST(EnvironmentModel, ForgettingNeverRaisesWeight) {
   std::vector<std::vector<float>> centres;
   for (int k = 0; k < 12; ++k) centres.push_back({u(rng), u(rng), u(rng)});
   for (const ForgettingMode mode : {ForgettingMode::kActive, ForgettingMode::kPassive}) {
-    EnvironmentModelOptions o;
+    EnvironmentModelOptions o = TestOptions();
     o.forgetting = mode;
     o.e_max = 0.6;
     o.d_for_m = 1.5;
@@ -715,7 +729,7 @@ TEST(EnvironmentModel, SerializeRoundTripAndCorruption) {
   std::mt19937 rng(8);
   std::uniform_real_distribution<float> u(0.0f, 3.0f);
   auto fx = MakeFakeExtractor(3);
-  EnvironmentModelOptions o;
+  EnvironmentModelOptions o = TestOptions();
   o.e_max = 0.7;
   o.log_component_events = true;
   EnvironmentModel m(o, fx);
@@ -760,7 +774,7 @@ TEST(EnvironmentModel, SerializeRoundTripAndCorruption) {
 // Bad input is rejected and leaves the model unchanged.
 TEST(EnvironmentModel, RejectsBadInputWithoutChange) {
   auto fx = MakeFakeExtractor(2);
-  EnvironmentModel m(EnvironmentModelOptions{}, fx);
+  EnvironmentModel m(TestOptions(), fx);
   m.Update(fx->Make({0, 0}), Est(0, 0, 0), {0, 0});
   const auto bytes = Bytes(m);
   EXPECT_THROW(m.Update(fx->Make({0, 0, 0}), Est(0, 0, 0), {1, 0}), Error);
@@ -772,7 +786,7 @@ TEST(EnvironmentModel, RejectsBadInputWithoutChange) {
   EXPECT_THROW(m.Update(fx->Make({0, 0}), bad, {1, 0}), Error);
   EXPECT_THROW(m.FindMatches(MakeFakeExtractor(2, false)->Make({0, 0})), Error);
   EXPECT_EQ(Bytes(m), bytes);
-  EXPECT_THROW(EnvironmentModel(EnvironmentModelOptions{}, nullptr), Error);
+  EXPECT_THROW(EnvironmentModel(TestOptions(), nullptr), Error);
   // Matches from before a change are detected as stale when the view moved away.
   const auto matches = m.FindMatches(fx->Make({0, 0}));
   ASSERT_EQ(matches.size(), 1u);
@@ -796,7 +810,7 @@ TEST(EnvironmentModel, RealFourierSignatureRecoversHeading) {
   cv::hconcat(panorama.colRange(k, panorama.cols), panorama.colRange(0, k), rolled);
   const Descriptor y0 = fx->Compute(panorama);
   const Descriptor y1 = fx->Compute(rolled);
-  EnvironmentModelOptions o;
+  EnvironmentModelOptions o = TestOptions();
   o.e_max = 1.0;
   EnvironmentModel m(o, fx);
   m.Update(y0, Est(1, 2, 0.7), {0, 0});

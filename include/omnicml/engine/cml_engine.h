@@ -76,7 +76,7 @@ struct CmlEngineOptions {
   // The adaptive appearance map. e_max is in the descriptor's distance units: the
   // default suits the default Fourier signature (4 bands x 16 harmonics, L2, normalised
   // bands) on the simulator's panoramas.
-  EnvironmentModelOptions model = DefaultModelOptions();
+  EnvironmentModelOptions model;
   // Reconstruction of multimodal stretches; its `motion` field is ignored (tracker.motion
   // is used).
   ReconstructionOptions reconstruction;
@@ -95,11 +95,7 @@ struct CmlEngineOptions {
   // At most this many frames wait for reconstruction; older ones are dropped or, when
   // unimodal, go to the map with their filtered estimate (and the stretch loses its start
   // anchor). Frames, >= 1. It bounds the loop a closure can correct, and the damage a
-  // wrong closure does. Measured, mean error over all days (store_large 3 x 1500 frames,
-  // a 300 m first lap of 1500 frames; institute 2 x 1500 frames, seed 3):
-  //   300: 9.24 m, 1.14 m;  600: 7.74 m, 1.06 m;  1000: 7.08 m, 1.29 m;  2000: 6.20 m, 1.63 m
-  // (institute seeds 1 and 2 do not change). Memory about 1 kB per waiting frame; the
-  // reconstruction of 1450 frames took 0.4 s, once, at the closure.
+  // wrong closure does. Memory about 1 kB per waiting frame.
   int max_pending_multimodal_frames = 1000;
   // Confident anchors (engine-level addition to [G 2.1]/[PK]): a unimodal estimate
   // anchors the trajectory and updates the map at once only when appearance fixed it
@@ -135,9 +131,7 @@ struct CmlEngineOptions {
   //    least this factor in (0, 1]: the prior odds that an appearance match far from
   //    every current hypothesis is a new place hypothesis (kidnapping, loop closure)
   //    rather than aliasing. Repeated matches there raise its weight by [G] (8), in
-  //    proportion to its prior. Measured on institute (2 days x 1500 frames, seed 1):
-  //    1.0 (no prior) let aliased matches 5 m away with the heading flipped win
-  //    (day 1 mean error 2.9 m, heading 49 deg); 0.1 gives 1.7 m / 15 deg.
+  //    proportion to its prior.
   double hypothesis_weight_scale = 0.1;
   //  - appearance_sigma_m^2 is added to the x and y variances of every component: a view
   //    matches over a neighbourhood of its place, not only at its exact pose. Metres, >= 0.
@@ -149,8 +143,6 @@ struct CmlEngineOptions {
   // frame to the new session's first frame (the log's odometry runs on across sessions).
   bool continue_odometry_across_sessions = false;
 
-  // Engine-level defaults of the environment model (tuned on simulated logs).
-  static EnvironmentModelOptions DefaultModelOptions();
   // Throws omnicml::Error naming the first invalid field (including nested options,
   // prefixed "descriptor.", "tracker.", "model.", "reconstruction.").
   void Validate() const;

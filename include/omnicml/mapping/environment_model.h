@@ -62,16 +62,19 @@ std::string ToString(ForgettingMode mode);
 // Throws omnicml::Error on any other name.
 ForgettingMode ForgettingModeFromString(const std::string& name);
 
+// Every default below is the engine's (CmlEngineOptions::model); the measurements behind
+// them are in docs/design.md "Defaults and their measurements".
 struct EnvironmentModelOptions {
   // Descriptor distance at which the similarity S reaches 0 (S = max(0, 1 - E / e_max));
   // views with E < e_max match, and y_t becomes a new view iff E >= e_max for every view.
-  // In units of the extractor's Distance: tune it per descriptor. Must be > 0.
-  double e_max = 1.0;
+  // In units of the extractor's Distance: tune it per descriptor (the default suits the
+  // default Fourier signature on the simulator's panoramas). Must be > 0.
+  double e_max = 0.45;
   // Hypothesis uses at most the top_k most similar matching views; 0 = all of them.
   // Update always uses every matching view. Must be >= 0.
-  int top_k = 0;
+  int top_k = 8;
   // [G] (16)-(17) learning rate beta, dimensionless, in (0, 1].
-  double beta = 0.1;
+  double beta = 0.2;
   // [G] (15): a component is confirmed (rule 16) iff its Mahalanobis distance d to mu_t
   // under C_t + C_ij is <= d_max, otherwise it decays (rule 17). d is the square root of
   // the quadratic form (NOT squared), dimensionless. Must be > 0.
@@ -79,14 +82,14 @@ struct EnvironmentModelOptions {
   // [G] (18)-(19): active forgetting considers components of non-matching views whose xy
   // position is closer than d_for_m to mu_t (Euclidean, metres), then keeps only views
   // whose footprint holds mu_t (footprint_gate below). Must be > 0.
-  double d_for_m = 2.0;
+  double d_for_m = 0.5;
   // [G] (19) gain beta_for, dimensionless, >= 0.
-  double beta_for = 0.1;
+  double beta_for = 0.5;
   // [G] (19) d_gain in metres: b = beta_for * max(1 - d_xy / d_for, 0) * d_gain /
   // (sigma_x + sigma_y) with sigma_x, sigma_y the standard deviations (m) of C_t, so the
   // fraction is dimensionless; b is clamped to [0, 1]. A confident estimate (small sigma)
   // forgets faster than an uncertain one. Must be >= 0.
-  double d_gain_m = 0.2;
+  double d_gain_m = 1.0;
   // Components whose weight falls below w_min after phase 3 are removed, and views left
   // without components are removed. Dimensionless, in [0, 1).
   //
@@ -128,13 +131,9 @@ struct EnvironmentModelOptions {
   // ... and only when the robot is confident relative to the footprint: the largest
   // standard deviation of C_t's xy part at most footprint_confidence times the
   // footprint's largest standard deviation (dimensionless, >= 0; 0 disables the check).
-  // Off by default: on institute seed 4 (Table 1 setting) 1.0 keeps 1546 views at step
-  // 8000 (passive 1565), i.e. it disables nearly all forgetting.
   double footprint_confidence = 0.0;
   // Divide (19)'s b by the number of passes in which the view matched, so a place seen
-  // on many passes needs as many missed passes to fade as one seen once needs. Off by
-  // default: institute seeds 4/3 (Table 1 setting) give views at step 8000 593/648 and
-  // mean error 0.48/0.63 m, against 505/555 and 0.56/0.69 m without it.
+  // on many passes needs as many missed passes to fade as one seen once needs.
   bool forget_by_matched_passes = false;
   // Also log kComponentAdded and kComponentMerged events (one or more per matching view
   // per Update: large logs). View insertions/removals and component removals are always

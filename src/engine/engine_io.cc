@@ -75,19 +75,16 @@ OdometryIncrement ReadIncrement(BinaryReader& in, const char* what) {
   u.rot2_rad = in.Read<double>(what);
   return u;
 }
-void WriteDescriptor(BinaryWriter& out, const Descriptor& d) {
-  const std::vector<std::uint8_t> bytes = Serialize(d);
-  out.Write<std::uint64_t>(bytes.size());
-  out.WriteBytes(bytes);
-}
-Descriptor ReadDescriptor(BinaryReader& in, const char* what) {
-  const std::size_t n = in.ReadCount(what, 1);
-  const std::vector<std::uint8_t> bytes = in.ReadBytes(n, what);
-  try {
-    return Deserialize(bytes);
-  } catch (const Error& e) {
-    in.Fail(what, e.what());
+// Descriptors of pending frames and queued updates use the descriptor record encoding
+// (descriptor.h), as the map's views do; they must fit the engine's extractor.
+Descriptor ReadDescriptor(BinaryReader& in, const char* what, const DescriptorExtractor& extractor) {
+  Descriptor d = ReadDescriptorRecord(in);
+  if (d.kind != extractor.kind() || d.features.size() != extractor.FeatureSize()) {
+    in.Fail(what, StrCat("a ", ToString(d.kind), " descriptor with ", d.features.size(),
+                         " features, the engine's extractor gives ", ToString(extractor.kind()),
+                         " with ", extractor.FeatureSize()));
   }
+  return d;
 }
 
 // Reads an enum stored as its underlying integer and checks it against [lo, hi].
@@ -173,7 +170,7 @@ void EngineStateAccess::Write(BinaryWriter& out, const CmlEngine& e) {
   for (const PendingFrame& p : e.pending_) {
     out.Write<std::int64_t>(p.frame);
     out.Write<std::int32_t>(p.session);
-    WriteDescriptor(out, p.descriptor);
+    WriteDescriptorRecord(out, p.descriptor);
     WriteIncrement(out, p.increment);
     out.Write<bool>(p.filtered.has_value());
     if (p.filtered) WriteGaussian(out, *p.filtered);
@@ -190,7 +187,7 @@ void EngineStateAccess::Write(BinaryWriter& out, const CmlEngine& e) {
     out.Write<std::int64_t>(u.frame);
     out.Write<std::int64_t>(u.due_frame);
     out.Write<std::int32_t>(u.session_index);
-    WriteDescriptor(out, u.descriptor);
+    WriteDescriptorRecord(out, u.descriptor);
     WriteGaussian(out, u.state);
     out.Write<bool>(u.reconstructed);
   }
@@ -231,12 +228,12 @@ std::unique_ptr<CmlEngine> EngineStateAccess::Read(BinaryReader& in) {
   for (std::size_t i = 0; i < components; ++i) m.push_back(ReadGaussian(in, "tracker.state"));
   e->tracker_.set_state(std::move(m));
 
-  const std::size_t pending = in.ReadCount("pending", 8 + 4 + 8 + 24 + 1);
+  const std::size_t pending = in.ReadCount("pending", 8 + 4 + 21 + 24 + 1);
   for (std::size_t i = 0; i < pending; ++i) {
     PendingFrame p;
     p.frame = in.Read<std::int64_t>("pending.frame");
     p.session = in.Read<std::int32_t>("pending.session");
-    p.descriptor = ReadDescriptor(in, "pending.descriptor");
+    p.descriptor = ReadDescriptor(in, "pending.descriptor", *e->extractor_);
     p.increment = ReadIncrement(in, "pending.increment");
     if (in.Read<bool>("pending.filtered")) p.filtered = ReadGaussian(in, "pending.filtered");
     e->pending_.push_back(std::move(p));
@@ -246,14 +243,14 @@ std::unique_ptr<CmlEngine> EngineStateAccess::Read(BinaryReader& in) {
     e->anchor_ = std::make_pair(frame, ReadGaussian(in, "anchor.state"));
   }
 
-  const std::size_t queued = in.ReadCount("queued_updates", 8 + 8 + 4 + 8 + 13 * 8 + 1);
+  const std::size_t queued = in.ReadCount("queued_updates", 8 + 8 + 4 + 21 + 13 * 8 + 1);
   std::int64_t last_due = INT64_MIN;
   for (std::size_t i = 0; i < queued; ++i) {
     MapUpdate u;
     u.frame = in.Read<std::int64_t>("queued_updates.frame");
     u.due_frame = in.Read<std::int64_t>("queued_updates.due_frame");
     u.session_index = in.Read<std::int32_t>("queued_updates.session");
-    u.descriptor = ReadDescriptor(in, "queued_updates.descriptor");
+    u.descriptor = ReadDescriptor(in, "queued_updates.descriptor", *e->extractor_);
     u.state = ReadGaussian(in, "queued_updates.state");
     u.reconstructed = in.Read<bool>("queued_updates.reconstructed");
     if (u.due_frame < last_due) in.Fail("queued_updates.due_frame", "due frames decrease");

@@ -42,7 +42,9 @@ namespace omnicml {
 
 // Version of the payload layout written by SaveEngine. Bump on any change.
 // 4: the options section is the schema's tree of named fields (common/options.h).
-inline constexpr std::uint32_t kEngineFormatVersion = 4;
+// 5: descriptors of pending frames and queued updates in the descriptor record encoding
+//    (descriptor.h WriteDescriptorRecord), as the map's views.
+inline constexpr std::uint32_t kEngineFormatVersion = 5;
 // The 8 magic bytes (including the terminating NUL).
 inline constexpr char kEngineMagic[8] = {'O', 'M', 'N', 'I', 'C', 'M', 'L', '\0'};
 

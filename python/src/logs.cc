@@ -187,7 +187,7 @@ void BindLogs(py::module_& m) {
            "log_dirs: a path or a list of paths, read in order. Raises omnicml.Error naming the "
            "file and line of the first problem.")
       .def("session_directory", &LogReader::SessionDirectory, py::arg("index"))
-      .def_property_readonly("num_skipped_frames", &LogReader::NumSkippedFrames);
+      .def_property_readonly("num_skipped_frames", static_cast<std::int64_t (LogReader::*)() const>(&LogReader::NumSkippedFrames));
 
   const SimulatorOptions sd;
   py::class_<SimulatedFrameSource, FrameSource, std::shared_ptr<SimulatedFrameSource>>(

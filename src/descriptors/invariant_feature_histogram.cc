@@ -83,10 +83,26 @@ void PadCyclic(const cv::Mat& image, int channel, int margin, std::vector<float>
   }
 }
 
+// The AVX2 clone is chosen by an ifunc resolver that runs during dynamic relocation,
+// before a sanitizer runtime is initialised; ThreadSanitizer instruments the resolver and
+// the program dies at start-up (gcc and clang alike). Under TSan: one plain version.
+#if defined(__SANITIZE_THREAD__)
+#define OMNICML_TSAN_BUILD 1
+#elif defined(__has_feature)
+#if __has_feature(thread_sanitizer)
+#define OMNICML_TSAN_BUILD 1
+#endif
+#endif
+#ifdef OMNICML_TSAN_BUILD
+#define OMNICML_AVX2_CLONES
+#else
+#define OMNICML_AVX2_CLONES __attribute__((target_clones("avx2", "default")))
+#endif
+
 // T[f](M) for one image row: out[x] = M(0,0)^c * 1/P sum_p prod_j M(x + q_pj) ([W] eq. 2).
 // Element-wise loops over x that the compiler vectorises; an AVX2 clone is picked at
 // run time where available (no FMA, so the results are bit-identical either way).
-__attribute__((target_clones("avx2", "default"))) void KernelRow(const float* centre,
+OMNICML_AVX2_CLONES void KernelRow(const float* centre,
                                                                  const KernelTaps& kt, int width,
                                                                  float* __restrict out,
                                                                  float* __restrict tmp) {

@@ -141,7 +141,9 @@ class MapReader {
   // Throws for the first key that was never asked for.
   void CheckNoUnknownKeys() const {
     for (const auto& kv : node_) {
-      const std::string key = kv.first.as<std::string>();
+      // A list or map as a key ("{kind: goods}:" in flow style) is no name.
+      if (!kv.first.IsScalar()) FailAt(kv.first, Path("?"), "a key must be a name");
+      const std::string key = kv.first.Scalar();
       if (!used_.count(key)) FailAt(kv.first, Path(key), "unknown key");
     }
   }

@@ -60,6 +60,8 @@ RunRecorder::RunRecorder(RunRecorderOptions options) : options_(std::move(option
     }
     frames_csv_ = std::make_unique<AtomicFile>(options_.run_dir / "frames.csv");
     WriteFramesCsvHeader(frames_csv_->stream(), StageNames());
+    events_csv_ = std::make_unique<AtomicFile>(options_.run_dir / "events.csv");
+    WriteEventsCsvHeader(events_csv_->stream());
   }
   if (!options_.trajectory_path.empty()) {
     trajectory_ = std::make_unique<AtomicFile>(options_.trajectory_path);
@@ -71,6 +73,7 @@ RunRecorder::~RunRecorder() {
   if (committed_) return;
   frames_csv_.reset();  // removes the temporaries
   trajectory_.reset();
+  events_csv_.reset();
   if (created_dir_) {
     std::error_code ec;
     if (fs::is_empty(options_.run_dir, ec) && !ec) fs::remove(options_.run_dir, ec);
@@ -127,9 +130,32 @@ void RunRecorder::RecordSkippedFrames(int session, std::int64_t count) {
   if (count > 0) skipped_frames_[session] += count;
 }
 
+void RunRecorder::RecordEvents(const EnvironmentModel& model) {
+  const std::uint64_t first = model.first_event_number();
+  // First call, or another model (fewer events than already written): start at its oldest.
+  if (!next_event_ || *next_event_ > model.events_logged()) next_event_ = first;
+  if (*next_event_ < first) {
+    events_lost_ += first - *next_event_;
+    next_event_ = first;
+  }
+  const std::deque<MapEvent>& events = model.events();
+  if (events_csv_) {
+    for (std::size_t i = static_cast<std::size_t>(*next_event_ - first); i < events.size(); ++i) {
+      WriteEventsCsvRow(events_csv_->stream(), events[i]);
+    }
+  }
+  next_event_ = model.events_logged();
+}
+
 void RunRecorder::Commit(const CmlEngine& engine,
                          const std::vector<std::pair<std::string, std::string>>& notes) {
   if (committed_) return;
+  RecordEvents(engine.model());  // what Finish added
+  std::vector<std::pair<std::string, std::string>> all_notes = notes;
+  if (events_lost_ > 0) {
+    all_notes.emplace_back("map events missing from events.csv",
+                           StrCat(events_lost_, " (more than model.max_events in one frame)"));
+  }
   std::vector<std::unique_ptr<AtomicFile>> files;
   if (!options_.run_dir.empty()) {
     auto config = std::make_unique<AtomicFile>(options_.run_dir / "config.yaml");
@@ -155,20 +181,17 @@ void RunRecorder::Commit(const CmlEngine& engine,
       files.push_back(std::move(tum));
     }
 
-    auto events = std::make_unique<AtomicFile>(options_.run_dir / "events.csv");
-    WriteEventsCsv(events->stream(), engine.model());
-    files.push_back(std::move(events));
-
     if (options_.write_report) {
       auto html = std::make_unique<AtomicFile>(options_.run_dir / "report.html");
       html->stream() << RenderRunReport(options_.title, options_.input_description, records_,
-                                        engine, notes, skipped_frames_);
+                                        engine, all_notes, skipped_frames_);
       files.push_back(std::move(html));
     }
   }
   // Everything is written; rename into place.
   if (frames_csv_) frames_csv_->Commit();
   if (trajectory_) trajectory_->Commit();
+  if (events_csv_) events_csv_->Commit();
   for (auto& f : files) f->Commit();
   committed_ = true;
 }
@@ -272,7 +295,10 @@ RunSummary RunEngineOverSource(CmlEngine& engine, FrameSource& source, RunRecord
       ++summary.frames_localized;
       ++session_localized;
     }
-    if (recorder != nullptr) recorder->Record(frame, last);
+    if (recorder != nullptr) {
+      recorder->Record(frame, last);
+      recorder->RecordEvents(engine.model());
+    }
     if (last.estimate && frame.map_T_robot_truth) {
       error_sum +=
           (last.estimate->strongest.mean.head<2>() - frame.map_T_robot_truth->head<2>()).norm();

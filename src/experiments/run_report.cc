@@ -36,11 +36,11 @@ std::string FormatFixed(double v, int decimals) {
 
 std::map<int, SessionEventCounts> EventCountsBySession(const EnvironmentModel& model) {
   std::map<int, SessionEventCounts> out;
-  for (const MapEvent& e : model.events()) {
-    SessionEventCounts& s = out[e.session];
-    if (e.type == MapEventType::kViewInserted) ++s.views_inserted;
-    if (e.type == MapEventType::kViewRemoved) ++s.views_removed;
-    if (e.type == MapEventType::kComponentRemoved) ++s.components_removed;
+  for (const auto& [session, n] : model.event_counts()) {  // exact, not limited by the ring
+    SessionEventCounts& s = out[session];
+    s.views_inserted = static_cast<int>(n.views_inserted);
+    s.views_removed = static_cast<int>(n.views_removed);
+    s.components_removed = static_cast<int>(n.components_removed);
   }
   return out;
 }
@@ -71,14 +71,20 @@ void WriteRunDaysCsv(std::ostream& out, const std::vector<FrameRecord>& records,
                skipped_frames);
 }
 
-void WriteEventsCsv(std::ostream& out, const EnvironmentModel& model) {
+void WriteEventsCsvHeader(std::ostream& out) {
   out << "type,frame,session,view_id,component_id,x_m,y_m,phi_rad,weight,reason\n";
-  for (const MapEvent& e : model.events()) {
-    out << ToString(e.type) << ',' << e.frame << ',' << e.session << ',' << e.view_id << ','
-        << e.component_id << ',' << ShortestDouble(e.position.x()) << ','
-        << ShortestDouble(e.position.y()) << ',' << ShortestDouble(e.position.z()) << ','
-        << ShortestDouble(e.weight) << ',' << CsvText(e.reason) << '\n';
-  }
+}
+
+void WriteEventsCsvRow(std::ostream& out, const MapEvent& e) {
+  out << ToString(e.type) << ',' << e.frame << ',' << e.session << ',' << e.view_id << ','
+      << e.component_id << ',' << ShortestDouble(e.position.x()) << ','
+      << ShortestDouble(e.position.y()) << ',' << ShortestDouble(e.position.z()) << ','
+      << ShortestDouble(e.weight) << ',' << CsvText(e.reason) << '\n';
+}
+
+void WriteEventsCsv(std::ostream& out, const EnvironmentModel& model) {
+  WriteEventsCsvHeader(out);
+  for (const MapEvent& e : model.events()) WriteEventsCsvRow(out, e);
 }
 
 std::string RenderRunReport(const std::string& title, const std::string& input,

@@ -12,8 +12,10 @@ namespace {
 
 constexpr std::uint32_t kModelMagic = 0x4D45434Fu;  // "OCEM" little-endian
 // Version 2 adds each view's footprint (ViewFootprint); version 1 maps are still read,
-// their footprints estimated from the components.
-constexpr std::uint32_t kModelVersion = 2;
+// their footprints estimated from the components. Version 3 adds the number of events
+// logged and the per-session event counts before the (bounded) event ring; earlier
+// versions rebuild the counts from their complete log.
+constexpr std::uint32_t kModelVersion = 3;
 
 // mu_t with its angle expressed relative to view i's panorama: phi_t minus the relative
 // heading RelativeHeading(y_t, y_i) (docs/design.md "Environment model", phase 2). Without a
@@ -174,6 +176,31 @@ void EnvironmentModelOptions::Validate() const {
   if (pass_gap_frames < 0) fail("pass_gap_frames", ">= 0", pass_gap_frames);
   if (!(std::isfinite(footprint_confidence) && footprint_confidence >= 0))
     fail("footprint_confidence", "finite and >= 0", footprint_confidence);
+  if (max_events < 0) fail("max_events", ">= 0", max_events);
+}
+
+void EnvironmentModel::LogEvent(MapEvent e) {
+  MapEventCounts& n = event_counts_[e.session];
+  switch (e.type) {
+    case MapEventType::kViewInserted:
+      ++n.views_inserted;
+      break;
+    case MapEventType::kViewRemoved:
+      ++n.views_removed;
+      break;
+    case MapEventType::kComponentAdded:
+      ++n.components_added;
+      break;
+    case MapEventType::kComponentMerged:
+      ++n.components_merged;
+      break;
+    case MapEventType::kComponentRemoved:
+      ++n.components_removed;
+      break;
+  }
+  ++events_logged_;
+  events_.push_back(std::move(e));
+  while (events_.size() > static_cast<std::size_t>(options_.max_events)) events_.pop_front();
 }
 
 double ReferenceView::TotalWeight() const {
@@ -311,7 +338,7 @@ std::size_t EnvironmentModel::InsertView(const Descriptor& y, const UpdateContex
   v.stats.last_seen_session = context.session;
   features_.insert(features_.end(), y.features.begin(), y.features.end());
   index_of_id_[v.id] = views_.size();
-  events_.push_back(MapEvent{MapEventType::kViewInserted, context.frame, context.session, v.id, 0,
+  LogEvent(MapEvent{MapEventType::kViewInserted, context.frame, context.session, v.id, 0,
                              where, 0.0, "no view within e_max"});
   views_.push_back(std::move(v));
   return views_.size() - 1;
@@ -347,7 +374,7 @@ std::uint64_t EnvironmentModel::AddView(const Descriptor& y, std::vector<ViewCom
   }
   features_.insert(features_.end(), y.features.begin(), y.features.end());
   index_of_id_[v.id] = views_.size();
-  events_.push_back(MapEvent{MapEventType::kViewInserted, stats.created_frame,
+  LogEvent(MapEvent{MapEventType::kViewInserted, stats.created_frame,
                              stats.created_session, v.id, 0, v.components.front().mean,
                              v.TotalWeight(), "added"});
   views_.push_back(std::move(v));
@@ -457,7 +484,7 @@ UpdateStats EnvironmentModel::Update(const Descriptor& y, const Gaussian& estima
       fresh.push_back(added.id);
       ++stats.components_added;
       if (options_.log_component_events) {
-        events_.push_back(MapEvent{MapEventType::kComponentAdded, context.frame, context.session,
+        LogEvent(MapEvent{MapEventType::kComponentAdded, context.frame, context.session,
                                    view.id, added.id, added.mean, added.weight, "observation"});
       }
       continue;
@@ -471,7 +498,7 @@ UpdateStats EnvironmentModel::Update(const Descriptor& y, const Gaussian& estima
       MergeInto(comps[k], added);
       spatial_.Move(view.id, comps[k].id, old.x(), old.y(), comps[k].mean.x(), comps[k].mean.y());
       if (options_.log_component_events) {
-        events_.push_back(MapEvent{MapEventType::kComponentMerged, context.frame, context.session,
+        LogEvent(MapEvent{MapEventType::kComponentMerged, context.frame, context.session,
                                    view.id, comps[k].id, comps[k].mean, comps[k].weight,
                                    "merge (12)-(14)"});
       }
@@ -489,7 +516,7 @@ UpdateStats EnvironmentModel::Update(const Descriptor& y, const Gaussian& estima
       comps.erase(comps.begin() + static_cast<std::ptrdiff_t>(drop));
       --num_components_;
       if (options_.log_component_events) {
-        events_.push_back(MapEvent{MapEventType::kComponentMerged, context.frame, context.session,
+        LogEvent(MapEvent{MapEventType::kComponentMerged, context.frame, context.session,
                                    view.id, comps[keep].id, comps[keep].mean, comps[keep].weight,
                                    "merge (12)-(14)"});
       }
@@ -605,7 +632,7 @@ UpdateStats EnvironmentModel::Update(const Descriptor& y, const Gaussian& estima
         continue;
       }
       const auto t = touch.find(c.id);
-      events_.push_back(MapEvent{MapEventType::kComponentRemoved, context.frame, context.session,
+      LogEvent(MapEvent{MapEventType::kComponentRemoved, context.frame, context.session,
                                  view.id, c.id, c.mean, c.weight,
                                  RemovalReason(t == touch.end() ? Touch::kNone : t->second)});
       spatial_.Remove(view.id, c.id, c.mean.x(), c.mean.y());
@@ -615,7 +642,7 @@ UpdateStats EnvironmentModel::Update(const Descriptor& y, const Gaussian& estima
     }
     comps.resize(out);
     if (comps.empty()) {
-      events_.push_back(MapEvent{MapEventType::kViewRemoved, context.frame, context.session,
+      LogEvent(MapEvent{MapEventType::kViewRemoved, context.frame, context.session,
                                  view.id, 0, last_position, 0.0, "view empty"});
       RemoveViewAt(it->second);
       ++stats.views_removed;
@@ -635,7 +662,8 @@ std::size_t EnvironmentModel::MemoryBytes() const {
   bytes += index_of_id_.bucket_count() * sizeof(void*) +
            index_of_id_.size() * (sizeof(std::uint64_t) + sizeof(std::size_t) + 2 * sizeof(void*));
   bytes += spatial_.MemoryBytes();
-  bytes += events_.capacity() * sizeof(MapEvent);
+  bytes += events_.size() * sizeof(MapEvent);
+  bytes += event_counts_.size() * (sizeof(int) + sizeof(MapEventCounts) + 4 * sizeof(void*));
   for (const MapEvent& e : events_) bytes += e.reason.capacity() > 15 ? e.reason.capacity() : 0;
   return bytes;
 }
@@ -677,6 +705,16 @@ void EnvironmentModel::Serialize(BinaryWriter& out) const {
       for (int r = 0; r < 3; ++r)
         for (int q = 0; q < 3; ++q) out.Write(c.covariance(r, q));
     }
+  }
+  out.Write<std::uint64_t>(events_logged_);
+  out.Write<std::uint64_t>(event_counts_.size());
+  for (const auto& [session, n] : event_counts_) {
+    out.Write<std::int32_t>(session);
+    out.Write(n.views_inserted);
+    out.Write(n.views_removed);
+    out.Write(n.components_added);
+    out.Write(n.components_merged);
+    out.Write(n.components_removed);
   }
   out.Write<std::uint64_t>(events_.size());
   for (const MapEvent& e : events_) {
@@ -771,8 +809,27 @@ EnvironmentModel EnvironmentModel::Deserialize(
     if (version < 2) v.footprint = FootprintFromComponents(v.components);
     model.views_.push_back(std::move(v));
   }
+  if (version >= 3) {
+    model.events_logged_ = in.Read<std::uint64_t>("events logged");
+    const std::size_t sessions = in.ReadCount("event counts", 4 + 5 * 8);
+    for (std::size_t i = 0; i < sessions; ++i) {
+      const int session = in.Read<std::int32_t>("event counts session");
+      MapEventCounts n;
+      for (std::int64_t* c : {&n.views_inserted, &n.views_removed, &n.components_added,
+                              &n.components_merged, &n.components_removed}) {
+        *c = in.Read<std::int64_t>("event counts");
+        if (*c < 0) in.Fail("event counts", StrCat("negative count for session ", session));
+      }
+      if (!model.event_counts_.emplace(session, n).second) {
+        in.Fail("event counts", StrCat("session ", session, " appears twice"));
+      }
+    }
+  }
   const std::size_t num_events = in.ReadCount("events", 1 + 8 + 4 + 8 + 8 + 24 + 8 + 8);
-  model.events_.reserve(num_events);
+  if (version >= 3 && num_events > model.events_logged_) {
+    in.Fail("events", StrCat(num_events, " events stored but only ", model.events_logged_,
+                             " logged"));
+  }
   for (std::size_t i = 0; i < num_events; ++i) {
     MapEvent e;
     const auto type = in.Read<std::uint8_t>("event type");
@@ -787,7 +844,15 @@ EnvironmentModel EnvironmentModel::Deserialize(
     e.position = ReadPose(in, "event position");
     e.weight = in.Read<double>("event weight");
     e.reason = in.ReadString("event reason");
-    model.events_.push_back(std::move(e));
+    if (version < 3) {
+      model.LogEvent(std::move(e));  // counts rebuilt from the (then complete) log
+    } else {
+      model.events_.push_back(std::move(e));
+    }
+  }
+  // A model loaded with a smaller max_events keeps the most recent ones.
+  while (model.events_.size() > static_cast<std::size_t>(options.max_events)) {
+    model.events_.pop_front();
   }
   model.RebuildDerived();
   // Ids must be unique and below the next ids, or later insertions would collide.

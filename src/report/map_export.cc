@@ -839,10 +839,10 @@ std::string InspectText(const CmlEngine& engine, const MapHealthOptions& options
   std::map<int, std::array<int, 4>>
       per_session;  // created alive, inserted, removed views, removed comps
   for (const auto& view : model.views()) per_session[view.stats.created_session][0] += 1;
-  for (const auto& e : model.events()) {
-    if (e.type == MapEventType::kViewInserted) per_session[e.session][1] += 1;
-    if (e.type == MapEventType::kViewRemoved) per_session[e.session][2] += 1;
-    if (e.type == MapEventType::kComponentRemoved) per_session[e.session][3] += 1;
+  for (const auto& [session, n] : model.event_counts()) {  // exact, not limited by the ring
+    per_session[session][1] = static_cast<int>(n.views_inserted);
+    per_session[session][2] = static_cast<int>(n.views_removed);
+    per_session[session][3] = static_cast<int>(n.components_removed);
   }
   os << "sessions covered: " << DescribeSession(health.first_session) << " .. "
      << DescribeSession(latest) << "\n";
@@ -856,6 +856,19 @@ std::string InspectText(const CmlEngine& engine, const MapHealthOptions& options
   os << "health by area (" << options.cell_m << " m cells; latest session "
      << DescribeSession(latest) << "): " << health.ok << " ok, " << health.changed << " changed, "
      << health.fresh << " new, " << health.stale << " stale\n";
+  // Health reads the latest session's events from the ring (model.max_events).
+  if (const auto it = model.event_counts().find(latest); it != model.event_counts().end()) {
+    const MapEventCounts& n = it->second;
+    const std::int64_t logged = n.views_inserted + n.views_removed + n.components_added +
+                                n.components_merged + n.components_removed;
+    std::int64_t held = 0;
+    for (const MapEvent& e : model.events()) held += e.session == latest ? 1 : 0;
+    if (held < logged) {
+      os << "note: the map's event ring (model.max_events " << model.options().max_events
+         << ") holds " << held << " of the " << logged << " events of session "
+         << DescribeSession(latest) << "; the health counts only those\n";
+    }
+  }
   if (!health.cells.empty()) {
     int min_ix = health.cells.front().ix, max_ix = min_ix, min_iy = health.cells.front().iy,
         max_iy = min_iy;

@@ -115,6 +115,9 @@ TEST(EnvironmentModelOptions, ValidateNamesTheField) {
   o = {};
   o.spatial_cell_m = 0;
   expect_field(o, "spatial_cell_m");
+  o = {};
+  o.max_events = -1;
+  expect_field(o, "max_events");
   EXPECT_EQ(ForgettingModeFromString(ToString(ForgettingMode::kPassive)), ForgettingMode::kPassive);
   EXPECT_EQ(ForgettingModeFromString("static"), ForgettingMode::kStatic);
   EXPECT_THROW(ForgettingModeFromString("sometimes"), Error);
@@ -826,6 +829,70 @@ TEST(EnvironmentModel, RealFourierSignatureRecoversHeading) {
   EXPECT_EQ(s.components_merged, 1);
   EXPECT_EQ(m.NumComponents(), 1u);
   EXPECT_NEAR(m.views()[0].components[0].mean.z(), 0.7, 0.01);
+}
+
+// The event log is a ring: laps over a static corridor keep the views flat while events
+// (component events logged) keep coming; the ring, the per-session counts and the map's
+// bytes stay bounded, the counts stay exact, and Serialize/Deserialize keep all three.
+TEST(EnvironmentModel, EventLogIsABoundedRing) {
+  auto fx = MakeFakeExtractor(1);
+  EnvironmentModelOptions o = TestOptions();
+  o.log_component_events = true;
+  o.max_events = 50;
+  EnvironmentModel m(o, fx);
+  std::size_t bytes_after_lap_10 = 0, views_after_lap_10 = 0;
+  std::uint64_t logged_after_lap_10 = 0;
+  std::int64_t frame = 0;
+  for (int lap = 0; lap < 40; ++lap) {
+    for (int k = 0; k < 20; ++k, ++frame) {
+      m.Update(fx->Make({10.0f * k}), Est(k, 0, 0), {frame, lap / 10});
+    }
+    if (lap == 9) {
+      bytes_after_lap_10 = Bytes(m).size();
+      views_after_lap_10 = m.NumViews();
+      logged_after_lap_10 = m.events_logged();
+    }
+  }
+  EXPECT_EQ(m.NumViews(), views_after_lap_10);
+  EXPECT_EQ(m.events().size(), 50u);
+  EXPECT_GT(m.events_logged(), logged_after_lap_10 + 500);
+  EXPECT_EQ(m.first_event_number(), m.events_logged() - 50);
+  EXPECT_EQ(m.events().back().frame, frame - 1);
+  // The only growth: one counts entry (i32 session + 5 x i64) for each of 3 new sessions.
+  EXPECT_LE(Bytes(m).size(), bytes_after_lap_10 + 3 * (4 + 5 * 8));
+  // Exact counts: they add up to every event logged, one entry per session.
+  std::int64_t total = 0;
+  for (const auto& [session, n] : m.event_counts()) {
+    total += n.views_inserted + n.views_removed + n.components_added + n.components_merged +
+             n.components_removed;
+  }
+  EXPECT_EQ(static_cast<std::uint64_t>(total), m.events_logged());
+  EXPECT_EQ(m.event_counts().size(), 4u);
+  EXPECT_EQ(m.event_counts().at(0).views_inserted, 20);
+
+  BinaryWriter w;
+  m.Serialize(w);
+  const std::vector<std::uint8_t> bytes = w.Release();
+  BinaryReader r(bytes);
+  const EnvironmentModel back = EnvironmentModel::Deserialize(r, o, fx);
+  EXPECT_EQ(back.events(), m.events());
+  EXPECT_EQ(back.events_logged(), m.events_logged());
+  EXPECT_EQ(back.event_counts(), m.event_counts());
+  EXPECT_EQ(Bytes(back), bytes);
+  // Loaded with a smaller ring: the most recent events are kept.
+  EnvironmentModelOptions smaller = o;
+  smaller.max_events = 10;
+  BinaryReader r2(bytes);
+  const EnvironmentModel cut = EnvironmentModel::Deserialize(r2, smaller, fx);
+  ASSERT_EQ(cut.events().size(), 10u);
+  EXPECT_TRUE(std::equal(cut.events().begin(), cut.events().end(), m.events().end() - 10));
+  EXPECT_EQ(cut.events_logged(), m.events_logged());
+  // ClearEvents empties the ring only.
+  EnvironmentModel cleared = back;
+  cleared.ClearEvents();
+  EXPECT_TRUE(cleared.events().empty());
+  EXPECT_EQ(cleared.events_logged(), m.events_logged());
+  EXPECT_EQ(cleared.event_counts(), m.event_counts());
 }
 
 }  // namespace

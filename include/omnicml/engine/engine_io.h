@@ -44,7 +44,9 @@ namespace omnicml {
 // 4: the options section is the schema's tree of named fields (common/options.h).
 // 5: descriptors of pending frames and queued updates in the descriptor record encoding
 //    (descriptor.h WriteDescriptorRecord), as the map's views.
-inline constexpr std::uint32_t kEngineFormatVersion = 5;
+// 6: the bounded event log: option model.max_events; the model section (version 3) holds
+//    the number of events logged, per-session event counts and the ring of recent events.
+inline constexpr std::uint32_t kEngineFormatVersion = 6;
 // The 8 magic bytes (including the terminating NUL).
 inline constexpr char kEngineMagic[8] = {'O', 'M', 'N', 'I', 'C', 'M', 'L', '\0'};
 

@@ -3,7 +3,10 @@
 //
 // RUNDIR layout (all files written atomically: temporary name, renamed on Commit()):
 //   frames.csv       one row per frame (schema in evaluation.h), written as frames come
-//   config.yaml, days.csv, events.csv, report.html
+//   events.csv       every map event of the run (run_report.h WriteEventsCsvRow), written
+//                    as the run goes (RecordEvents), so it is complete although the
+//                    model keeps only its most recent model.max_events events
+//   config.yaml, days.csv, report.html
 //                    written at Commit from the engine's final state (run_report.h)
 //   trajectory.tum   the strongest estimate, TUM (stamp x y z qx qy qz qw; z = 0, yaw
 //                    quaternion), written at Commit
@@ -68,6 +71,12 @@ class RunRecorder {
   // Input frames of engine session `session` that the source skipped as unreadable
   // (added to what was recorded for it before); for days.csv and the report.
   void RecordSkippedFrames(int session, std::int64_t count);
+  // Appends the map events logged since the last call to events.csv (the first call
+  // starts at the oldest event the model holds). Call after every engine call that can
+  // change the map (RunEngineOverSource does, after each frame; Commit does too). Events
+  // the ring dropped before they were read are counted (events_lost()).
+  void RecordEvents(const EnvironmentModel& model);
+  std::uint64_t events_lost() const { return events_lost_; }
 
   // Writes the remaining files from the engine's final state (configuration, events,
   // map drawing) and renames everything into place. `notes` are extra lines for the
@@ -85,6 +94,9 @@ class RunRecorder {
   bool committed_ = false;
   std::unique_ptr<AtomicFile> frames_csv_;
   std::unique_ptr<AtomicFile> trajectory_;
+  std::unique_ptr<AtomicFile> events_csv_;
+  std::optional<std::uint64_t> next_event_;  // number of the next event to write
+  std::uint64_t events_lost_ = 0;
   std::vector<FrameRecord> records_;
   std::map<int, std::int64_t> skipped_frames_;  // by engine session
   RunStampClock clock_;

@@ -29,7 +29,8 @@
 
 namespace omnicml {
 
-// Map events of one session (engine session index), counted from the event log.
+// Map events of one session (engine session index), from the model's exact per-session
+// counts (EnvironmentModel::event_counts, not limited by the event ring).
 struct SessionEventCounts {
   int views_inserted = 0;
   int views_removed = 0;
@@ -51,8 +52,12 @@ void WriteRunDaysCsv(std::ostream& out, const std::vector<FrameRecord>& records,
 
 // events.csv: header "type,frame,session,view_id,component_id,x_m,y_m,phi_rad,weight,reason"
 // and one row per event, doubles in shortest round-trip form, reasons quoted when they
-// hold a comma, quote or newline.
+// hold a comma, quote or newline. WriteEventsCsv writes the events the model still holds
+// (its ring, model.max_events); the run recorder streams every event with the header
+// and row functions as the run goes.
 void WriteEventsCsv(std::ostream& out, const EnvironmentModel& model);
+void WriteEventsCsvHeader(std::ostream& out);
+void WriteEventsCsvRow(std::ostream& out, const MapEvent& e);
 
 // The self-contained HTML report of a run. `notes` are extra (key, value) lines of the
 // summary (e.g. wall time, threads). Every error is shown next to the coverage

@@ -34,6 +34,8 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <deque>
+#include <map>
 #include <memory>
 #include <optional>
 #include <string>
@@ -139,6 +141,12 @@ struct EnvironmentModelOptions {
   // per Update: large logs). View insertions/removals and component removals are always
   // logged.
   bool log_component_events = false;
+  // The event log is a ring of the max_events most recent events (the oldest are
+  // dropped), so the model and its map file do not grow with the length of a run;
+  // per-session event counts (event_counts()) stay exact. >= 0 (0 keeps no event).
+  // Whoever needs the full stream reads the new events after each frame
+  // (events_logged(), the run recorder's events.csv).
+  int max_events = 10000;
 
   // Throws omnicml::Error naming the first invalid field.
   void Validate() const;
@@ -166,6 +174,7 @@ void VisitFields(V& v, EnvironmentModelOptions& o) {
   v("footprint_confidence", o.footprint_confidence);
   v("forget_by_matched_passes", o.forget_by_matched_passes);
   v("log_component_events", o.log_component_events);
+  v("max_events", o.max_events);
 }
 
 // One Gaussian of a view's mixture X_i.
@@ -257,6 +266,18 @@ struct MapEvent {
   bool operator==(const MapEvent&) const = default;
 };
 
+// How many events of each type one session (UpdateContext::session) logged, counted as
+// they happen: exact however many events the ring (max_events) has dropped.
+struct MapEventCounts {
+  std::int64_t views_inserted = 0;
+  std::int64_t views_removed = 0;
+  std::int64_t components_added = 0;   // only with options.log_component_events
+  std::int64_t components_merged = 0;  // only with options.log_component_events
+  std::int64_t components_removed = 0;
+
+  bool operator==(const MapEventCounts&) const = default;
+};
+
 // A view whose distance to the query is below e_max.
 struct ViewMatch {
   std::size_t view_index = 0;  // into views(); valid until the next Update/Deserialize
@@ -334,8 +355,16 @@ class EnvironmentModel {
   std::uint64_t next_view_id() const { return next_view_id_; }
   std::uint64_t next_component_id() const { return next_component_id_; }
 
-  // All events since construction or the last ClearEvents, in order.
-  const std::vector<MapEvent>& events() const { return events_; }
+  // The most recent events (at most options.max_events), oldest first. Event number n
+  // (0-based, counted since construction) is events()[n - first_event_number()] while
+  // first_event_number() <= n < events_logged().
+  const std::deque<MapEvent>& events() const { return events_; }
+  // Number of events logged since construction (Deserialize restores it).
+  std::uint64_t events_logged() const { return events_logged_; }
+  std::uint64_t first_event_number() const { return events_logged_ - events_.size(); }
+  // Event counts per session (sessions without events are absent), exact.
+  const std::map<int, MapEventCounts>& event_counts() const { return event_counts_; }
+  // Empties the ring; events_logged() and event_counts() go on.
   void ClearEvents() { events_.clear(); }
 
   // Approximate heap bytes of the model (views, features, components, index, events).
@@ -348,7 +377,7 @@ class EnvironmentModel {
   void SetForgettingMode(ForgettingMode mode) { options_.forgetting = mode; }
 
   // Appends the model's state to `out`: views (descriptors, components, counters) in
-  // storage order, next ids, the event log. Options are NOT written (the caller stores
+  // storage order, next ids, the event counts and the event ring. Options are NOT written (the caller stores
   // them). Same model => same bytes.
   void Serialize(BinaryWriter& out) const;
   // Reads what Serialize wrote. Throws omnicml::Error on truncated or malformed bytes, or
@@ -365,6 +394,8 @@ class EnvironmentModel {
   std::vector<ViewMatch> Search(const Descriptor& y, int top_k) const;
   std::size_t InsertView(const Descriptor& y, const UpdateContext& context, const Pose2& where);
   void RemoveViewAt(std::size_t index);
+  // Counts e, appends it to the ring and drops the oldest events beyond max_events.
+  void LogEvent(MapEvent e);
   void RebuildDerived();
 
   EnvironmentModelOptions options_;
@@ -377,7 +408,9 @@ class EnvironmentModel {
   std::size_t num_components_ = 0;
   std::uint64_t next_view_id_ = 1;
   std::uint64_t next_component_id_ = 1;
-  std::vector<MapEvent> events_;
+  std::deque<MapEvent> events_;  // ring of the most recent events
+  std::uint64_t events_logged_ = 0;
+  std::map<int, MapEventCounts> event_counts_;
 };
 
 }  // namespace omnicml

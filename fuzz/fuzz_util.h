@@ -10,8 +10,10 @@
 #ifndef OMNICML_FUZZ_FUZZ_UTIL_H_
 #define OMNICML_FUZZ_FUZZ_UTIL_H_
 
+#include <signal.h>
 #include <unistd.h>
 
+#include <cerrno>
 #include <cstddef>
 #include <cstdint>
 #include <cstdlib>
@@ -31,6 +33,17 @@ inline const std::filesystem::path& ScratchDir() {
     if (const char* t = std::getenv("TMPDIR"); t != nullptr && *t != '\0') base = t;
     std::error_code ec;
     if (!std::filesystem::is_directory(base, ec)) base = std::filesystem::temp_directory_path();
+    // Remove the scratch directories of fuzzer processes that died (a finding aborts
+    // before the atexit handler below runs).
+    std::error_code list_ec;
+    for (const auto& e : std::filesystem::directory_iterator(base, list_ec)) {
+      const std::string name = e.path().filename().string();
+      if (name.rfind("omnicml-fuzz-", 0) != 0) continue;
+      const long pid = std::strtol(name.c_str() + 13, nullptr, 10);
+      if (pid > 0 && ::kill(static_cast<pid_t>(pid), 0) != 0 && errno == ESRCH) {
+        std::filesystem::remove_all(e.path(), ec);
+      }
+    }
     std::filesystem::path d = base / ("omnicml-fuzz-" + std::to_string(::getpid()));
     std::filesystem::create_directories(d);
     std::atexit([] {

@@ -226,6 +226,9 @@ RunSummary RunEngineOverSource(CmlEngine& engine, FrameSource& source, RunRecord
                        1) +
            " % localized";
   };
+  if (recorder != nullptr && progress.total_frames && *progress.total_frames > 0) {
+    recorder->Reserve(static_cast<std::size_t>(*progress.total_frames));
+  }
   const std::string prefix = progress.label.empty() ? "" : progress.label + ": ";
   auto elapsed = [&] { return std::chrono::duration<double>(Clock::now() - start).count(); };
   auto status = [&](const FrameResult& r) {

@@ -68,6 +68,11 @@ class RunRecorder {
 
   // Records one processed frame (the frame as delivered and the engine's result).
   void Record(const Frame& frame, const FrameResult& result);
+  // Reserves room for `frames` records (the run's frame count when known), so the record
+  // array is allocated once instead of growing by doubling: a long run then holds one
+  // block of records (sizeof(FrameRecord) plus the stage times, about 0.25 KB a frame)
+  // and no freed halves of earlier ones.
+  void Reserve(std::size_t frames) { records_.reserve(frames); }
   // Input frames of engine session `session` that the source skipped as unreadable
   // (added to what was recorded for it before); for days.csv and the report.
   void RecordSkippedFrames(int session, std::int64_t count);

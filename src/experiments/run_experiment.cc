@@ -14,6 +14,8 @@
 #include "omnicml/common/file_io.h"
 #include "omnicml/engine/engine_io.h"
 #include "omnicml/experiments/run_report.h"
+#include "omnicml/report/map_export.h"
+#include "omnicml/sim/world.h"
 
 namespace omnicml {
 
@@ -107,13 +109,40 @@ RunExperimentResult RunExperiment(const RunExperimentOptions& o) {
   ro.title = "omnicml run";
   ro.input_description = f.input.Describe() + (o.map_in.empty() ? "" : ", map " + o.map_in);
   RunRecorder recorder(ro);
+  // Simulated input: the map's health by area scored against the day events at the end
+  // of each day (change_detection.h).
+  std::optional<World> world;
+  if (!f.input.world.empty()) world = LoadWorld(f.input.world);
+  std::vector<ChangeDetectionDay> change_days;
+  auto score_changes = [&](CmlEngine& e, int source_session) {
+    if (!world) return;
+    const int session = e.session_state().session;
+    ChangeDetectionOptions cd;
+    MapHealthOptions ho;
+    ho.cell_m = cd.cell_m;
+    const MapHealth health = ComputeMapHealth(e.model(), session, ho);
+    if (health.first_session < 0 || health.first_session >= session) return;  // a first map
+    std::vector<Eigen::Vector2d> path;
+    for (const FrameRecord& r : recorder.records()) {
+      if (r.session == session && r.has_truth) path.push_back(r.truth.head<2>());
+    }
+    const int day = f.input.first_day + source_session + 1;
+    change_days.push_back(
+        ScoreChangeDetection(health, ChangesOfDay(*world, day, f.input.seed), path, cd));
+  };
+  int last_source_session = -1;
   result.summary = RunEngineOverSource(
-      *engine, *source, &recorder, MakeProgressOptions(f, "run", CountFrames(f.input, *source)));
+      *engine, *source, &recorder, MakeProgressOptions(f, "run", CountFrames(f.input, *source)),
+      [&](CmlEngine& e, int source_session) {
+        score_changes(e, source_session);
+        last_source_session = source_session;
+      });
   if (result.summary.frames == 0) {
     throw Error(StrCat("the input (", f.input.Describe(), ") has no frames"));
   }
   // The saved engine is the state before Finish(), so a resumed run continues exactly as
   // one uninterrupted run would (queued updates and pending frames included).
+  if (result.summary.sessions > 0) score_changes(*engine, last_source_session + 1);
   std::vector<std::uint8_t> map_bytes;
   if (!o.map_out.empty()) map_bytes = EncodeEngine(*engine);
   engine->Finish();
@@ -123,8 +152,23 @@ RunExperimentResult RunExperiment(const RunExperimentOptions& o) {
   std::snprintf(timing, sizeof timing, "%.1f s (%.1f frames/s)", result.summary.wall_s, fps);
   result.timing = timing;
   result.threads = engine->options().threads;
-  recorder.Commit(*engine,
-                  {{"wall time", result.timing}, {"threads", std::to_string(result.threads)}});
+  std::vector<std::pair<std::string, std::string>> notes = {
+      {"wall time", result.timing}, {"threads", std::to_string(result.threads)}};
+  if (world) {
+    std::ostringstream csv;
+    WriteChangeDetectionCsv(csv, change_days);
+    recorder.AddFile("change_detection.csv", csv.str());
+    notes.emplace_back("change detection (health changed/new vs the day events)",
+                       change_days.empty() ? std::string("no day after the map's first")
+                                           : ChangeDetectionTotals(change_days));
+  }
+  recorder.Commit(*engine, notes);
+  if (!world && !result.run_dir.empty()) {
+    // Never leave the file of an earlier simulated run in this run directory.
+    std::error_code ec;
+    std::filesystem::remove(std::filesystem::path(result.run_dir) / "change_detection.csv", ec);
+  }
+  result.change_detection = change_days;
   if (!o.map_out.empty()) WriteFileAtomic(o.map_out, map_bytes);
 
   FramesTable table;
@@ -157,6 +201,7 @@ std::string FormatRunExperimentResult(const RunExperimentOptions& options,
      << "\nreport: " << (std::filesystem::path(result.run_dir) / "report.html").string()
      << "\nTUM (evo): " << (std::filesystem::path(result.run_dir) / "trajectory.tum").string()
      << " (+ groundtruth.tum, odometry.tum when the input has them)\n";
+  os << FormatChangeDetection(result.change_detection);
   if (!options.map_out.empty()) os << "map saved: " << options.map_out << "\n";
   if (!options.trajectory_out.empty()) os << "trajectory (TUM): " << options.trajectory_out << "\n";
   return os.str();

@@ -181,6 +181,12 @@ void RunRecorder::Commit(const CmlEngine& engine,
       files.push_back(std::move(tum));
     }
 
+    for (const auto& [name, content] : extra_files_) {
+      auto extra = std::make_unique<AtomicFile>(options_.run_dir / name);
+      extra->stream() << content;
+      files.push_back(std::move(extra));
+    }
+
     if (options_.write_report) {
       auto html = std::make_unique<AtomicFile>(options_.run_dir / "report.html");
       html->stream() << RenderRunReport(options_.title, options_.input_description, records_,

@@ -1,5 +1,6 @@
 // The [G] Table 1 experiment (compare_experiment.h) and the CML run (run_experiment.h)
 // on short simulated runs.
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <string>
@@ -158,6 +159,20 @@ TEST_F(CompareExperimentTest, ResumingWithStaticForgettingFreezesTheSavedMap) {
   EXPECT_EQ(r2.views, saved_views);
   EXPECT_NE(ReadTextFile(dir_ / "day2" / "config.yaml").find("forgetting: static"),
             std::string::npos);
+  // Change detection (change_detection.h): not scored on the map's first day; the resumed
+  // run scores simulated day 2 (its first_day + 1) against the day-2 events, in the
+  // result and in change_detection.csv.
+  EXPECT_TRUE(r1.change_detection.empty());
+  ASSERT_EQ(r2.change_detection.size(), 1u);
+  const ChangeDetectionDay& cd = r2.change_detection[0];
+  EXPECT_EQ(cd.day, 2);
+  EXPECT_GT(cd.cells_scored, 0);
+  EXPECT_LE(cd.true_positives, std::min(cd.cells_detected, cd.cells_truly_changed));
+  EXPECT_LE(cd.cells_detected, cd.cells_scored);
+  EXPECT_EQ(cd.cells_detected, 0) << "a static map inserts and removes nothing";
+  const std::string csv = ReadTextFile(dir_ / "day2" / "change_detection.csv");
+  EXPECT_EQ(csv.rfind("day,session,changed_items,", 0), 0u) << csv;
+  EXPECT_NE(csv.find("\n2,"), std::string::npos) << csv;
 
   // Anything but threads and forgetting may not change on a saved engine.
   RunExperimentOptions bad = second;

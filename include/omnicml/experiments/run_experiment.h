@@ -17,8 +17,10 @@
 #include <cstdint>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "omnicml/evaluation/evaluation.h"
+#include "omnicml/experiments/change_detection.h"
 #include "omnicml/experiments/run_config.h"
 #include "omnicml/experiments/run_recorder.h"
 
@@ -57,6 +59,9 @@ struct RunExperimentResult {
   std::size_t components = 0;
   int threads = 1;     // the engine's threads
   std::string timing;  // "<wall> s (<fps> frames/s)", as in the report
+  // Simulated input: the map's change detection scored per day after the map's first
+  // (change_detection.h; also change_detection.csv in the run directory).
+  std::vector<ChangeDetectionDay> change_detection;
 };
 
 // Runs CML as described in the file comment and writes the run directory (and map_out,

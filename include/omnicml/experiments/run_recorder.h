@@ -13,6 +13,9 @@
 //   groundtruth.tum  ground truth on the same stamps (when the input has ground truth)
 //   odometry.tum     the input's odometry on the same stamps (each session in its own
 //                    odometry frame)
+//   change_detection.csv
+//                    simulated input only (`omnicml run --world`): the map's health by
+//                    area scored per day against the day events (change_detection.h)
 // The TUM files hold the localized frames only (frames without an estimate are left
 // out of all three) and use run-unique stamps (evaluation.h RunStampClock; frames.csv
 // keeps stamp_s and adds run_stamp_s), so `evo_ape tum groundtruth.tum trajectory.tum`
@@ -34,6 +37,7 @@
 #include <map>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "omnicml/engine/cml_engine.h"
@@ -89,6 +93,12 @@ class RunRecorder {
   void Commit(const CmlEngine& engine,
               const std::vector<std::pair<std::string, std::string>>& notes = {});
 
+  // A further file `name` of the run directory with `content`, written atomically at
+  // Commit with the others (e.g. change_detection.csv). No-op without a run directory.
+  void AddFile(const std::string& name, std::string content) {
+    extra_files_.emplace_back(name, std::move(content));
+  }
+
   const std::vector<FrameRecord>& records() const { return records_; }
   const std::map<int, std::int64_t>& skipped_frames() const { return skipped_frames_; }
   const RunRecorderOptions& options() const { return options_; }
@@ -103,6 +113,7 @@ class RunRecorder {
   std::optional<std::uint64_t> next_event_;  // number of the next event to write
   std::uint64_t events_lost_ = 0;
   std::vector<FrameRecord> records_;
+  std::vector<std::pair<std::string, std::string>> extra_files_;  // AddFile
   std::map<int, std::int64_t> skipped_frames_;  // by engine session
   RunStampClock clock_;
   // Dead-reckoning baseline per engine session: anchor (truth, odometry) of its first

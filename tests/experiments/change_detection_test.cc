@@ -1,0 +1,136 @@
+// Change detection scored against the simulator's day events (change_detection.h).
+#include "omnicml/experiments/change_detection.h"
+
+#include <cmath>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "omnicml/common/common.h"
+#include "omnicml/sim/world.h"
+
+namespace omnicml {
+namespace {
+
+bool HasItem(const WorldDayChanges& c, const std::string& text) {
+  for (const std::string& item : c.items) {
+    if (item.find(text) != std::string::npos) return true;
+  }
+  return false;
+}
+
+int ObstacleIndex(const World& w, const std::string& name) {
+  for (std::size_t i = 0; i < w.obstacles.size(); ++i) {
+    if (w.obstacles[i].name == name) return static_cast<int>(i);
+  }
+  return -1;
+}
+
+Eigen::Vector2d Centroid(const std::vector<Eigen::Vector2d>& pts) {
+  Eigen::Vector2d c = Eigen::Vector2d::Zero();
+  for (const auto& p : pts) c += p;
+  return c / static_cast<double>(pts.size());
+}
+
+// store_large's schedule (datasets/worlds/store_large.yaml): day 2 moves S1a_2 and S3b_7
+// by 0.6 m and pallet_2 by 4 m; day 3 switches the north_east lights off and clears S1b_6.
+TEST(ChangeDetection, ChangesOfDayFollowTheSchedule) {
+  const World w = LoadBuiltinWorld("store_large");
+  const WorldDayChanges day2 = ChangesOfDay(w, 2, 1);
+  EXPECT_TRUE(HasItem(day2, "S1a_2 moved"));
+  EXPECT_TRUE(HasItem(day2, "pallet_2 moved"));
+  EXPECT_FALSE(HasItem(day2, "north_east"));
+  const WorldDayChanges day3 = ChangesOfDay(w, 3, 1);
+  EXPECT_TRUE(HasItem(day3, "light north_east off"));
+  EXPECT_TRUE(HasItem(day3, "S1b_6 cleared"));
+  EXPECT_FALSE(HasItem(day3, "S1a_2 moved"));
+  const WorldDayChanges day4 = ChangesOfDay(w, 4, 1);
+  EXPECT_TRUE(HasItem(day4, "light north_east on"));
+
+  // pallet_2 moved 4 m: both its old and its new place are changed places.
+  const int pallet = ObstacleIndex(w, "pallet_2");
+  ASSERT_GE(pallet, 0);
+  const Eigen::Vector2d old_centre =
+      Centroid(ObstacleOutline(w, StateAtDayStart(w, 1, 1), pallet));
+  const Eigen::Vector2d new_centre =
+      Centroid(ObstacleOutline(w, StateAtDayStart(w, 2, 1), pallet));
+  EXPECT_NEAR((new_centre - old_centre).norm(), 4.0, 1e-9);
+  EXPECT_EQ(DistanceToChanges(day2, old_centre), 0.0);
+  EXPECT_EQ(DistanceToChanges(day2, new_centre), 0.0);
+
+  // Inside the switched light zone on day 3, and nowhere near a change far outside the store.
+  const LightZone* ne = nullptr;
+  for (const LightZone& z : w.lights) {
+    if (z.name == "north_east") ne = &z;
+  }
+  ASSERT_NE(ne, nullptr);
+  EXPECT_EQ(DistanceToChanges(day3, Centroid(ne->polygon_m)), 0.0);
+  EXPECT_GT(DistanceToChanges(day2, Eigen::Vector2d(-500, -500)), 400.0);
+  EXPECT_TRUE(std::isinf(DistanceToChanges(WorldDayChanges{}, Eigen::Vector2d(0, 0))));
+  // The truth depends on the seed only through the random events, never on the day order.
+  const WorldDayChanges again = ChangesOfDay(w, 2, 1);
+  EXPECT_EQ(again.items, day2.items);
+  EXPECT_THROW(ChangesOfDay(w, 0, 1), Error);
+}
+
+MapCell Cell(int ix, int iy, CellHealth health) {
+  MapCell c;
+  c.ix = ix;
+  c.iy = iy;
+  c.views = 1;
+  c.health = health;
+  return c;
+}
+
+// Counts by hand: a wall along y = 1 from x = 0 to x = 4 changed; 2-m cells, radius 1 m.
+// Cells crossed: (0,0), (1,0), (2,0), (3,0) [centres (1,1), (3,1), (5,1), (7,1)];
+// (0,0), (1,0) are within 1 m of the wall (distance 0), (2,0) is 1 m from its end
+// (within), (3,0) 3 m (not). (9,9) is not crossed and not scored.
+TEST(ChangeDetection, ScoreCountsCellsCrossedByThePath) {
+  WorldDayChanges changes;
+  changes.day = 2;
+  changes.items = {"wall w moved"};
+  changes.outlines.push_back({{Eigen::Vector2d(0, 1), Eigen::Vector2d(4, 1)}, false});
+  MapHealth health;
+  health.latest_session = 1;
+  health.first_session = 0;
+  health.cells = {Cell(0, 0, CellHealth::kChanged), Cell(1, 0, CellHealth::kOk),
+                  Cell(2, 0, CellHealth::kNew), Cell(3, 0, CellHealth::kChanged),
+                  Cell(9, 9, CellHealth::kChanged)};
+  std::vector<Eigen::Vector2d> path;
+  for (double x = 0.1; x < 8.0; x += 0.2) path.emplace_back(x, 1.0);
+  ChangeDetectionOptions o;
+  o.cell_m = 2.0;
+  o.radius_m = 1.0;
+  const ChangeDetectionDay d = ScoreChangeDetection(health, changes, path, o);
+  EXPECT_EQ(d.day, 2);
+  EXPECT_EQ(d.session, 1);
+  EXPECT_EQ(d.changed_items, 1);
+  EXPECT_EQ(d.cells_scored, 4);
+  EXPECT_EQ(d.cells_truly_changed, 3);  // (0,0) (1,0) (2,0)
+  EXPECT_EQ(d.cells_detected, 3);       // (0,0) changed, (2,0) new, (3,0) changed
+  EXPECT_EQ(d.true_positives, 2);       // (0,0) (2,0)
+  EXPECT_DOUBLE_EQ(d.precision, 2.0 / 3.0);
+  EXPECT_DOUBLE_EQ(d.recall, 2.0 / 3.0);
+
+  // Nothing changed: recall undefined (NaN), every detection is a false positive.
+  const ChangeDetectionDay none = ScoreChangeDetection(health, WorldDayChanges{}, path, o);
+  EXPECT_EQ(none.cells_truly_changed, 0);
+  EXPECT_TRUE(std::isnan(none.recall));
+  EXPECT_DOUBLE_EQ(none.precision, 0.0);
+
+  // The CSV totals are the sums of the rows.
+  std::ostringstream csv;
+  WriteChangeDetectionCsv(csv, {d, none});
+  const std::string text = csv.str();
+  EXPECT_NE(text.find("\nall,,1,8,3,6,2,0.3333333333333333,0.6666666666666666\n"),
+            std::string::npos)
+      << text;
+  o.cell_m = 0;
+  EXPECT_THROW(ScoreChangeDetection(health, changes, path, o), Error);
+}
+
+}  // namespace
+}  // namespace omnicml

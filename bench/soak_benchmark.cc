@@ -11,8 +11,9 @@
 //                       resident set now, its anonymous part (heap and stacks, without
 //                       the pages of shared libraries) and its high-water mark (Linux
 //                       VmRSS, RssAnon, VmHWM; read before the map is encoded)
-//   heap_mb             bytes in live heap blocks (glibc mallinfo2 uordblks + hblkhd):
-//                       what the program holds, without the allocator's free space
+//   heap_mb             bytes in live heap blocks (jemalloc stats.allocated, or glibc
+//                       mallinfo2): what the program holds, without the allocator's
+//                       free space and fragmentation
 //   run_dir_mb          every file in the run directory so far (frames.csv and
 //                       events.csv are streamed to temporaries there)
 //   frames, localized, mean_err_m   that day's frames and error (over its localized
@@ -28,6 +29,9 @@
 // written at Commit (config.yaml, days.csv, report.html, TUM files), printed last.
 // Results apart from the timing and memory columns are deterministic.
 #include <malloc.h>
+#if defined(OMNICML_HAVE_JEMALLOC)
+#include <jemalloc/jemalloc.h>
+#endif
 #include <sys/resource.h>
 
 #include <unistd.h>
@@ -68,6 +72,25 @@ double StatusMiB(const char* key) {
   return 0.0;
 }
 
+// Bytes in live heap blocks, MiB: jemalloc's stats.allocated when the program allocates
+// with jemalloc, glibc's mallinfo2 (uordblks + hblkhd) otherwise; 0 where neither.
+double LiveHeapMiB() {
+#if defined(OMNICML_HAVE_JEMALLOC)
+  std::uint64_t epoch = 1;
+  std::size_t size = sizeof epoch;
+  mallctl("epoch", &epoch, &size, &epoch, size);  // refresh the statistics
+  std::size_t allocated = 0;
+  size = sizeof allocated;
+  if (mallctl("stats.allocated", &allocated, &size, nullptr, 0) != 0) return 0.0;
+  return static_cast<double>(allocated) / (1024.0 * 1024.0);
+#elif defined(__GLIBC__)
+  const struct mallinfo2 mi = mallinfo2();
+  return static_cast<double>(mi.uordblks + mi.hblkhd) / (1024.0 * 1024.0);
+#else
+  return 0.0;
+#endif
+}
+
 double DirectoryMiB(const std::filesystem::path& dir) {
   std::uintmax_t bytes = 0;
   std::error_code ec;
@@ -96,14 +119,10 @@ class SoakMeter {
   void EndOfDay(const CmlEngine& engine, int day) {
     DayRow row;
     row.day = day;
-    if (std::getenv("SOAK_TRIM")) malloc_trim(0);
     row.rss_mb = StatusMiB("VmRSS");
     row.anon_mb = StatusMiB("RssAnon");
     row.peak_mb = StatusMiB("VmHWM");
-#if defined(__GLIBC__)
-    const struct mallinfo2 mi = mallinfo2();
-    row.heap_mb = static_cast<double>(mi.uordblks + mi.hblkhd) / (1024.0 * 1024.0);
-#endif
+    row.heap_mb = LiveHeapMiB();
     const EnvironmentModel& model = engine.model();
     row.views = model.NumViews();
     row.components = model.NumComponents();

@@ -64,3 +64,12 @@ function(omnicml_add_benchmark name)
   target_link_libraries(${name} PRIVATE ${ARG_DEPS} benchmark::benchmark benchmark::benchmark_main)
   omnicml_target_defaults(${name})
 endfunction()
+
+# omnicml_use_jemalloc(TARGET): an executable allocates with jemalloc when it was found
+# (top-level CMakeLists.txt, OMNICML_JEMALLOC); defines OMNICML_HAVE_JEMALLOC.
+function(omnicml_use_jemalloc target)
+  if(TARGET PkgConfig::JEMALLOC)
+    target_link_libraries(${target} PRIVATE PkgConfig::JEMALLOC)
+    target_compile_definitions(${target} PRIVATE OMNICML_HAVE_JEMALLOC=1)
+  endif()
+endfunction()

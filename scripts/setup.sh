@@ -8,7 +8,7 @@ cd "$(dirname "$0")/.."
 
 packages=(build-essential cmake ninja-build pkg-config libeigen3-dev libopencv-dev libfftw3-dev
   libceres-dev libgtest-dev libgmock-dev libbenchmark-dev libcli11-dev libyaml-cpp-dev
-  nlohmann-json3-dev pybind11-dev python3-dev python3-numpy snakemake)
+  nlohmann-json3-dev pybind11-dev python3-dev python3-numpy snakemake libjemalloc-dev)
 missing=()
 for p in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

@@ -219,6 +219,7 @@ int Main(int argc, char** argv) {
   SoakMeter meter(recorder, out_dir);
   ProgressOptions progress;
   progress.quiet = true;
+  progress.total_frames = CountFrames(settings.input, *source);  // as `omnicml run`: one Reserve
   const auto start = std::chrono::steady_clock::now();
   const RunSummary summary = RunEngineOverSource(
       engine, *source, &recorder, progress,

@@ -18,7 +18,9 @@
 // kPassive: (16)-(17) as in [PK]; kStatic: the map never changes).
 //
 // Nearest-view search keeps all feature vectors in one contiguous float array (a row per
-// view, same order as views()) and calls the extractor's raw-pointer Distance; the
+// view, same order as views()) and calls the extractor's raw-pointer Distance, over every
+// row (small maps, distances without an L2 lower bound) or over the candidates of an
+// exact-pruning index (view_index.h; options index_min_views, index_dims); the
 // active-forgetting rule (18)-(19) visits only components near mu_t through a uniform
 // grid over component xy positions (spatial_index.h), so its cost does not grow with the
 // map.
@@ -50,6 +52,7 @@
 #include "omnicml/geometry/gaussian_mixture.h"
 #include "omnicml/geometry/pose.h"
 #include "omnicml/mapping/spatial_index.h"
+#include "omnicml/mapping/view_index.h"
 
 namespace omnicml {
 
@@ -147,6 +150,22 @@ struct EnvironmentModelOptions {
   // Whoever needs the full stream reads the new events after each frame
   // (events_logged(), the run recorder's events.csv).
   int max_events = 10000;
+  // Place retrieval at scale (docs/design.md "Place retrieval at scale"): with a
+  // distance that is at least the L2 norm of the feature difference (Fourier L2 or L1,
+  // colour-histogram L1 or L2), searches go through an exact candidate index
+  // (view_index.h: PCA projection lower bound + kd-tree, then the exact distance for the
+  // candidates only) once the map holds index_min_views views or more; the results are
+  // identical to the exhaustive scan. The index is dropped again when the map shrinks
+  // below half of it. Views, >= 0; 0 never builds the index. Default 0: on descriptors
+  // with the spectrum of the simulator's Fourier signatures and e_max 0.45 the index was
+  // measured no faster than the scan at any size from 1k to 1M views (docs/experiments.md
+  // "Map scale"); it pays off with a smaller e_max or descriptors whose distance is
+  // concentrated in fewer principal axes.
+  int index_min_views = 0;
+  // Dimensions m of the projection the index bounds the distance with (its kd-tree
+  // lives in the leading 8 of them); at most min(feature length, 64), larger values are
+  // clamped. >= 1. 32 keeps ~1 % of the views as candidates at e_max 0.45 (measured).
+  int index_dims = 32;
 
   // Throws omnicml::Error naming the first invalid field.
   void Validate() const;
@@ -175,6 +194,8 @@ void VisitFields(V& v, EnvironmentModelOptions& o) {
   v("forget_by_matched_passes", o.forget_by_matched_passes);
   v("log_component_events", o.log_component_events);
   v("max_events", o.max_events);
+  v("index_min_views", o.index_min_views);
+  v("index_dims", o.index_dims);
 }
 
 // One Gaussian of a view's mixture X_i.
@@ -320,6 +341,18 @@ class EnvironmentModel {
   std::vector<ViewMatch> FindMatches(const Descriptor& y) const;
   // The same without the top_k limit (what Update uses).
   std::vector<ViewMatch> FindAllMatches(const Descriptor& y) const;
+  // FindMatches by the exhaustive scan over every view, whether or not the index is
+  // active: the reference the index is tested and benchmarked against. Same result.
+  std::vector<ViewMatch> FindMatchesExhaustive(const Descriptor& y) const;
+
+  // Whether the extractor's distance is bounded below by the L2 norm of the feature
+  // difference, so the candidate index may serve it (Fourier L1/L2, colour histogram
+  // L1/L2); false for the Jeffrey divergence, chi-square, intersection and unknown
+  // extractors, which always use the exhaustive scan.
+  bool IndexSupported() const { return index_supported_; }
+  // Whether searches currently go through the candidate index.
+  bool IndexActive() const { return view_index_.built(); }
+  const ViewIndex& view_index() const { return view_index_; }
 
   // p(x|y) (docs/design.md "Environment model"): for each match, each component j of the
   // view gives mean (x, y, wrap(phi_ij + relative heading)), covariance C_ij (heading
@@ -391,7 +424,10 @@ class EnvironmentModel {
 
  private:
   void CheckDescriptor(const Descriptor& y, const char* where) const;
-  std::vector<ViewMatch> Search(const Descriptor& y, int top_k) const;
+  std::vector<ViewMatch> Search(const Descriptor& y, int top_k, bool exhaustive = false) const;
+  // Builds, maintains or drops the candidate index after the views changed.
+  void MaintainIndex();
+  void BuildIndex();
   std::size_t InsertView(const Descriptor& y, const UpdateContext& context, const Pose2& where);
   void RemoveViewAt(std::size_t index);
   // Counts e, appends it to the ring and drops the oldest events beyond max_events.
@@ -405,6 +441,8 @@ class EnvironmentModel {
   std::vector<float> features_;  // views_.size() rows of feature_size_ floats
   std::unordered_map<std::uint64_t, std::size_t> index_of_id_;
   SpatialIndex spatial_;
+  bool index_supported_ = false;
+  ViewIndex view_index_;  // derived (never serialised); rebuilt on load
   std::size_t num_components_ = 0;
   std::uint64_t next_view_id_ = 1;
   std::uint64_t next_component_id_ = 1;

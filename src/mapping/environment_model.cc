@@ -324,7 +324,8 @@ std::vector<ViewMatch> EnvironmentModel::Search(const Descriptor& y, int top_k,
 void EnvironmentModel::BuildIndex() {
   std::vector<std::uint64_t> ids(views_.size());
   for (std::size_t i = 0; i < views_.size(); ++i) ids[i] = views_[i].id;
-  const int dims = std::min({options_.index_dims, static_cast<int>(feature_size_), ViewIndex::kMaxDims});
+  const int dims =
+      std::min({options_.index_dims, static_cast<int>(feature_size_), ViewIndex::kMaxDims});
   // Quantisation step e_max / 256: the bound loses at most one step per axis (view_index.h).
   view_index_.Build(features_.data(), ids.data(), views_.size(), feature_size_, dims,
                     options_.e_max / 256.0);
@@ -453,7 +454,8 @@ std::uint64_t EnvironmentModel::AddView(const Descriptor& y, std::vector<ViewCom
                              stats.created_session, v.id, 0, v.components.front().mean,
                              v.TotalWeight(), "added"});
   views_.push_back(std::move(v));
-  if (view_index_.built()) view_index_.Insert(views_.back().id, views_.size() - 1, y.features.data());
+  if (view_index_.built())
+    view_index_.Insert(views_.back().id, views_.size() - 1, y.features.data());
   MaintainIndex();
   return views_.back().id;
 }
@@ -1007,7 +1009,8 @@ void EnvironmentModel::CheckInvariants() const {
     OMNICML_CHECK(!view_index_.built()) << "candidate index built although disabled";
   } else {
     if (views_.size() >= threshold) {
-      OMNICML_CHECK(view_index_.built()) << "candidate index missing at " << views_.size() << " views";
+      OMNICML_CHECK(view_index_.built())
+          << "candidate index missing at " << views_.size() << " views";
     }
     if (2 * views_.size() < threshold) {
       OMNICML_CHECK(!view_index_.built()) << "candidate index kept below half the threshold";

@@ -36,7 +36,7 @@ inline std::int64_t GapSquares(const std::int16_t* a, const std::int16_t* b, int
     std::memcpy(&vb, b + k, sizeof(vb));
     const __m128i d = _mm_sub_epi16(va, vb);
     const __m128i ad = _mm_max_epi16(d, _mm_sub_epi16(zero, d));  // |d|
-    const __m128i gap = _mm_subs_epu16(ad, ones);                  // max(0, |d| - 1)
+    const __m128i gap = _mm_subs_epu16(ad, ones);                 // max(0, |d| - 1)
     acc = _mm_add_epi32(acc, _mm_madd_epi16(gap, gap));           // pairs of squares
     alignas(16) std::int32_t lanes[4];
     _mm_store_si128(reinterpret_cast<__m128i*>(lanes), acc);
@@ -63,14 +63,18 @@ void ViewIndex::Fit(const float* rows, std::size_t n) {
   std::size_t used = 0;
   Eigen::VectorXd mean = Eigen::VectorXd::Zero(static_cast<Eigen::Index>(d));
   for (std::size_t r = 0; r < n; r += stride, ++used) {
-    mean += Eigen::Map<const Eigen::VectorXf>(rows + r * d, static_cast<Eigen::Index>(d)).cast<double>();
+    mean += Eigen::Map<const Eigen::VectorXf>(rows + r * d, static_cast<Eigen::Index>(d))
+                .cast<double>();
   }
-  Eigen::MatrixXd cov = Eigen::MatrixXd::Zero(static_cast<Eigen::Index>(d), static_cast<Eigen::Index>(d));
+  Eigen::MatrixXd cov =
+      Eigen::MatrixXd::Zero(static_cast<Eigen::Index>(d), static_cast<Eigen::Index>(d));
   if (used > 0) {
     mean /= static_cast<double>(used);
     Eigen::VectorXd x(static_cast<Eigen::Index>(d));
     for (std::size_t r = 0; r < n; r += stride) {
-      x = Eigen::Map<const Eigen::VectorXf>(rows + r * d, static_cast<Eigen::Index>(d)).cast<double>() - mean;
+      x = Eigen::Map<const Eigen::VectorXf>(rows + r * d, static_cast<Eigen::Index>(d))
+              .cast<double>() -
+          mean;
       if (!x.allFinite()) continue;  // a damaged row must not spoil the axes
       cov.selfadjointView<Eigen::Lower>().rankUpdate(x);
     }
@@ -109,7 +113,8 @@ void ViewIndex::Fit(const float* rows, std::size_t n) {
 
 bool ViewIndex::Encode(const float* x, std::int16_t* codes) const {
   const Eigen::VectorXd v =
-      Eigen::Map<const Eigen::VectorXf>(x, static_cast<Eigen::Index>(feature_size_)).cast<double>() -
+      Eigen::Map<const Eigen::VectorXf>(x, static_cast<Eigen::Index>(feature_size_))
+          .cast<double>() -
       mean_;
   const Eigen::VectorXd p = basis_ * v;
   std::fill(codes, codes + padded_dims_, std::int16_t{0});
@@ -129,7 +134,8 @@ void ViewIndex::Build(const float* rows, const std::uint64_t* ids, std::size_t n
     throw Error(StrCat("ViewIndex::Build: dims must be in 1..", max_dims, ", got ", dims));
   }
   if (!(std::isfinite(step) && step > 0)) {
-    throw Error(StrCat("ViewIndex::Build: the quantisation step must be finite and > 0, got ", step));
+    throw Error(
+        StrCat("ViewIndex::Build: the quantisation step must be finite and > 0, got ", step));
   }
   if (n >= std::numeric_limits<std::uint32_t>::max()) {
     throw Error(StrCat("ViewIndex::Build: ", n, " vectors are more than the index holds"));
@@ -147,7 +153,8 @@ void ViewIndex::Build(const float* rows, const std::uint64_t* ids, std::size_t n
   // Entries in id order.
   std::vector<std::uint32_t> order(n);
   std::iota(order.begin(), order.end(), 0u);
-  std::sort(order.begin(), order.end(), [&](std::uint32_t a, std::uint32_t b) { return ids[a] < ids[b]; });
+  std::sort(order.begin(), order.end(),
+            [&](std::uint32_t a, std::uint32_t b) { return ids[a] < ids[b]; });
   const std::size_t pd = static_cast<std::size_t>(padded_dims_);
   std::vector<std::uint64_t> sorted_ids(n);
   std::vector<std::uint32_t> sorted_rows(n);
@@ -196,7 +203,8 @@ void ViewIndex::BuildTree(std::vector<std::uint64_t> ids, std::vector<std::uint3
     const auto first = static_cast<std::uint32_t>(rows_.size());
     for (std::uint32_t i = node.begin; i < node.end; ++i) {
       const std::uint32_t src = perm[i];
-      const std::size_t slot = AddSlot(rows[src], codes.data() + static_cast<std::size_t>(src) * pd);
+      const std::size_t slot =
+          AddSlot(rows[src], codes.data() + static_cast<std::size_t>(src) * pd);
       by_id_[src] = {ids[src], static_cast<std::uint32_t>(slot)};  // input in id order
     }
     node.begin = first;
@@ -270,7 +278,8 @@ std::size_t ViewIndex::Candidates(const float* query, double radius,
   auto finish = [&](std::size_t slot, std::int64_t first8) {
     // The axes after the first 8, for a vector the first 8 did not reject.
     const std::int64_t rest =
-        pd_int > 8 ? GapSquares(q + 8, codes_.data() + slot * pd + 8, pd_int - 8, limit - first8) : 0;
+        pd_int > 8 ? GapSquares(q + 8, codes_.data() + slot * pd + 8, pd_int - 8, limit - first8)
+                   : 0;
     if (first8 + rest < limit) rows_out->push_back(rows_[slot]);
   };
   auto scan = [&](std::size_t first, std::size_t last) {
@@ -278,8 +287,8 @@ std::size_t ViewIndex::Candidates(const float* query, double radius,
 #if defined(__SSE2__)
     // Four vectors at a time through the first 8 axes, without a branch per vector:
     // most are rejected there (the leading axes carry most of the distance).
-    const std::int32_t limit32 =
-        static_cast<std::int32_t>(std::min<std::int64_t>(limit, std::numeric_limits<std::int32_t>::max()));
+    const std::int32_t limit32 = static_cast<std::int32_t>(
+        std::min<std::int64_t>(limit, std::numeric_limits<std::int32_t>::max()));
     const __m128i ones = _mm_set1_epi16(1);
     const __m128i zero = _mm_setzero_si128();
     const __m128i limit_v = _mm_set1_epi32(limit32);
@@ -297,9 +306,10 @@ std::size_t ViewIndex::Candidates(const float* query, double radius,
       const __m128i m2 = first8(slot + 2), m3 = first8(slot + 3);
       const __m128i s01 = _mm_add_epi32(_mm_unpacklo_epi32(m0, m1), _mm_unpackhi_epi32(m0, m1));
       const __m128i s23 = _mm_add_epi32(_mm_unpacklo_epi32(m2, m3), _mm_unpackhi_epi32(m2, m3));
-      const __m128i total = _mm_add_epi32(_mm_unpacklo_epi64(s01, s23), _mm_unpackhi_epi64(s01, s23));
-      unsigned below = static_cast<unsigned>(
-          _mm_movemask_ps(_mm_castsi128_ps(_mm_cmplt_epi32(total, limit_v))));
+      const __m128i total =
+          _mm_add_epi32(_mm_unpacklo_epi64(s01, s23), _mm_unpackhi_epi64(s01, s23));
+      unsigned below =
+          static_cast<unsigned>(_mm_movemask_ps(_mm_castsi128_ps(_mm_cmplt_epi32(total, limit_v))));
       bounded += 4;
       if (below == 0) continue;
       alignas(16) std::int32_t sums[4];
@@ -363,12 +373,14 @@ void ViewIndex::Insert(std::uint64_t id, std::size_t row, const float* features)
 
 std::size_t ViewIndex::FindSlot(std::uint64_t id) const {
   std::size_t slot = kNone;
-  const auto it = std::lower_bound(by_id_.begin(), by_id_.end(), std::make_pair(id, std::uint32_t{0}));
+  const auto it =
+      std::lower_bound(by_id_.begin(), by_id_.end(), std::make_pair(id, std::uint32_t{0}));
   if (it != by_id_.end() && it->first == id) {
     slot = it->second;
   } else {
     const auto t = std::lower_bound(tail_ids_.begin(), tail_ids_.end(), id);
-    if (t != tail_ids_.end() && *t == id) slot = TailSlot(static_cast<std::size_t>(t - tail_ids_.begin()));
+    if (t != tail_ids_.end() && *t == id)
+      slot = TailSlot(static_cast<std::size_t>(t - tail_ids_.begin()));
   }
   return slot != kNone && alive_[slot] ? slot : kNone;
 }
@@ -468,7 +480,8 @@ void ViewIndex::CheckInvariants() const {
     if (nodes_[ni].left >= 0) continue;
     in_leaves += nodes_[ni].end - nodes_[ni].begin;
     for (std::uint32_t slot = nodes_[ni].begin; slot < nodes_[ni].end; ++slot) {
-      for (std::int32_t a = static_cast<std::int32_t>(ni); a >= 0; a = parent[static_cast<std::size_t>(a)]) {
+      for (std::int32_t a = static_cast<std::int32_t>(ni); a >= 0;
+           a = parent[static_cast<std::size_t>(a)]) {
         const std::size_t ai = static_cast<std::size_t>(a);
         for (std::size_t k = 0; k < t; ++k) {
           const std::int16_t v = codes_[static_cast<std::size_t>(slot) * pd + k];

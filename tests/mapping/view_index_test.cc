@@ -86,7 +86,9 @@ TEST(ViewIndex, CandidatesHoldEveryVectorWithinTheRadius) {
       const std::size_t near = src.rng()() % kN;
       const std::vector<float> q =
           t % 4 == 0 ? src.Next()
-                     : src.Near(std::vector<float>(rows.begin() + near * kD, rows.begin() + (near + 1) * kD), 0.05);
+                     : src.Near(std::vector<float>(rows.begin() + near * kD,
+                                                   rows.begin() + (near + 1) * kD),
+                                0.05);
       for (const double r : {0.1, 0.3, 0.6}) {
         std::vector<std::size_t> got;
         index.Candidates(q.data(), r, &got);
@@ -95,7 +97,8 @@ TEST(ViewIndex, CandidatesHoldEveryVectorWithinTheRadius) {
         for (std::size_t i = 0; i < kN; ++i) {
           if (L2(q.data(), rows.data() + i * kD, kD) < r) {
             ++within;
-            EXPECT_TRUE(set.count(i)) << "dims " << dims << " r " << r << ": row " << i << " missed";
+            EXPECT_TRUE(set.count(i))
+                << "dims " << dims << " r " << r << ": row " << i << " missed";
           }
         }
         candidates += got.size();
@@ -476,7 +479,8 @@ TEST(EnvironmentModelIndex, NonMetricDistancesFallBackToTheScan) {
   EXPECT_FALSE(m.IndexSupported());
   ViewComponent c;
   c.eta = 1.0;
-  for (int i = 0; i < 10; ++i) m.AddView(fake->Make({u(rng), u(rng), u(rng), u(rng), u(rng), u(rng)}), {c}, ViewStats{});
+  for (int i = 0; i < 10; ++i)
+    m.AddView(fake->Make({u(rng), u(rng), u(rng), u(rng), u(rng), u(rng)}), {c}, ViewStats{});
   EXPECT_FALSE(m.IndexActive());
 }
 

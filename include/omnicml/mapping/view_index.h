@@ -103,7 +103,8 @@ class ViewIndex {
   // order, then the tail (deterministic, not sorted). query: feature_size floats.
   // Returns the number of vectors whose bound was computed (the others were pruned with
   // their kd-tree node), for statistics.
-  std::size_t Candidates(const float* query, double radius, std::vector<std::size_t>* rows_out) const;
+  std::size_t Candidates(const float* query, double radius,
+                         std::vector<std::size_t>* rows_out) const;
 
   // What the caller must do after Insert/Remove (see "Maintenance" in the file comment):
   // nothing, Retree(), or Build() anew over all its rows.
@@ -158,11 +159,11 @@ class ViewIndex {
 
   std::size_t feature_size_ = 0;
   int dims_ = 0;
-  int padded_dims_ = 0;          // dims_ rounded up to a multiple of 8
-  int tree_dims_ = 0;            // leading dimensions the tree splits and bounds on
-  double step_ = 0.0;            // quantisation step s, distance units
-  Eigen::MatrixXd basis_;        // dims x feature_size, orthonormal rows
-  Eigen::VectorXd mean_;         // feature_size
+  int padded_dims_ = 0;    // dims_ rounded up to a multiple of 8
+  int tree_dims_ = 0;      // leading dimensions the tree splits and bounds on
+  double step_ = 0.0;      // quantisation step s, distance units
+  Eigen::MatrixXd basis_;  // dims x feature_size, orthonormal rows
+  Eigen::VectorXd mean_;   // feature_size
   double explained_variance_ = 0.0;
   std::size_t fitted_size_ = 0;  // live vectors when P was fitted
   std::size_t built_size_ = 0;   // live vectors when the tree was built
@@ -172,7 +173,7 @@ class ViewIndex {
   std::vector<std::uint32_t> rows_;  // per slot: the caller's row
   std::vector<std::uint8_t> alive_;  // per slot: 1 while it holds a live vector
   std::size_t tree_slots_ = 0;
-  std::vector<Node> nodes_;                  // nodes_[0] is the root
+  std::vector<Node> nodes_;                    // nodes_[0] is the root
   std::vector<std::int16_t> box_lo_, box_hi_;  // nodes x tree_dims_, in codes
   // (id, slot) of the tree's vectors sorted by id, for Remove/SetRow.
   std::vector<std::pair<std::uint64_t, std::uint32_t>> by_id_;

@@ -28,7 +28,8 @@
 // returns too, over all the scan's matches, 512 queries, top_k lists) and
 // identical_lists (fraction of queries with the very same list); bytes_per_view
 // (EnvironmentModel::MemoryBytes / views, event log cleared, index included) and
-// index_bytes_per_view; rss_bytes_per_view (resident-set growth while building, Linux);
+// index_bytes_per_view; estimated_bounded (the model's own estimate of `projected`, which
+// decides whether the default options keep the index); rss_bytes_per_view (resident-set growth while building, Linux);
 // index_build_s (the AddView that built the index). ProcessFrame-like: p50_us and p99_us
 // of FindMatches + Hypothesis + Update per frame. One fixture at a time is kept, so peak
 // memory is one map's.
@@ -43,8 +44,8 @@
 #include <tuple>
 #include <vector>
 
-#include <Eigen/Dense>
 #include <benchmark/benchmark.h>
+#include <Eigen/Dense>
 
 #include "omnicml/descriptors/descriptor_factory.h"
 #include "omnicml/mapping/environment_model.h"
@@ -57,7 +58,7 @@ constexpr int kRouteViews = 1000;
 constexpr double kTotalVariance = 0.286;  // measured, see the file comment
 constexpr double kRho = 0.843;            // OU step correlation: neighbours ~0.3 apart
 constexpr float kMean = 0.15f;
-constexpr float kQueryNoise = 0.02f;      // per feature: norm ~0.16
+constexpr float kQueryNoise = 0.02f;  // per feature: norm ~0.16
 
 enum Generator { kTrajectory = 0, kUniform = 1 };
 
@@ -121,7 +122,8 @@ ScaleFixture& Fixture(const Key& key) {
   f.key = key;
   const std::size_t n = key.views;
   const std::size_t rss0 = ResidentBytes();
-  std::shared_ptr<const DescriptorExtractor> extractor = MakeDescriptorExtractor(DescriptorOptions{});
+  std::shared_ptr<const DescriptorExtractor> extractor =
+      MakeDescriptorExtractor(DescriptorOptions{});
   if (extractor->FeatureSize() != kFeatures) throw Error("benchmark expects 64 features");
   EnvironmentModelOptions o;
   o.e_max = key.e_max;
@@ -129,6 +131,7 @@ ScaleFixture& Fixture(const Key& key) {
   // Built once, by the last AddView, so index_build_s is one build over the whole map.
   o.index_min_views = key.index ? static_cast<int>(n) : 0;
   o.index_dims = key.index_dims;
+  o.index_max_bounded_fraction = 1.0;  // measure the index even where the model would drop it
   f.model = std::make_unique<EnvironmentModel>(o, extractor);
 
   std::mt19937 rng(1919);
@@ -174,7 +177,8 @@ ScaleFixture& Fixture(const Key& key) {
     c.covariance = Eigen::Vector3d(0.04, 0.04, 0.01).asDiagonal();
     const auto t0 = std::chrono::steady_clock::now();
     f.model->AddView(d, {c}, ViewStats{});
-    if (i + 1 == n) build_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    if (i + 1 == n)
+      build_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     if (i % query_every == 0) {
       Eigen::VectorXf q = x;
       for (Eigen::Index k = 0; k < q.size(); ++k) q[k] += kQueryNoise * normal(rng);
@@ -230,6 +234,9 @@ void Report(benchmark::State& state, const ScaleFixture& f, bool indexed) {
     state.counters["identical_lists"] = f.identical;
     state.counters["index_bytes_per_view"] = f.index_bytes_per_view;
     state.counters["index_build_s"] = f.index_build_s;
+    // The model's own estimate of the bounded share (32 stored views as queries): the
+    // default options keep the index iff it is <= 0.6.
+    state.counters["estimated_bounded"] = f.model->IndexBoundedFraction();
   }
 }
 
@@ -268,16 +275,22 @@ void BM_IndexDims(benchmark::State& state) {
   }
   Report(state, f, true);
 }
-BENCHMARK(BM_IndexDims)->ArgName("dims")->Arg(8)->Arg(16)->Arg(24)->Arg(32)->Arg(48)->Unit(
-    benchmark::kMicrosecond);
+BENCHMARK(BM_IndexDims)
+    ->ArgName("dims")
+    ->Arg(8)
+    ->Arg(16)
+    ->Arg(24)
+    ->Arg(32)
+    ->Arg(48)
+    ->Unit(benchmark::kMicrosecond);
 
-// The radius: e_max 0.2, 0.3, 0.45 (the default) on the trajectory map of 100k views;
-// Args: e_max in hundredths, indexed.
+// The radius: e_max 0.2 and 0.3 (the default 0.45 is BM_FindMatches) on trajectory maps.
+// Args: e_max in hundredths, views, indexed.
 void BM_Radius(benchmark::State& state) {
   Key key;
-  key.views = 100000;
   key.e_max = static_cast<double>(state.range(0)) / 100.0;
-  const bool indexed = state.range(1) != 0;
+  key.views = static_cast<std::size_t>(state.range(1));
+  const bool indexed = state.range(2) != 0;
   ScaleFixture& f = Fixture(key);
   std::size_t k = 0;
   for (auto _ : state) {
@@ -288,8 +301,8 @@ void BM_Radius(benchmark::State& state) {
   Report(state, f, indexed);
 }
 BENCHMARK(BM_Radius)
-    ->ArgNames({"e_max_x100", "indexed"})
-    ->ArgsProduct({{20, 30}, {0, 1}})
+    ->ArgNames({"e_max_x100", "views", "indexed"})
+    ->ArgsProduct({{20, 30}, {1000, 10000, 100000, 1000000}, {0, 1}})
     ->Unit(benchmark::kMicrosecond);
 
 // ProcessFrame-like: per frame FindMatches + Hypothesis + Update (active forgetting) of a
@@ -315,7 +328,8 @@ void BM_ProcessFrameLike(benchmark::State& state) {
     estimate.covariance = Eigen::Vector3d(0.05, 0.05, 0.02).asDiagonal();
     const UpdateStats s = f.model->Update(q, estimate, UpdateContext{frame++, 1});
     benchmark::DoNotOptimize(s);
-    us.push_back(std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0).count());
+    us.push_back(
+        std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0).count());
   }
   std::sort(us.begin(), us.end());
   state.counters["views"] = static_cast<double>(f.model->NumViews());

@@ -197,6 +197,8 @@ void EnvironmentModelOptions::Validate() const {
     fail("footprint_confidence", "finite and >= 0", footprint_confidence);
   if (max_events < 0) fail("max_events", ">= 0", max_events);
   if (index_min_views < 0) fail("index_min_views", ">= 0", index_min_views);
+  if (!(index_max_bounded_fraction > 0 && index_max_bounded_fraction <= 1))
+    fail("index_max_bounded_fraction", "in (0, 1]", index_max_bounded_fraction);
   if (index_dims < 1) fail("index_dims", ">= 1", index_dims);
 }
 
@@ -329,17 +331,42 @@ void EnvironmentModel::BuildIndex() {
   // Quantisation step e_max / 256: the bound loses at most one step per axis (view_index.h).
   view_index_.Build(features_.data(), ids.data(), views_.size(), feature_size_, dims,
                     options_.e_max / 256.0);
+  // Does it pay? Bound counts (not times, so the decision is deterministic) for 32 stored
+  // views, evenly spaced in storage order, as queries.
+  constexpr std::size_t kSamples = 32;
+  const std::size_t n = views_.size();
+  std::size_t bounded = 0, queries = 0;
+  std::vector<std::size_t> scratch;
+  for (std::size_t k = 0; k < kSamples && n > 0; ++k) {
+    const std::size_t row = k * n / kSamples;
+    scratch.clear();
+    bounded += view_index_.Candidates(features_.data() + row * feature_size_, options_.e_max,
+                                      &scratch);
+    ++queries;
+  }
+  index_bounded_fraction_ =
+      queries > 0 ? static_cast<double>(bounded) / static_cast<double>(queries * n) : 1.0;
+  if (index_bounded_fraction_ > options_.index_max_bounded_fraction) {
+    view_index_.Clear();  // the scan is as fast: revisit when the map has doubled
+    index_rejected_at_ = n;
+  } else {
+    index_rejected_at_ = 0;
+  }
 }
 
 void EnvironmentModel::MaintainIndex() {
   const std::size_t threshold = static_cast<std::size_t>(options_.index_min_views);
   if (!index_supported_ || threshold == 0) return;
   if (!view_index_.built()) {
-    if (views_.size() >= threshold) BuildIndex();
+    if (views_.size() >= threshold &&
+        (index_rejected_at_ == 0 || views_.size() >= 2 * index_rejected_at_)) {
+      BuildIndex();
+    }
     return;
   }
   if (2 * views_.size() < threshold) {
     view_index_.Clear();  // a map this small is faster to scan
+    index_rejected_at_ = 0;
     return;
   }
   switch (view_index_.Pending()) {
@@ -972,6 +999,8 @@ void EnvironmentModel::RebuildDerived() {
     }
   }
   view_index_.Clear();
+  index_rejected_at_ = 0;
+  index_bounded_fraction_ = -1.0;
   MaintainIndex();
 }
 
@@ -1002,14 +1031,14 @@ void EnvironmentModel::CheckInvariants() const {
     return a.view_id != b.view_id ? a.view_id < b.view_id : a.component_id < b.component_id;
   });
   OMNICML_CHECK(expected == spatial_.All()) << "spatial index out of sync";
-  // The candidate index: present exactly when the options ask for it, holding every view
-  // once with its current row.
+  // The candidate index: present exactly when the options ask for it and it paid at its
+  // last evaluation, holding every view once with its current row.
   const std::size_t threshold = static_cast<std::size_t>(options_.index_min_views);
   if (!index_supported_ || threshold == 0) {
     OMNICML_CHECK(!view_index_.built()) << "candidate index built although disabled";
   } else {
-    if (views_.size() >= threshold) {
-      OMNICML_CHECK(view_index_.built())
+    if (views_.size() >= threshold && !view_index_.built()) {
+      OMNICML_CHECK(index_rejected_at_ > 0 && views_.size() < 2 * index_rejected_at_)
           << "candidate index missing at " << views_.size() << " views";
     }
     if (2 * views_.size() < threshold) {

@@ -279,6 +279,7 @@ TEST(EnvironmentModelIndex, IdenticalToExhaustiveThroughUpdatesAndSaveLoad) {
     o.d_for_m = 1.5;
     o.pass_gap_frames = 0;
     o.index_dims = 5;
+    o.index_max_bounded_fraction = 1.0;  // keep the index whatever it saves
     EnvironmentModelOptions plain = o;
     plain.index_min_views = 0;
     o.index_min_views = 30;
@@ -352,6 +353,7 @@ TEST(EnvironmentModelIndex, Deterministic) {
   o.e_max = 0.35;
   o.index_min_views = 50;
   o.index_dims = 4;
+  o.index_max_bounded_fraction = 1.0;
   auto build = [&] {
     auto m = std::make_unique<EnvironmentModel>(o, fx);
     VectorSource src(kBands * kCoefficients, 4);
@@ -384,6 +386,7 @@ TEST(EnvironmentModelIndex, ThresholdAndOptions) {
   EnvironmentModelOptions o;
   o.index_min_views = 40;
   o.index_dims = 100;  // clamped to the 12 features
+  o.index_max_bounded_fraction = 1.0;
   EnvironmentModel m(o, fx);
   VectorSource src(kBands * kCoefficients, 8);
   std::mt19937 rng(8);
@@ -404,7 +407,11 @@ TEST(EnvironmentModelIndex, ThresholdAndOptions) {
   for (const auto& [field, set] :
        std::vector<std::pair<std::string, std::function<void(EnvironmentModelOptions&)>>>{
            {"index_min_views", [](EnvironmentModelOptions& x) { x.index_min_views = -1; }},
-           {"index_dims", [](EnvironmentModelOptions& x) { x.index_dims = 0; }}}) {
+           {"index_dims", [](EnvironmentModelOptions& x) { x.index_dims = 0; }},
+           {"index_max_bounded_fraction",
+            [](EnvironmentModelOptions& x) { x.index_max_bounded_fraction = 0; }},
+           {"index_max_bounded_fraction",
+            [](EnvironmentModelOptions& x) { x.index_max_bounded_fraction = 1.5; }}}) {
     EnvironmentModelOptions bad;
     set(bad);
     try {
@@ -420,6 +427,46 @@ TEST(EnvironmentModelIndex, ThresholdAndOptions) {
   for (int i = 0; i < 60; ++i) never.AddView(MakeFourier(src.Next(), rng), {c}, ViewStats{});
   EXPECT_FALSE(never.IndexActive());
   never.CheckInvariants();
+}
+
+// The index is kept only where its estimated share of bounded views is at most
+// index_max_bounded_fraction: kept for a small radius, dropped (the scan used, the same
+// matches) for a radius that covers most of the spread; CheckInvariants checks that a
+// dropped index is evaluated again once the map has doubled.
+TEST(EnvironmentModelIndex, KeptOnlyWhereItPays) {
+  auto fx = Fourier(FourierDistance::kL2);
+  for (const double e_max : {0.05, 1.5}) {
+    EnvironmentModelOptions o;
+    o.e_max = e_max;
+    o.index_min_views = 500;
+    o.index_dims = 8;
+    o.index_max_bounded_fraction = 0.6;
+    EnvironmentModel m(o, fx);
+    VectorSource src(kBands * kCoefficients, 12);
+    std::mt19937 rng(12);
+    ViewComponent c;
+    c.eta = 1.0;
+    for (int i = 0; i < 2100; ++i) {
+      m.AddView(MakeFourier(src.Next(), rng), {c}, ViewStats{});
+      if (i + 1 == 499) {
+        EXPECT_EQ(m.IndexBoundedFraction(), -1.0);  // not evaluated yet
+      }
+      if (i % 100 == 0) m.CheckInvariants();  // built, or dropped since fewer than 2x views
+    }
+    m.CheckInvariants();
+    ASSERT_GE(m.IndexBoundedFraction(), 0.0);
+    if (e_max < 1) {
+      EXPECT_TRUE(m.IndexActive());
+      EXPECT_LE(m.IndexBoundedFraction(), 0.6);
+    } else {
+      EXPECT_FALSE(m.IndexActive()) << "fraction " << m.IndexBoundedFraction();
+      EXPECT_GT(m.IndexBoundedFraction(), 0.6);
+    }
+    for (int t = 0; t < 30; ++t) {
+      const Descriptor y = MakeFourier(src.Next(), rng);
+      ExpectSameMatches(m.FindMatches(y), m.FindMatchesExhaustive(y));
+    }
+  }
 }
 
 // Distances without an L2 lower bound (Jeffrey, chi-square, intersection; unknown
@@ -452,6 +499,7 @@ TEST(EnvironmentModelIndex, NonMetricDistancesFallBackToTheScan) {
     o.e_max = 0.3;
     o.index_min_views = 20;
     o.index_dims = 6;
+    o.index_max_bounded_fraction = 1.0;
     EnvironmentModel m(o, fx);
     const bool bounded = distance == HistogramDistance::kL1 || distance == HistogramDistance::kL2;
     EXPECT_EQ(m.IndexSupported(), bounded) << ToString(distance);

@@ -1,31 +1,51 @@
-// Scale of the environment model (issue 19): nearest-view search (FindMatches, the exact
-// linear scan) at 1k, 10k, 100k and 1M views, and memory per view, through the public
-// EnvironmentModel API only (AddView to build, FindMatches to query).
+// Scale of the environment model (issue 19): place retrieval at 1k ... 1M views, the
+// exhaustive scan against the candidate index (view_index.h), recall, ProcessFrame-like
+// cost, memory per view. Public EnvironmentModel API only (AddView to build, FindMatches
+// / FindMatchesExhaustive to query, Update for the frame loop).
 //
 // Synthetic map of the real descriptor: the default FourierSignature (4 bands x 16
 // coefficients = 64 magnitudes, L2 distance, 64 complex coefficients for the relative
-// heading), e_max 0.45 (the engine default). Views come in routes of 1000: along a route
-// the magnitudes follow a stationary Ornstein-Uhlenbeck walk (per-feature mean 0.3,
-// standard deviation 0.075, step correlation 0.875), so consecutive views are ~0.3 apart
-// and unrelated views ~0.85 apart, as measured on simulated institute panoramas
-// (`omnicml describe --panorama --json`: neighbours 0.46-0.50 at 50 frames a day,
-// unrelated 0.75-0.99). A query is a map view plus Gaussian noise of norm ~0.16, so it
-// matches its view and a few route neighbours, as a revisit does.
+// heading), e_max 0.45 and top_k 8 (the engine defaults). Two generators:
 //
-// Counters: views, matches_per_query, bytes_per_view (EnvironmentModel::MemoryBytes over
-// the views, event log cleared), rss_bytes_per_view (resident-set growth while building,
-// Linux; 0 elsewhere). One fixture at a time is kept, so peak memory is one map's.
+// * trajectory (realistic): views come in routes of 1000; along a route the features
+//   follow a stationary Ornstein-Uhlenbeck walk (step correlation 0.843) in the principal
+//   axes of a covariance whose spectrum was measured on simulated institute panoramas
+//   (2 days x 1500 frames, e_max 0.1 to keep 2687 views, `omnicml export --features`):
+//   total variance 0.286 (per-feature standard deviation 0.067), eigenvalues falling as
+//   lambda_k ~ k^-0.58 exp(-k / 40), fitted to the measured cumulative shares (8 axes
+//   49 %, 16 axes 66 %, 32 axes 85 %; model 49 %, 67 %, 86 %); the axes are a fixed random
+//   rotation of the feature space. Consecutive views are ~0.3 apart and unrelated views
+//   ~0.76 apart (measured median 0.75).
+// * uniform (worst case): i.i.d. uniform features with the same total variance, so no
+//   direction carries more of the distance than another and no bound can prune much.
+//
+// A query is a map view plus Gaussian noise of norm ~0.16, so it matches its view and a
+// few route neighbours, as a revisit does.
+//
+// Counters: views; matches_per_query; candidates (fraction of the views whose exact
+// distance the index computes); projected (fraction whose projected bound it computes:
+// the rest the kd-tree prunes); recall (matches the index returns that the exhaustive scan
+// returns too, over all the scan's matches, 512 queries, top_k lists) and
+// identical_lists (fraction of queries with the very same list); bytes_per_view
+// (EnvironmentModel::MemoryBytes / views, event log cleared, index included) and
+// index_bytes_per_view; estimated_bounded (the model's own estimate of `projected`, which
+// decides whether the default options keep the index); rss_bytes_per_view (resident-set growth while building, Linux);
+// index_build_s (the AddView that built the index). ProcessFrame-like: p50_us and p99_us
+// of FindMatches + Hypothesis + Update per frame. One fixture at a time is kept, so peak
+// memory is one map's.
+#include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <complex>
-#include <cstdio>
-#include <cstring>
 #include <fstream>
 #include <memory>
 #include <random>
 #include <string>
+#include <tuple>
 #include <vector>
 
 #include <benchmark/benchmark.h>
+#include <Eigen/Dense>
 
 #include "omnicml/descriptors/descriptor_factory.h"
 #include "omnicml/mapping/environment_model.h"
@@ -35,7 +55,12 @@ namespace {
 
 constexpr std::size_t kFeatures = 64;  // 4 bands x 16 coefficients
 constexpr int kRouteViews = 1000;
-constexpr float kMean = 0.3f, kSigma = 0.075f, kRho = 0.875f;
+constexpr double kTotalVariance = 0.286;  // measured, see the file comment
+constexpr double kRho = 0.843;            // OU step correlation: neighbours ~0.3 apart
+constexpr float kMean = 0.15f;
+constexpr float kQueryNoise = 0.02f;  // per feature: norm ~0.16
+
+enum Generator { kTrajectory = 0, kUniform = 1 };
 
 // Resident set size in bytes (Linux /proc/self/status VmRSS), 0 if unknown.
 std::size_t ResidentBytes() {
@@ -47,49 +72,102 @@ std::size_t ResidentBytes() {
   return 0;
 }
 
-struct ScaleFixture {
-  std::size_t num_views = 0;
-  std::unique_ptr<EnvironmentModel> model;
-  std::vector<Descriptor> queries;
-  double bytes_per_view = 0, rss_bytes_per_view = 0;
+struct Key {
+  int generator = kTrajectory;
+  std::size_t views = 0;
+  int index_dims = 32;
+  double e_max = 0.45;
+  bool index = true;
+  bool fresh = false;  // a map the benchmark changes (Update): never reused
+  bool operator==(const Key&) const = default;
 };
 
-Descriptor MakeDescriptor(const std::vector<float>& magnitudes, std::mt19937& rng) {
+struct ScaleFixture {
+  Key key;
+  std::unique_ptr<EnvironmentModel> model;
+  std::vector<Descriptor> queries;
+  double bytes_per_view = 0, index_bytes_per_view = 0, rss_bytes_per_view = 0;
+  double index_build_s = 0;
+  double recall = 1, identical = 1, candidates = 0, projected = 0, matches = 0;
+};
+
+Descriptor MakeDescriptor(const Eigen::VectorXf& magnitudes, std::mt19937& rng) {
   std::uniform_real_distribution<float> phase(-3.14159265f, 3.14159265f);
   Descriptor d;
   d.kind = DescriptorKind::kFourier;
-  d.features = magnitudes;
+  d.features.assign(magnitudes.data(), magnitudes.data() + kFeatures);
   d.coefficients.resize(kFeatures);
   for (std::size_t i = 0; i < kFeatures; ++i)
-    d.coefficients[i] = std::polar(std::max(magnitudes[i], 0.0f), phase(rng));
+    d.coefficients[i] = std::polar(std::max(d.features[i], 0.0f), phase(rng));
   d.panorama_width = 720;
   return d;
 }
 
-// Builds (or returns the cached) map of n views; the previous one is freed first.
-ScaleFixture& Fixture(std::size_t n) {
+// What the index computes for one query (through the public accessor): the fraction of
+// the views that are candidates (exact distance), and of those whose projected distance
+// is computed (their block is not pruned by the tree).
+std::pair<double, double> CandidateFraction(const EnvironmentModel& model, const Descriptor& q) {
+  if (!model.IndexActive()) return {1.0, 1.0};
+  std::vector<std::size_t> rows;
+  const std::size_t bounded =
+      model.view_index().Candidates(q.features.data(), model.options().e_max, &rows);
+  const double n = static_cast<double>(model.NumViews());
+  return {static_cast<double>(rows.size()) / n, static_cast<double>(bounded) / n};
+}
+
+ScaleFixture& Fixture(const Key& key) {
   static ScaleFixture f;
-  if (f.num_views == n && f.model) return f;
+  if (f.key == key && f.model && !key.fresh) return f;
   f = ScaleFixture{};
+  f.key = key;
+  const std::size_t n = key.views;
   const std::size_t rss0 = ResidentBytes();
-  DescriptorOptions descriptor;  // defaults: Fourier, 4 bands x 16 coefficients
-  std::shared_ptr<const DescriptorExtractor> extractor = MakeDescriptorExtractor(descriptor);
+  std::shared_ptr<const DescriptorExtractor> extractor =
+      MakeDescriptorExtractor(DescriptorOptions{});
   if (extractor->FeatureSize() != kFeatures) throw Error("benchmark expects 64 features");
   EnvironmentModelOptions o;
-  o.e_max = 0.45;
+  o.e_max = key.e_max;
   o.top_k = 8;
+  // Built once, by the last AddView, so index_build_s is one build over the whole map.
+  o.index_min_views = key.index ? static_cast<int>(n) : 0;
+  o.index_dims = key.index_dims;
+  o.index_max_bounded_fraction = 1.0;  // measure the index even where the model would drop it
   f.model = std::make_unique<EnvironmentModel>(o, extractor);
+
   std::mt19937 rng(1919);
   std::normal_distribution<float> normal(0.0f, 1.0f);
   std::uniform_real_distribution<double> pos(0.0, std::sqrt(static_cast<double>(n) / 4.0));
-  const float innovation = kSigma * std::sqrt(1.0f - kRho * kRho);
-  std::vector<float> x(kFeatures);
+  // Principal axes: a fixed random rotation; scales from the measured spectrum.
+  Eigen::MatrixXf gauss(kFeatures, kFeatures);
+  for (Eigen::Index i = 0; i < gauss.size(); ++i) gauss.data()[i] = normal(rng);
+  const Eigen::MatrixXf rotation = Eigen::HouseholderQR<Eigen::MatrixXf>(gauss).householderQ();
+  Eigen::VectorXf scale(kFeatures);
+  double sum = 0;
+  for (std::size_t k = 0; k < kFeatures; ++k) {
+    const double lambda = std::pow(k + 1.0, -0.58) * std::exp(-(k + 1.0) / 40.0);
+    scale[static_cast<Eigen::Index>(k)] = static_cast<float>(lambda);
+    sum += lambda;
+  }
+  for (Eigen::Index k = 0; k < scale.size(); ++k)
+    scale[k] = static_cast<float>(std::sqrt(scale[k] * kTotalVariance / sum));
+  const float uniform_half = static_cast<float>(std::sqrt(3.0 * kTotalVariance / kFeatures));
+  std::uniform_real_distribution<float> uniform(-uniform_half, uniform_half);
+  const float innovation = static_cast<float>(std::sqrt(1.0 - kRho * kRho));
+
+  Eigen::VectorXf u(kFeatures), x(kFeatures);
   const std::size_t query_every = n / 512 + 1;
+  double build_s = 0;
   for (std::size_t i = 0; i < n; ++i) {
-    if (i % kRouteViews == 0) {
-      for (float& v : x) v = kMean + kSigma * normal(rng);  // a new route
+    if (key.generator == kUniform) {
+      for (Eigen::Index k = 0; k < x.size(); ++k) x[k] = kMean + uniform(rng);
     } else {
-      for (float& v : x) v = kMean + kRho * (v - kMean) + innovation * normal(rng);
+      if (i % kRouteViews == 0) {
+        for (Eigen::Index k = 0; k < u.size(); ++k) u[k] = normal(rng);  // a new route
+      } else {
+        for (Eigen::Index k = 0; k < u.size(); ++k)
+          u[k] = static_cast<float>(kRho) * u[k] + innovation * normal(rng);
+      }
+      x = (rotation * scale.cwiseProduct(u)).array() + kMean;
     }
     Descriptor d = MakeDescriptor(x, rng);
     ViewComponent c;
@@ -97,48 +175,173 @@ ScaleFixture& Fixture(std::size_t n) {
     c.eta = 1.0;
     c.mean = MakePose(pos(rng), pos(rng), 0.0);
     c.covariance = Eigen::Vector3d(0.04, 0.04, 0.01).asDiagonal();
+    const auto t0 = std::chrono::steady_clock::now();
     f.model->AddView(d, {c}, ViewStats{});
+    if (i + 1 == n)
+      build_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     if (i % query_every == 0) {
-      std::vector<float> q = x;
-      for (float& v : q) v += 0.02f * normal(rng);  // norm ~0.16
+      Eigen::VectorXf q = x;
+      for (Eigen::Index k = 0; k < q.size(); ++k) q[k] += kQueryNoise * normal(rng);
       f.queries.push_back(MakeDescriptor(q, rng));
     }
   }
   f.model->ClearEvents();
-  f.num_views = n;
+  f.index_build_s = build_s;
   f.bytes_per_view = static_cast<double>(f.model->MemoryBytes()) / static_cast<double>(n);
+  f.index_bytes_per_view =
+      static_cast<double>(f.model->view_index().MemoryBytes()) / static_cast<double>(n);
   const std::size_t rss1 = ResidentBytes();
   f.rss_bytes_per_view =
       rss1 > rss0 ? static_cast<double>(rss1 - rss0) / static_cast<double>(n) : 0.0;
+  // Recall against the exhaustive scan over every query.
+  std::size_t found = 0, truth = 0, same = 0;
+  double candidates = 0, projected = 0;
+  for (const Descriptor& q : f.queries) {
+    const std::vector<ViewMatch> exact = f.model->FindMatchesExhaustive(q);
+    const std::vector<ViewMatch> got = f.model->FindMatches(q);
+    truth += exact.size();
+    for (const ViewMatch& m : exact) {
+      found += std::any_of(got.begin(), got.end(),
+                           [&](const ViewMatch& g) { return g.view_id == m.view_id; });
+    }
+    bool equal = exact.size() == got.size();
+    for (std::size_t k = 0; equal && k < exact.size(); ++k) {
+      equal = exact[k].view_id == got[k].view_id && exact[k].distance == got[k].distance;
+    }
+    same += equal;
+    const auto [c, scanned] = CandidateFraction(*f.model, q);
+    candidates += c;
+    projected += scanned;
+  }
+  const double nq = static_cast<double>(f.queries.size());
+  f.recall = truth > 0 ? static_cast<double>(found) / static_cast<double>(truth) : 1.0;
+  f.identical = static_cast<double>(same) / nq;
+  f.candidates = candidates / nq;
+  f.projected = projected / nq;
+  f.matches = static_cast<double>(truth) / nq;
   return f;
 }
 
-// The exact scan (every view's distance), matches sorted and cut to top_k 8.
-void BM_FindMatchesScale(benchmark::State& state) {
-  ScaleFixture& f = Fixture(static_cast<std::size_t>(state.range(0)));
-  std::size_t k = 0, matches = 0;
-  for (auto _ : state) {
-    auto m = f.model->FindMatches(f.queries[k++ % f.queries.size()]);
-    matches += m.size();
-    benchmark::DoNotOptimize(m);
-  }
+void Report(benchmark::State& state, const ScaleFixture& f, bool indexed) {
   state.counters["views"] = static_cast<double>(f.model->NumViews());
-  state.counters["matches_per_query"] =
-      static_cast<double>(matches) / static_cast<double>(state.iterations());
+  state.counters["matches_per_query"] = f.matches;
   state.counters["bytes_per_view"] = f.bytes_per_view;
   state.counters["rss_bytes_per_view"] = f.rss_bytes_per_view;
-  state.counters["ns_per_view"] = benchmark::Counter(
-      static_cast<double>(state.iterations()) * static_cast<double>(f.model->NumViews()),
-      benchmark::Counter::kIsRate | benchmark::Counter::kInvert);
+  if (indexed) {
+    state.counters["candidates"] = f.candidates;
+    state.counters["projected"] = f.projected;
+    state.counters["recall"] = f.recall;
+    state.counters["identical_lists"] = f.identical;
+    state.counters["index_bytes_per_view"] = f.index_bytes_per_view;
+    state.counters["index_build_s"] = f.index_build_s;
+    // The model's own estimate of the bounded share (32 stored views as queries): the
+    // default options keep the index iff it is <= 0.6.
+    state.counters["estimated_bounded"] = f.model->IndexBoundedFraction();
+  }
 }
-BENCHMARK(BM_FindMatchesScale)
-    ->Arg(1000)
-    ->Arg(10000)
-    ->Arg(100000)
-    ->Arg(1000000)
-    ->ArgName("views")
+
+// Args: generator (0 trajectory, 1 uniform), views, indexed (0: the exhaustive scan on the
+// same map, 1: FindMatches through the index).
+void BM_FindMatches(benchmark::State& state) {
+  Key key;
+  key.generator = static_cast<int>(state.range(0));
+  key.views = static_cast<std::size_t>(state.range(1));
+  const bool indexed = state.range(2) != 0;
+  ScaleFixture& f = Fixture(key);
+  std::size_t k = 0;
+  for (auto _ : state) {
+    const Descriptor& q = f.queries[k++ % f.queries.size()];
+    auto m = indexed ? f.model->FindMatches(q) : f.model->FindMatchesExhaustive(q);
+    benchmark::DoNotOptimize(m);
+  }
+  Report(state, f, indexed);
+}
+BENCHMARK(BM_FindMatches)
+    ->ArgNames({"gen", "views", "indexed"})
+    ->ArgsProduct({{kTrajectory}, {1000, 3000, 10000, 30000, 100000, 300000, 1000000}, {0, 1}})
+    ->ArgsProduct({{kUniform}, {1000, 10000, 100000, 1000000}, {0, 1}})
+    ->Unit(benchmark::kMicrosecond);
+
+// Projection dimensions of the index (trajectory map, 100k views).
+void BM_IndexDims(benchmark::State& state) {
+  Key key;
+  key.views = 100000;
+  key.index_dims = static_cast<int>(state.range(0));
+  ScaleFixture& f = Fixture(key);
+  std::size_t k = 0;
+  for (auto _ : state) {
+    auto m = f.model->FindMatches(f.queries[k++ % f.queries.size()]);
+    benchmark::DoNotOptimize(m);
+  }
+  Report(state, f, true);
+}
+BENCHMARK(BM_IndexDims)
+    ->ArgName("dims")
+    ->Arg(8)
+    ->Arg(16)
+    ->Arg(24)
+    ->Arg(32)
+    ->Arg(48)
+    ->Unit(benchmark::kMicrosecond);
+
+// The radius: e_max 0.2 and 0.3 (the default 0.45 is BM_FindMatches) on trajectory maps.
+// Args: e_max in hundredths, views, indexed.
+void BM_Radius(benchmark::State& state) {
+  Key key;
+  key.e_max = static_cast<double>(state.range(0)) / 100.0;
+  key.views = static_cast<std::size_t>(state.range(1));
+  const bool indexed = state.range(2) != 0;
+  ScaleFixture& f = Fixture(key);
+  std::size_t k = 0;
+  for (auto _ : state) {
+    const Descriptor& q = f.queries[k++ % f.queries.size()];
+    auto m = indexed ? f.model->FindMatches(q) : f.model->FindMatchesExhaustive(q);
+    benchmark::DoNotOptimize(m);
+  }
+  Report(state, f, indexed);
+}
+BENCHMARK(BM_Radius)
+    ->ArgNames({"e_max_x100", "views", "indexed"})
+    ->ArgsProduct({{20, 30}, {1000, 10000, 100000, 1000000}, {0, 1}})
+    ->Unit(benchmark::kMicrosecond);
+
+// ProcessFrame-like: per frame FindMatches + Hypothesis + Update (active forgetting) of a
+// revisit, on a fresh trajectory map; the map changes as the frames go (components added
+// and merged, views inserted when a query matches nothing, the index maintained). Per-frame
+// times are taken by hand for p50/p99. Args: views, indexed.
+void BM_ProcessFrameLike(benchmark::State& state) {
+  Key key;
+  key.views = static_cast<std::size_t>(state.range(0));
+  key.index = state.range(1) != 0;
+  key.fresh = true;
+  ScaleFixture& f = Fixture(key);
+  std::vector<double> us;
+  std::int64_t frame = 0;
+  std::size_t k = 0;
+  for (auto _ : state) {
+    const Descriptor& q = f.queries[k++ % f.queries.size()];
+    const auto t0 = std::chrono::steady_clock::now();
+    const std::vector<ViewMatch> m = f.model->FindMatches(q);
+    const Mixture p = f.model->Hypothesis(m);
+    Gaussian estimate;
+    estimate.mean = p.empty() ? MakePose(0, 0, 0) : p.front().mean;
+    estimate.covariance = Eigen::Vector3d(0.05, 0.05, 0.02).asDiagonal();
+    const UpdateStats s = f.model->Update(q, estimate, UpdateContext{frame++, 1});
+    benchmark::DoNotOptimize(s);
+    us.push_back(
+        std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0).count());
+  }
+  std::sort(us.begin(), us.end());
+  state.counters["views"] = static_cast<double>(f.model->NumViews());
+  state.counters["p50_us"] = us[us.size() / 2];
+  state.counters["p99_us"] = us[std::min(us.size() - 1, us.size() * 99 / 100)];
+  state.counters["index_active"] = f.model->IndexActive() ? 1 : 0;
+}
+BENCHMARK(BM_ProcessFrameLike)
+    ->ArgNames({"views", "indexed"})
+    ->ArgsProduct({{10000, 100000}, {0, 1}})
+    ->Iterations(2000)
     ->Unit(benchmark::kMicrosecond);
 
 }  // namespace
 }  // namespace omnicml
-

@@ -7,6 +7,9 @@
 
 #include <Eigen/Cholesky>
 
+#include "omnicml/descriptors/color_histogram.h"
+#include "omnicml/descriptors/fourier_signature.h"
+
 namespace omnicml {
 namespace {
 
@@ -83,6 +86,22 @@ ViewFootprint FootprintFromComponents(const std::vector<ViewComponent>& componen
   ViewFootprint f;
   for (const ViewComponent& c : components) f.Observe(c.mean.x(), c.mean.y(), c.eta);
   return f;
+}
+
+// Whether E(a, b) >= ||a - b||_2 for every pair of feature vectors, which the candidate
+// index's projection bound needs (view_index.h): the L2 norm itself, and the L1 norm
+// (||v||_1 >= ||v||_2 for every v). Divergences and the intersection distance have no such
+// bound; extractors this module does not know are not trusted to have one.
+bool DistanceBoundedByL2(const DescriptorExtractor& extractor) {
+  if (const auto* f = dynamic_cast<const FourierSignature*>(&extractor)) {
+    return f->options().distance == FourierDistance::kL2 ||
+           f->options().distance == FourierDistance::kL1;
+  }
+  if (const auto* c = dynamic_cast<const ColorHistogram*>(&extractor)) {
+    return c->options().distance == HistogramDistance::kL2 ||
+           c->options().distance == HistogramDistance::kL1;
+  }
+  return false;
 }
 
 // Which rule last changed a component's weight in this Update (for removal reasons).
@@ -177,6 +196,10 @@ void EnvironmentModelOptions::Validate() const {
   if (!(std::isfinite(footprint_confidence) && footprint_confidence >= 0))
     fail("footprint_confidence", "finite and >= 0", footprint_confidence);
   if (max_events < 0) fail("max_events", ">= 0", max_events);
+  if (index_min_views < 0) fail("index_min_views", ">= 0", index_min_views);
+  if (!(index_max_bounded_fraction > 0 && index_max_bounded_fraction <= 1))
+    fail("index_max_bounded_fraction", "in (0, 1]", index_max_bounded_fraction);
+  if (index_dims < 1) fail("index_dims", ">= 1", index_dims);
 }
 
 void EnvironmentModel::LogEvent(MapEvent e) {
@@ -241,6 +264,7 @@ EnvironmentModel::EnvironmentModel(const EnvironmentModelOptions& options,
   if (!extractor_) throw Error("EnvironmentModel: the descriptor extractor is null");
   feature_size_ = extractor_->FeatureSize();
   if (feature_size_ == 0) throw Error("EnvironmentModel: the extractor's FeatureSize() is 0");
+  index_supported_ = DistanceBoundedByL2(*extractor_);
 }
 
 void EnvironmentModel::CheckDescriptor(const Descriptor& y, const char* where) const {
@@ -254,14 +278,14 @@ void EnvironmentModel::CheckDescriptor(const Descriptor& y, const char* where) c
   }
 }
 
-std::vector<ViewMatch> EnvironmentModel::Search(const Descriptor& y, int top_k) const {
+std::vector<ViewMatch> EnvironmentModel::Search(const Descriptor& y, int top_k,
+                                                bool exhaustive) const {
   const std::size_t n = feature_size_;
   const float* query = y.features.data();
   const float* rows = features_.data();
   const double e_max = options_.e_max;
   std::vector<ViewMatch> out;
-  // The hot loop: one contiguous row per view, the extractor's raw-pointer distance.
-  for (std::size_t i = 0; i < views_.size(); ++i) {
+  auto consider = [&](std::size_t i) {
     const double e = extractor_->Distance(query, rows + i * n, n);
     if (e < e_max) {
       ViewMatch m;
@@ -272,7 +296,20 @@ std::vector<ViewMatch> EnvironmentModel::Search(const Descriptor& y, int top_k) 
       m.similarity = std::max(0.0, 1.0 - e / e_max);
       out.push_back(m);
     }
+  };
+  if (view_index_.built() && !exhaustive) {
+    // Candidate stage (view_index.h): every view with E < e_max is among the candidates,
+    // and each candidate gets the same exact distance as in the scan below, so the
+    // matches are the same.
+    std::vector<std::size_t> candidates;
+    view_index_.Candidates(query, e_max, &candidates);
+    for (const std::size_t i : candidates) consider(i);
+  } else {
+    // The hot loop: one contiguous row per view, the extractor's raw-pointer distance.
+    for (std::size_t i = 0; i < views_.size(); ++i) consider(i);
   }
+  // (distance, id) is a total order on the matches, so the result does not depend on
+  // the order they were found in.
   std::sort(out.begin(), out.end(), [](const ViewMatch& a, const ViewMatch& b) {
     return a.distance != b.distance ? a.distance < b.distance : a.view_id < b.view_id;
   });
@@ -286,6 +323,64 @@ std::vector<ViewMatch> EnvironmentModel::Search(const Descriptor& y, int top_k) 
   return out;
 }
 
+void EnvironmentModel::BuildIndex() {
+  std::vector<std::uint64_t> ids(views_.size());
+  for (std::size_t i = 0; i < views_.size(); ++i) ids[i] = views_[i].id;
+  const int dims =
+      std::min({options_.index_dims, static_cast<int>(feature_size_), ViewIndex::kMaxDims});
+  // Quantisation step e_max / 256: the bound loses at most one step per axis (view_index.h).
+  view_index_.Build(features_.data(), ids.data(), views_.size(), feature_size_, dims,
+                    options_.e_max / 256.0);
+  // Does it pay? Bound counts (not times, so the decision is deterministic) for 32 stored
+  // views, evenly spaced in storage order, as queries.
+  constexpr std::size_t kSamples = 32;
+  const std::size_t n = views_.size();
+  std::size_t bounded = 0, queries = 0;
+  std::vector<std::size_t> scratch;
+  for (std::size_t k = 0; k < kSamples && n > 0; ++k) {
+    const std::size_t row = k * n / kSamples;
+    scratch.clear();
+    bounded += view_index_.Candidates(features_.data() + row * feature_size_, options_.e_max,
+                                      &scratch);
+    ++queries;
+  }
+  index_bounded_fraction_ =
+      queries > 0 ? static_cast<double>(bounded) / static_cast<double>(queries * n) : 1.0;
+  if (index_bounded_fraction_ > options_.index_max_bounded_fraction) {
+    view_index_.Clear();  // the scan is as fast: revisit when the map has doubled
+    index_rejected_at_ = n;
+  } else {
+    index_rejected_at_ = 0;
+  }
+}
+
+void EnvironmentModel::MaintainIndex() {
+  const std::size_t threshold = static_cast<std::size_t>(options_.index_min_views);
+  if (!index_supported_ || threshold == 0) return;
+  if (!view_index_.built()) {
+    if (views_.size() >= threshold &&
+        (index_rejected_at_ == 0 || views_.size() >= 2 * index_rejected_at_)) {
+      BuildIndex();
+    }
+    return;
+  }
+  if (2 * views_.size() < threshold) {
+    view_index_.Clear();  // a map this small is faster to scan
+    index_rejected_at_ = 0;
+    return;
+  }
+  switch (view_index_.Pending()) {
+    case ViewIndex::Maintenance::kNone:
+      break;
+    case ViewIndex::Maintenance::kRetree:
+      view_index_.Retree();
+      break;
+    case ViewIndex::Maintenance::kRefit:
+      BuildIndex();
+      break;
+  }
+}
+
 std::vector<ViewMatch> EnvironmentModel::FindMatches(const Descriptor& y) const {
   CheckDescriptor(y, "FindMatches");
   return Search(y, options_.top_k);
@@ -294,6 +389,11 @@ std::vector<ViewMatch> EnvironmentModel::FindMatches(const Descriptor& y) const 
 std::vector<ViewMatch> EnvironmentModel::FindAllMatches(const Descriptor& y) const {
   CheckDescriptor(y, "FindAllMatches");
   return Search(y, 0);
+}
+
+std::vector<ViewMatch> EnvironmentModel::FindMatchesExhaustive(const Descriptor& y) const {
+  CheckDescriptor(y, "FindMatchesExhaustive");
+  return Search(y, options_.top_k, /*exhaustive=*/true);
 }
 
 Mixture EnvironmentModel::Hypothesis(const Descriptor& y) const {
@@ -341,7 +441,10 @@ std::size_t EnvironmentModel::InsertView(const Descriptor& y, const UpdateContex
   LogEvent(MapEvent{MapEventType::kViewInserted, context.frame, context.session, v.id, 0,
                              where, 0.0, "no view within e_max"});
   views_.push_back(std::move(v));
-  return views_.size() - 1;
+  const std::size_t index = views_.size() - 1;
+  if (view_index_.built()) view_index_.Insert(views_[index].id, index, y.features.data());
+  MaintainIndex();
+  return index;
 }
 
 std::uint64_t EnvironmentModel::AddView(const Descriptor& y, std::vector<ViewComponent> components,
@@ -378,6 +481,9 @@ std::uint64_t EnvironmentModel::AddView(const Descriptor& y, std::vector<ViewCom
                              stats.created_session, v.id, 0, v.components.front().mean,
                              v.TotalWeight(), "added"});
   views_.push_back(std::move(v));
+  if (view_index_.built())
+    view_index_.Insert(views_.back().id, views_.size() - 1, y.features.data());
+  MaintainIndex();
   return views_.back().id;
 }
 
@@ -388,7 +494,9 @@ void EnvironmentModel::RemoveViewAt(std::size_t index) {
     spatial_.Remove(views_[index].id, c.id, c.mean.x(), c.mean.y());
     --num_components_;
   }
-  index_of_id_.erase(views_[index].id);
+  const std::uint64_t removed_id = views_[index].id;
+  index_of_id_.erase(removed_id);
+  if (view_index_.built()) view_index_.Remove(removed_id);
   if (index != last) {
     // Swap-remove: the last view (and its feature row) takes the freed slot.
     views_[index] = std::move(views_[last]);
@@ -396,9 +504,11 @@ void EnvironmentModel::RemoveViewAt(std::size_t index) {
               features_.begin() + static_cast<std::ptrdiff_t>((last + 1) * feature_size_),
               features_.begin() + static_cast<std::ptrdiff_t>(index * feature_size_));
     index_of_id_[views_[index].id] = index;
+    if (view_index_.built()) view_index_.SetRow(views_[index].id, index);
   }
   views_.pop_back();
   features_.resize(views_.size() * feature_size_);
+  MaintainIndex();
 }
 
 std::optional<std::size_t> EnvironmentModel::FindView(std::uint64_t view_id) const {
@@ -662,6 +772,7 @@ std::size_t EnvironmentModel::MemoryBytes() const {
   bytes += index_of_id_.bucket_count() * sizeof(void*) +
            index_of_id_.size() * (sizeof(std::uint64_t) + sizeof(std::size_t) + 2 * sizeof(void*));
   bytes += spatial_.MemoryBytes();
+  bytes += view_index_.MemoryBytes();
   bytes += events_.size() * sizeof(MapEvent);
   bytes += event_counts_.size() * (sizeof(int) + sizeof(MapEventCounts) + 4 * sizeof(void*));
   for (const MapEvent& e : events_) bytes += e.reason.capacity() > 15 ? e.reason.capacity() : 0;
@@ -887,6 +998,10 @@ void EnvironmentModel::RebuildDerived() {
       ++num_components_;
     }
   }
+  view_index_.Clear();
+  index_rejected_at_ = 0;
+  index_bounded_fraction_ = -1.0;
+  MaintainIndex();
 }
 
 void EnvironmentModel::CheckInvariants() const {
@@ -916,6 +1031,27 @@ void EnvironmentModel::CheckInvariants() const {
     return a.view_id != b.view_id ? a.view_id < b.view_id : a.component_id < b.component_id;
   });
   OMNICML_CHECK(expected == spatial_.All()) << "spatial index out of sync";
+  // The candidate index: present exactly when the options ask for it and it paid at its
+  // last evaluation, holding every view once with its current row.
+  const std::size_t threshold = static_cast<std::size_t>(options_.index_min_views);
+  if (!index_supported_ || threshold == 0) {
+    OMNICML_CHECK(!view_index_.built()) << "candidate index built although disabled";
+  } else {
+    if (views_.size() >= threshold && !view_index_.built()) {
+      OMNICML_CHECK(index_rejected_at_ > 0 && views_.size() < 2 * index_rejected_at_)
+          << "candidate index missing at " << views_.size() << " views";
+    }
+    if (2 * views_.size() < threshold) {
+      OMNICML_CHECK(!view_index_.built()) << "candidate index kept below half the threshold";
+    }
+  }
+  if (view_index_.built()) {
+    view_index_.CheckInvariants();
+    std::vector<std::pair<std::uint64_t, std::size_t>> rows;
+    for (std::size_t i = 0; i < views_.size(); ++i) rows.emplace_back(views_[i].id, i);
+    std::sort(rows.begin(), rows.end());
+    OMNICML_CHECK(rows == view_index_.Entries()) << "candidate index out of sync";
+  }
 }
 
 }  // namespace omnicml

@@ -46,7 +46,8 @@ namespace omnicml {
 //    (descriptor.h WriteDescriptorRecord), as the map's views.
 // 6: the bounded event log: option model.max_events; the model section (version 3) holds
 //    the number of events logged, per-session event counts and the ring of recent events.
-inline constexpr std::uint32_t kEngineFormatVersion = 6;
+// 7: options model.index_min_views and model.index_dims (place retrieval, issue 19).
+inline constexpr std::uint32_t kEngineFormatVersion = 7;
 // The 8 magic bytes (including the terminating NUL).
 inline constexpr char kEngineMagic[8] = {'O', 'M', 'N', 'I', 'C', 'M', 'L', '\0'};
 

@@ -18,7 +18,9 @@
 // kPassive: (16)-(17) as in [PK]; kStatic: the map never changes).
 //
 // Nearest-view search keeps all feature vectors in one contiguous float array (a row per
-// view, same order as views()) and calls the extractor's raw-pointer Distance; the
+// view, same order as views()) and calls the extractor's raw-pointer Distance, over every
+// row (small maps, distances without an L2 lower bound) or over the candidates of an
+// exact-pruning index (view_index.h; options index_*), the same matches either way; the
 // active-forgetting rule (18)-(19) visits only components near mu_t through a uniform
 // grid over component xy positions (spatial_index.h), so its cost does not grow with the
 // map.
@@ -50,6 +52,7 @@
 #include "omnicml/geometry/gaussian_mixture.h"
 #include "omnicml/geometry/pose.h"
 #include "omnicml/mapping/spatial_index.h"
+#include "omnicml/mapping/view_index.h"
 
 namespace omnicml {
 
@@ -147,6 +150,28 @@ struct EnvironmentModelOptions {
   // Whoever needs the full stream reads the new events after each frame
   // (events_logged(), the run recorder's events.csv).
   int max_events = 10000;
+  // Place retrieval at scale (docs/design.md "Place retrieval at scale"): with a
+  // distance that is at least the L2 norm of the feature difference (Fourier L2 or L1,
+  // colour-histogram L1 or L2), searches can go through an exact candidate index
+  // (view_index.h: PCA projection lower bound + kd-tree, then the exact distance for the
+  // candidates only); the results are identical to the exhaustive scan either way.
+  // The index is built once the map holds index_min_views views (views, >= 0; 0 never
+  // builds it) and dropped below half of that. Measured: with e_max <= 0.3 it wins from
+  // 1k views on (docs/experiments.md "Map scale").
+  int index_min_views = 1000;
+  // ... and kept only while it pays: when it is built (and when the map has doubled
+  // since), the fraction of views whose bound it must compute is estimated with 32
+  // stored views (evenly spaced rows) as queries; above index_max_bounded_fraction the
+  // index is dropped and the scan used until the map has doubled. Dimensionless, in
+  // (0, 1]; 1 keeps every index. Measured: FindMatches time (index / scan) is 0.85-1.5
+  // times this fraction, so 0.6 keeps the index where it is not slower and usually much
+  // faster; at the default e_max 0.45 the fraction is 0.70-0.96 (1k-1M views) and the
+  // scan is used; at e_max 0.2 (0.3) the index is used from 1k (10k) views.
+  double index_max_bounded_fraction = 0.6;
+  // Dimensions m of the projection the index bounds the distance with (its kd-tree
+  // lives in the leading 8 of them); at most min(feature length, 64), larger values are
+  // clamped. >= 1. 32 keeps ~1 % of the views as candidates at e_max 0.45 (measured).
+  int index_dims = 32;
 
   // Throws omnicml::Error naming the first invalid field.
   void Validate() const;
@@ -175,6 +200,9 @@ void VisitFields(V& v, EnvironmentModelOptions& o) {
   v("forget_by_matched_passes", o.forget_by_matched_passes);
   v("log_component_events", o.log_component_events);
   v("max_events", o.max_events);
+  v("index_min_views", o.index_min_views);
+  v("index_max_bounded_fraction", o.index_max_bounded_fraction);
+  v("index_dims", o.index_dims);
 }
 
 // One Gaussian of a view's mixture X_i.
@@ -320,6 +348,21 @@ class EnvironmentModel {
   std::vector<ViewMatch> FindMatches(const Descriptor& y) const;
   // The same without the top_k limit (what Update uses).
   std::vector<ViewMatch> FindAllMatches(const Descriptor& y) const;
+  // FindMatches by the exhaustive scan over every view, whether or not the index is
+  // active: the reference the index is tested and benchmarked against. Same result.
+  std::vector<ViewMatch> FindMatchesExhaustive(const Descriptor& y) const;
+
+  // Whether the extractor's distance is bounded below by the L2 norm of the feature
+  // difference, so the candidate index may serve it (Fourier L1/L2, colour histogram
+  // L1/L2); false for the Jeffrey divergence, chi-square, intersection and unknown
+  // extractors, which always use the exhaustive scan.
+  bool IndexSupported() const { return index_supported_; }
+  // Whether searches currently go through the candidate index.
+  bool IndexActive() const { return view_index_.built(); }
+  // The estimated fraction of views the index must bound (options
+  // index_max_bounded_fraction) at its last evaluation; -1 before any.
+  double IndexBoundedFraction() const { return index_bounded_fraction_; }
+  const ViewIndex& view_index() const { return view_index_; }
 
   // p(x|y) (docs/design.md "Environment model"): for each match, each component j of the
   // view gives mean (x, y, wrap(phi_ij + relative heading)), covariance C_ij (heading
@@ -391,7 +434,11 @@ class EnvironmentModel {
 
  private:
   void CheckDescriptor(const Descriptor& y, const char* where) const;
-  std::vector<ViewMatch> Search(const Descriptor& y, int top_k) const;
+  std::vector<ViewMatch> Search(const Descriptor& y, int top_k, bool exhaustive = false) const;
+  // Builds, maintains or drops the candidate index after the views changed.
+  void MaintainIndex();
+  // Builds the index over every view and keeps it iff it pays (index_max_bounded_fraction).
+  void BuildIndex();
   std::size_t InsertView(const Descriptor& y, const UpdateContext& context, const Pose2& where);
   void RemoveViewAt(std::size_t index);
   // Counts e, appends it to the ring and drops the oldest events beyond max_events.
@@ -405,6 +452,10 @@ class EnvironmentModel {
   std::vector<float> features_;  // views_.size() rows of feature_size_ floats
   std::unordered_map<std::uint64_t, std::size_t> index_of_id_;
   SpatialIndex spatial_;
+  bool index_supported_ = false;
+  ViewIndex view_index_;  // derived (never serialised); rebuilt on load
+  double index_bounded_fraction_ = -1.0;
+  std::size_t index_rejected_at_ = 0;  // views when the index was last dropped as unprofitable
   std::size_t num_components_ = 0;
   std::uint64_t next_view_id_ = 1;
   std::uint64_t next_component_id_ = 1;

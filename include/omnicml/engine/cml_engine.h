@@ -265,6 +265,19 @@ class CmlEngine {
   // unchanged except for the frame's map barrier).
   FrameResult ProcessFrame(const Frame& frame);
 
+  // Survey mapping ([G]'s "old" map, built from trusted poses; docs/design.md "Survey
+  // mapping"): processes one frame of the current session whose pose is known from
+  // outside the engine (the log's ground truth, or an external corrected trajectory).
+  // Like ProcessFrame (the same map barrier, descriptor and delayed update), but the
+  // estimate is `trusted` itself: p(x_t) := N(trusted.mean, trusted.covariance), the
+  // frame is a confident anchor (frames still pending are reconstructed up to it) and
+  // (y_t, N(trusted)) is queued for the map. No appearance matching is done, so views
+  // are inserted at the trusted poses. Later ProcessFrame calls go on from this state.
+  // `trusted.mean` is (x m, y m, phi rad) in the map frame; the covariance (m^2, rad^2)
+  // is repaired (RepairCovariance) and must be finite. Throws omnicml::Error on a
+  // non-finite pose or odometry, before BeginSession, or as ProcessFrame.
+  FrameResult ProcessSurveyFrame(const Frame& frame, const Gaussian& trusted);
+
   // End of the run: queues the unimodal frames still pending with their filtered
   // estimates, drops the multimodal ones (no anchor follows them), and applies every
   // queued map update (whatever its due frame). Processing may

@@ -60,6 +60,7 @@ FrameResult CmlEngine::ProcessSurveyFrame(const Frame& frame, const Gaussian& tr
 
   current_increment_ = session_.has_prev_odom ? ComputeIncrement(session_.prev_odom, frame.odom_T_robot)
                                               : OdometryIncrement{};
+  if (options_.pose_graph.enabled) pose_graph_->AddFrameOdometry(t, current_increment_);
   // p(x_t) := N(trusted): the trusted pose replaces whatever the tracker believed.
   tracker_.Reset(state);
   session_.awaiting_global_seed = false;
@@ -73,7 +74,9 @@ FrameResult CmlEngine::ProcessSurveyFrame(const Frame& frame, const Gaussian& tr
   counters_.unimodal_frames += 1;
   // A trusted pose is the most confident anchor there is: frames pending since the last
   // anchor are reconstructed up to it, then y_t is queued at the trusted pose.
+  survey_prior_ = std::make_pair(t, state);  // the node of t gets the trusted pose as prior
   QueueUnimodal(t, y, estimate, &result);
+  survey_prior_.reset();
   result.stats.pending_multimodal = static_cast<int>(pending_.size());
 
   session_.prev_odom = frame.odom_T_robot;

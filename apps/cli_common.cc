@@ -52,6 +52,16 @@ void AddRunInputFlags(CLI::App* cmd, RunSettings* f, bool with_forgetting) {
       StrCat("Engine threads: 1 = no worker, 2 = map updates on a background worker "
              "(default 2 on a multi-core machine unless --config sets it), at most ",
              kMaxThreads));
+  cmd->add_option("--survey-days", f->survey.days,
+                  "Survey mapping ([G]'s old map): the first N days build the map from trusted "
+                  "poses (the input's ground truth, or --survey-poses), CML runs on it from day "
+                  "N+1; the error tables then cover days N+1 on only (compare: static = the "
+                  "survey map frozen after day N)")
+      ->capture_default_str()
+      ->check(CLI::NonNegativeNumber);
+  cmd->add_option("--survey-poses", f->survey.poses_path,
+                  "Trusted poses of the survey days as a TUM file (stamp x y z qx qy qz qw per "
+                  "line), matched to frames by stamp; default: the input's ground truth");
   cmd->add_option("--out", f->out_dir,
                   "Run directory (default runs/<command>-<date>-<time>); checked, with every "
                   "other output, before the first frame");

@@ -35,6 +35,7 @@ void CmlEngineOptions::Validate() const {
   nested("tracker", [&] { tracker.Validate(); });
   nested("model", [&] { model.Validate(); });
   nested("reconstruction", [&] { reconstruction.Validate(); });
+  nested("pose_graph", [&] { pose_graph.Validate(); });
   if (update_delay_frames < 1) {
     throw Error(StrCat("CmlEngineOptions.update_delay_frames must be >= 1, got ", update_delay_frames));
   }
@@ -84,6 +85,10 @@ CmlEngine::CmlEngine(const CmlEngineOptions& options) : options_(options), track
   extractor_ = MakeDescriptorExtractor(options_.descriptor);
   model_ = std::make_unique<EnvironmentModel>(options_.model, extractor_);
   updater_ = MakeUpdater(options_.threads);
+  pose_graph_ = std::make_unique<PoseGraph>(
+      options_.pose_graph, options_.tracker.motion, options_.reconstruction.min_translation_variance_m2,
+      options_.reconstruction.min_rotation_variance_rad2,
+      static_cast<std::size_t>(options_.max_pending_multimodal_frames) + 1);
 }
 
 CmlEngine::~CmlEngine() = default;
@@ -134,6 +139,10 @@ void CmlEngine::PushUpdate(std::int64_t t, std::int64_t frame, int session, cons
   u.state = g;
   u.reconstructed = reconstructed;
   updater_->Push(std::move(u), t);
+  if (options_.pose_graph.enabled) {  // global pose graph: one node per map update
+    const bool survey = survey_prior_ && survey_prior_->first == frame;
+    pose_graph_->AddNode(frame, g.mean, survey ? std::optional<Gaussian>(survey_prior_->second) : std::nullopt);
+  }
   if (stats != nullptr) stats->updates_queued += 1;
   counters_.updates_queued += 1;
 }
@@ -239,6 +248,13 @@ void CmlEngine::BeginSession(const SessionInfo& info) {
       }
       break;
     }
+  }
+  if (options_.pose_graph.enabled) {
+    // Global pose graph: kContinue goes on with the odometry segment; a known start pose
+    // is a prior on the session's first node.
+    std::optional<Gaussian> known;
+    if (info.start.mode == SessionStartMode::kKnownPose) known = tracker_.state().front();
+    pose_graph_->BeginSession(info.start.mode == SessionStartMode::kContinue && !first, next_frame_, known);
   }
 }
 
@@ -355,6 +371,7 @@ FrameResult CmlEngine::ProcessFrame(const Frame& frame) {
   // 1. Odometry increment (zero on a session's first frame, see BeginSession).
   current_increment_ = session_.has_prev_odom ? ComputeIncrement(session_.prev_odom, frame.odom_T_robot)
                                               : OdometryIncrement{};
+  if (options_.pose_graph.enabled) pose_graph_->AddFrameOdometry(t, current_increment_);
 
   // 6b. p(x_t) = Fuse(Propagate(p(x_{t-1}), u_t), p(x|y)).
   t0 = Clock::now();
@@ -405,6 +422,7 @@ FrameResult CmlEngine::ProcessFrame(const Frame& frame) {
   } else if (result.estimate->unimodal && IsConfidentAnchor(*result.estimate, appearance_fix)) {
     counters_.unimodal_frames += 1;
     QueueUnimodal(t, y, *result.estimate, &result);
+    if (options_.pose_graph.enabled && appearance_fix) UpdatePoseGraph(t, matches, &result.stats);
   } else {
     const bool unimodal = result.estimate->unimodal;  // but not confident enough to anchor
     (unimodal ? counters_.unimodal_frames : counters_.multimodal_frames) += 1;

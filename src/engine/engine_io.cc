@@ -193,6 +193,8 @@ void EngineStateAccess::Write(BinaryWriter& out, const CmlEngine& e) {
   }
   // The map.
   e.model_->Serialize(out);
+  // The global pose graph (format 7; empty when disabled).
+  e.pose_graph_->Write(out);
 }
 
 std::unique_ptr<CmlEngine> EngineStateAccess::Read(BinaryReader& in) {
@@ -259,6 +261,7 @@ std::unique_ptr<CmlEngine> EngineStateAccess::Read(BinaryReader& in) {
   }
 
   e->model_ = std::make_unique<EnvironmentModel>(EnvironmentModel::Deserialize(in, e->options_.model, e->extractor_));
+  e->pose_graph_->Read(in);
   in.ExpectEnd("engine payload");
   if (s.in_session) e->MakeUnwrapper();
   return e;

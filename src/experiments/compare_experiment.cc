@@ -14,6 +14,7 @@
 #include "omnicml/experiments/run_experiment.h"
 #include "omnicml/experiments/run_recorder.h"
 #include "omnicml/experiments/run_report.h"
+#include "omnicml/experiments/survey.h"
 #include "omnicml/report/report.h"
 #include "omnicml/report/svg_plot.h"
 
@@ -124,7 +125,11 @@ std::string RenderCompareReport(const std::string& input,
   std::size_t days = 0;
   for (const auto& r : results) days = std::max(days, r.evaluation.days.size());
   for (std::size_t d = 0; d < days; ++d) {
-    std::vector<std::string> row = {std::to_string(d + 1)};
+    std::vector<std::string> row = {
+        std::to_string((results.empty() || d >= results[0].evaluation.days.size()
+                            ? static_cast<int>(d)
+                            : results[0].evaluation.days[d].session) +
+                       1)};
     for (const auto& r : results) {
       row.push_back(d < r.evaluation.days.size()
                         ? FormatFixed(r.evaluation.days[d].position_m.mean, 3) + " / " +
@@ -191,6 +196,14 @@ CompareExperimentResult RunCompareExperiment(const CompareExperimentOptions& opt
   CheckLimit("--jobs", options.jobs, 0, kMaxThreads);
   if (f.log_every_frames < 1) throw Error("--log-every must be >= 1");
   const CmlEngineOptions base = ResolveEngineOptions(WithDefaultThreads(f.overrides));
+  f.survey.Validate();
+  // One reading of the survey trajectory, shared (read-only) by the modes' threads.
+  std::shared_ptr<const SurveyPoses> survey_poses;
+  if (!f.survey.poses_path.empty()) {
+    survey_poses = std::make_shared<const SurveyPoses>(SurveyPoses::Read(f.survey.poses_path));
+  }
+  // static freezes the map after the last day that builds it: day 1, or the last survey day.
+  const int freeze_after_session = std::max(f.survey.days, 1) - 1;
   const std::filesystem::path out_dir = f.out_dir.empty() ? DefaultRunDir("compare") : f.out_dir;
   const bool created = !std::filesystem::exists(out_dir);
   if (!created && !std::filesystem::is_directory(out_dir)) {
@@ -225,13 +238,16 @@ CompareExperimentResult RunCompareExperiment(const CompareExperimentOptions& opt
       RunRecorder recorder(ro);
       SessionEndHook freeze;
       if (mode == ForgettingMode::kStatic) {
-        freeze = [](CmlEngine& e, int session) {
-          if (session == 0) e.SetForgettingMode(ForgettingMode::kStatic);
+        freeze = [freeze_after_session](CmlEngine& e, int session) {
+          if (session == freeze_after_session) e.SetForgettingMode(ForgettingMode::kStatic);
         };
       }
       ProgressOptions progress = MakeProgressOptions(f, result.mode, CountFrames(f.input, *source));
       if (jobs > 1) progress.progress_bar = false;
-      const RunSummary summary = RunEngineOverSource(engine, *source, &recorder, progress, freeze);
+      FrameProcessor process;
+      if (f.survey.enabled()) process = MakeSurveyFrameProcessor(f.survey, survey_poses);
+      const RunSummary summary =
+          RunEngineOverSource(engine, *source, &recorder, progress, freeze, process);
       if (summary.frames == 0)
         throw Error(StrCat("the input (", f.input.Describe(), ") has no frames"));
       engine.Finish();
@@ -239,8 +255,15 @@ CompareExperimentResult RunCompareExperiment(const CompareExperimentOptions& opt
       if (!dir_existed) dir_made[index] = 1;
       FramesTable table;
       table.stage_names = StageNames();
-      table.records = recorder.records();
+      // The errors cover the days after the survey (survey.h); views@step all frames.
+      table.records = RecordsAfterSurvey(recorder.records(), f.survey);
+      result.survey_frames =
+          static_cast<std::int64_t>(recorder.records().size() - table.records.size());
       table.skipped_frames = recorder.skipped_frames();
+      if (table.records.empty()) {
+        throw Error(StrCat("--survey-days ", f.survey.days, ": the input (", f.input.Describe(),
+                           ") has no frames after the survey days to evaluate"));
+      }
       result.evaluation = Evaluate(table, Alignment::kNone);
       result.records = recorder.records();
       result.wall_s = summary.wall_s;
@@ -278,7 +301,18 @@ CompareExperimentResult RunCompareExperiment(const CompareExperimentOptions& opt
     CompareExperimentResult out;
     out.out_dir = out_dir.string();
     out.input = f.input.Describe();
-    out.table_text = FormatCompareTable(results, steps);
+    out.survey_note = SurveyExcludedNote(f.survey, results.front().survey_frames);
+    // table.txt says which frames its errors cover.
+    {
+      const EvaluationResult& e = results.front().evaluation;
+      std::ostringstream head;
+      if (!out.survey_note.empty()) head << "# " << out.survey_note << "\n";
+      head << "# errors over " << e.overall.frames << " frames";
+      if (!e.days.empty())
+        head << " (days " << e.days.front().session + 1 << "-" << e.days.back().session + 1 << ")";
+      head << ", localized frames only (coverage%)\n";
+      out.table_text = head.str() + FormatCompareTable(results, steps);
+    }
     WriteFileAtomic(out_dir / "table.txt", out.table_text);
     WriteFileAtomic(out_dir / "report.html",
                     RenderCompareReport(out.input, results, steps, out.table_text));
@@ -303,7 +337,8 @@ std::string FormatCompareExperimentResult(const CompareExperimentResult& result)
        << " s";
     if (r.evaluation.overall.frames_skipped > 0)
       os << " (" << r.evaluation.overall.frames_skipped << " unreadable frames skipped)";
-    os << "; per-day mean error m (localized frames):";
+    os << "; per-day mean error m (localized frames, days "
+       << (r.evaluation.days.empty() ? 0 : r.evaluation.days.front().session + 1) << "-):";
     for (const auto& d : r.evaluation.days) os << " " << FormatFixed(d.position_m.mean, 3);
     os << "; per-day coverage %:";
     for (const auto& d : r.evaluation.days) os << " " << FormatFixed(d.coverage * 100, 1);

@@ -14,6 +14,7 @@
 #include "omnicml/common/file_io.h"
 #include "omnicml/engine/engine_io.h"
 #include "omnicml/experiments/run_report.h"
+#include "omnicml/experiments/survey.h"
 #include "omnicml/report/map_export.h"
 #include "omnicml/sim/world.h"
 
@@ -93,7 +94,22 @@ RunExperimentResult RunExperiment(const RunExperimentOptions& o) {
   CheckOutputParent(o.trajectory_out, "--trajectory-out", run_dir);
   if (f.log_every_frames < 1) throw Error("--log-every must be >= 1");
 
+  f.survey.Validate();
+  // Read the survey trajectory before the first frame (a bad line fails at once).
+  FrameProcessor process;
+  if (f.survey.enabled()) process = MakeSurveyFrameProcessor(f.survey, nullptr);
   std::unique_ptr<CmlEngine> engine = MakeRunEngine(o);
+  // Survey with static forgetting: the survey builds the map (active forgetting), which is
+  // frozen after the last survey day ([G]'s static "old" map).
+  SessionEndHook freeze;
+  if (f.survey.enabled() && engine->options().model.forgetting == ForgettingMode::kStatic &&
+      engine->session_state().session + 1 < f.survey.days) {
+    engine->SetForgettingMode(ForgettingMode::kActive);
+    const int last_survey_session = f.survey.days - 1;
+    freeze = [last_survey_session](CmlEngine& e, int session) {
+      if (session == last_survey_session) e.SetForgettingMode(ForgettingMode::kStatic);
+    };
+  }
   if (engine->options().model.forgetting == ForgettingMode::kStatic &&
       engine->model().NumViews() == 0 && !f.quiet) {
     std::cerr << "omnicml run: warning: static forgetting on an empty map: the map will stay empty "
@@ -136,7 +152,9 @@ RunExperimentResult RunExperiment(const RunExperimentOptions& o) {
       [&](CmlEngine& e, int source_session) {
         score_changes(e, source_session);
         last_source_session = source_session;
-      });
+        if (freeze) freeze(e, source_session);
+      },
+      process);
   if (result.summary.frames == 0) {
     throw Error(StrCat("the input (", f.input.Describe(), ") has no frames"));
   }
@@ -173,9 +191,13 @@ RunExperimentResult RunExperiment(const RunExperimentOptions& o) {
 
   FramesTable table;
   table.stage_names = StageNames();
-  table.records = recorder.records();
+  // Survey days are not localization (their estimates are the trusted poses): the
+  // evaluation covers the days after the survey (survey.h).
+  table.records = RecordsAfterSurvey(recorder.records(), f.survey);
+  result.survey_frames =
+      static_cast<std::int64_t>(recorder.records().size() - table.records.size());
   table.skipped_frames = recorder.skipped_frames();
-  result.evaluation = Evaluate(table, Alignment::kNone);
+  if (!table.records.empty()) result.evaluation = Evaluate(table, Alignment::kNone);
   result.views = engine->model().NumViews();
   result.components = engine->model().NumComponents();
   return result;
@@ -184,7 +206,13 @@ RunExperimentResult RunExperiment(const RunExperimentOptions& o) {
 std::string FormatRunExperimentResult(const RunExperimentOptions& options,
                                       const RunExperimentResult& result) {
   std::ostringstream os;
-  os << FormatEvaluation(result.evaluation, /*with_histogram=*/false);
+  const std::string survey_note = SurveyExcludedNote(options.settings.survey, result.survey_frames);
+  if (!survey_note.empty()) os << survey_note << "\n";
+  if (result.evaluation.overall.frames > 0) {
+    os << FormatEvaluation(result.evaluation, /*with_histogram=*/false);
+  } else {
+    os << "no frames after the survey days: nothing to evaluate\n";
+  }
   const RunSummary& s = result.summary;
   os << "frames: " << s.frames << " in " << s.sessions << " session(s), " << s.frames_localized
      << " localized ("

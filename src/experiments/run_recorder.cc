@@ -206,7 +206,8 @@ bool StderrIsTerminal() { return ::isatty(STDERR_FILENO) == 1; }
 
 RunSummary RunEngineOverSource(CmlEngine& engine, FrameSource& source, RunRecorder* recorder,
                                const ProgressOptions& progress,
-                               const SessionEndHook& on_session_end) {
+                               const SessionEndHook& on_session_end,
+                               const FrameProcessor& process) {
   using Clock = std::chrono::steady_clock;
   const auto start = Clock::now();
   auto last_draw = start;
@@ -296,7 +297,7 @@ RunSummary RunEngineOverSource(CmlEngine& engine, FrameSource& source, RunRecord
       engine.BeginSession(source.Session(current_session));
       ++summary.sessions;
     }
-    last = engine.ProcessFrame(frame);
+    last = process ? process(engine, frame) : engine.ProcessFrame(frame);
     have_last = true;
     ++summary.frames;
     ++session_frames;

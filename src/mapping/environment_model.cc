@@ -1054,4 +1054,34 @@ void EnvironmentModel::CheckInvariants() const {
   }
 }
 
+// docs/design.md "Global pose graph": the view moves with its anchor node.
+void EnvironmentModel::MoveViewRigidly(std::size_t view_index, const Pose2& old_anchor,
+                                       const Pose2& new_anchor) {
+  OMNICML_CHECK(view_index < views_.size()) << "MoveViewRigidly: no view " << view_index;
+  ReferenceView& view = views_[view_index];
+  const double dphi = WrapAngle(new_anchor.z() - old_anchor.z());
+  const double c = std::cos(dphi);
+  const double s = std::sin(dphi);
+  Eigen::Matrix2d r;
+  r << c, -s, s, c;
+  Eigen::Matrix3d j = Eigen::Matrix3d::Identity();
+  j.topLeftCorner<2, 2>() = r;
+  const auto move_xy = [&](const Eigen::Vector2d& p) -> Eigen::Vector2d {
+    return new_anchor.head<2>() + r * (p - old_anchor.head<2>());
+  };
+  for (ViewComponent& comp : view.components) {
+    const Pose2 old = comp.mean;
+    const Eigen::Vector2d xy = move_xy(old.head<2>());
+    comp.mean = MakePose(xy.x(), xy.y(), old.z() + dphi);
+    Eigen::Matrix3d cov = j * comp.covariance * j.transpose();
+    comp.covariance = 0.5 * (cov + cov.transpose());
+    spatial_.Move(view.id, comp.id, old.x(), old.y(), comp.mean.x(), comp.mean.y());
+  }
+  if (view.footprint.weight > 0) {
+    view.footprint.mean = move_xy(view.footprint.mean);
+    const Eigen::Matrix2d scatter = r * view.footprint.scatter * r.transpose();
+    view.footprint.scatter = 0.5 * (scatter + scatter.transpose());
+  }
+}
+
 }  // namespace omnicml

@@ -480,5 +480,31 @@ TEST_F(CliEndToEnd, BadInputExitsWithCodeTwoAndLeavesNothing) {
   EXPECT_TRUE(TemporaryFiles(Dir()).empty());
 }
 
+// --survey-days on a log: day 1 is mapped from the log's ground truth and left out of
+// the errors (the output says so); a bad --survey-poses line fails before any output
+// with file:line and exit code 2.
+TEST_F(CliEndToEnd, SurveyDaysFromGroundTruthAndTumErrors) {
+  const fs::path out = Dir() / "survey_run";
+  const CommandResult ok = RunOmnicml("run " + (Dir() / "log").string() +
+                                      " --survey-days 1 --quiet --threads 1 --out " + out.string());
+  ASSERT_EQ(ok.exit_code, 0) << ok.output;
+  EXPECT_NE(ok.output.find("survey day 1 (" + std::to_string(kFramesPerDay) +
+                           " frames) excluded from the errors"),
+            std::string::npos)
+      << ok.output;
+
+  const fs::path tum = Dir() / "bad_survey.tum";
+  {
+    std::ofstream os(tum);
+    os << "# stamp x y z qx qy qz qw\n0 1 2 0 0 0 0 1\n0.5 1 2 0\n";
+  }
+  const fs::path bad_out = Dir() / "survey_bad";
+  const CommandResult bad = RunOmnicml("run " + (Dir() / "log").string() + " --survey-days 1 --survey-poses " +
+                                       tum.string() + " --out " + bad_out.string());
+  EXPECT_EQ(bad.exit_code, 2);
+  EXPECT_NE(bad.output.find(tum.string() + ":3: expected 8 numbers"), std::string::npos) << bad.output;
+  EXPECT_FALSE(fs::exists(bad_out));
+}
+
 }  // namespace
 }  // namespace omnicml

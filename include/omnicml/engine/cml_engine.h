@@ -60,6 +60,7 @@
 #include "omnicml/unwrap/frame.h"
 #include "omnicml/geometry/gaussian_mixture.h"
 #include "omnicml/engine/map_updater.h"
+#include "omnicml/engine/pose_graph.h"
 #include "omnicml/unwrap/omni_unwrapper.h"
 #include "omnicml/geometry/pose.h"
 #include "omnicml/tracking/tracker.h"
@@ -142,6 +143,10 @@ struct CmlEngineOptions {
   // kContinue sessions: apply the odometry increment from the previous session's last
   // frame to the new session's first frame (the log's odometry runs on across sessions).
   bool continue_odometry_across_sessions = false;
+  // Global pose graph (pose_graph.h, docs/design.md "Global pose graph"): anchor poses,
+  // odometry and appearance loop closures optimised under a robust loss when a loop
+  // closes; the views move with the nodes that created them. Off by default.
+  PoseGraphOptions pose_graph;
 
   // Throws omnicml::Error naming the first invalid field (including nested options,
   // prefixed "descriptor.", "tracker.", "model.", "reconstruction.").
@@ -171,6 +176,7 @@ void VisitFields(V& v, CmlEngineOptions& o) {
   v.Section("tracker", o.tracker);
   v.Section("model", o.model);
   v.Section("reconstruction", o.reconstruction);
+  v.Section("pose_graph", o.pose_graph);
 }
 
 // Timing (microseconds, wall clock) and sizes of one ProcessFrame call.
@@ -182,6 +188,8 @@ struct FrameStats {
   double match_us = 0.0;        // FindMatches + Hypothesis
   double fuse_us = 0.0;         // propagation, fusion, summary
   double reconstruct_us = 0.0;  // pose-graph reconstruction (0 when none)
+  double pose_graph_us = 0.0;   // global pose graph: closure, optimisation, map moved (0 when none)
+  int pose_graph_moved_views = 0;  // views moved by the global pose graph in this call
   double total_us = 0.0;        // the whole call
   std::size_t num_views = 0;            // views in the map when it was queried
   std::size_t num_map_components = 0;   // components in the map when it was queried
@@ -265,6 +273,19 @@ class CmlEngine {
   // unchanged except for the frame's map barrier).
   FrameResult ProcessFrame(const Frame& frame);
 
+  // Survey mapping ([G]'s "old" map, built from trusted poses; docs/design.md "Survey
+  // mapping"): processes one frame of the current session whose pose is known from
+  // outside the engine (the log's ground truth, or an external corrected trajectory).
+  // Like ProcessFrame (the same map barrier, descriptor and delayed update), but the
+  // estimate is `trusted` itself: p(x_t) := N(trusted.mean, trusted.covariance), the
+  // frame is a confident anchor (frames still pending are reconstructed up to it) and
+  // (y_t, N(trusted)) is queued for the map. No appearance matching is done, so views
+  // are inserted at the trusted poses. Later ProcessFrame calls go on from this state.
+  // `trusted.mean` is (x m, y m, phi rad) in the map frame; the covariance (m^2, rad^2)
+  // is repaired (RepairCovariance) and must be finite. Throws omnicml::Error on a
+  // non-finite pose or odometry, before BeginSession, or as ProcessFrame.
+  FrameResult ProcessSurveyFrame(const Frame& frame, const Gaussian& trusted);
+
   // End of the run: queues the unimodal frames still pending with their filtered
   // estimates, drops the multimodal ones (no anchor follows them), and applies every
   // queued map update (whatever its due frame). Processing may
@@ -276,6 +297,8 @@ class CmlEngine {
   const CmlEngineOptions& options() const { return options_; }
   const MixtureTracker& tracker() const { return tracker_; }
   const EngineCounters& counters() const { return counters_; }
+  // The global pose graph (empty unless options().pose_graph.enabled).
+  const PoseGraph& pose_graph() const { return *pose_graph_; }
   const EngineSessionState& session_state() const { return session_; }
   const std::vector<PendingFrame>& pending_frames() const { return pending_; }
   // The last unimodal estimate the pending frames hang from: (frame, N(mu, C)).
@@ -325,6 +348,11 @@ class CmlEngine {
   void PushUpdate(std::int64_t t, std::int64_t frame, int session, const Descriptor& d,
                   const Gaussian& g, bool reconstructed, FrameStats* stats);
   void ShapeHypothesis(double best_similarity, Mixture* p_x_y) const;
+  // Global pose graph (cml_engine_pose_graph.cc): after the anchor frame t was queued
+  // with an appearance fix, a loop closure from the best match and, when due, the
+  // optimisation; the map, the queued updates and the tracker move with the nodes.
+  void UpdatePoseGraph(std::int64_t t, const std::vector<ViewMatch>& matches, FrameStats* stats);
+  void ApplyPoseGraphCorrections(std::vector<NodeCorrection> corrections, FrameStats* stats);
 
   CmlEngineOptions options_;
   std::shared_ptr<const DescriptorExtractor> extractor_;
@@ -339,6 +367,9 @@ class CmlEngine {
   std::vector<PendingFrame> pending_;
   std::optional<std::pair<std::int64_t, Gaussian>> anchor_;
   OdometryIncrement current_increment_;  // u_t of the frame being processed
+  std::unique_ptr<PoseGraph> pose_graph_;
+  // Set while ProcessSurveyFrame queues its frame: the prior of that frame's node.
+  std::optional<std::pair<std::int64_t, Gaussian>> survey_prior_;
 };
 
 }  // namespace omnicml

@@ -10,8 +10,9 @@
 //                             restores every field or fails naming the missing one;
 //                             counters, session state, next frame index, the tracker's
 //                             mixture, the pending multimodal frames and their anchor, the
-//                             queued map updates, and the environment model
+//                             queued map updates, the environment model
 //                             (EnvironmentModel::Serialize: views, counters, next ids, events)
+//                             and the global pose graph (PoseGraph::Write)
 //   checksum         u32      CRC-32 (binary_io.h Crc32) of the payload
 // Doubles are stored bit for bit, so SaveEngine -> LoadEngine restores bit-identical
 // state: running day 1, saving, loading and running day 2 gives exactly the estimates and
@@ -46,7 +47,11 @@ namespace omnicml {
 //    (descriptor.h WriteDescriptorRecord), as the map's views.
 // 6: the bounded event log: option model.max_events; the model section (version 3) holds
 //    the number of events logged, per-session event counts and the ring of recent events.
-// 7: options model.index_min_views and model.index_dims (place retrieval, issue 19).
+// 7: options model.index_min_views, model.index_max_bounded_fraction and model.index_dims
+//    (place retrieval, issue 19); the global pose graph (issue 15): options section
+//    pose_graph; after the model, the graph's nodes, closures, recent frame odometry and
+//    its state (pose_graph.h Write). Files of version 6 are rejected with both versions
+//    named (re-run to rebuild them).
 inline constexpr std::uint32_t kEngineFormatVersion = 7;
 // The 8 magic bytes (including the terminating NUL).
 inline constexpr char kEngineMagic[8] = {'O', 'M', 'N', 'I', 'C', 'M', 'L', '\0'};

@@ -83,6 +83,9 @@ class DelayedUpdateQueue {
   bool empty() const { return items_.empty(); }
   std::size_t size() const { return items_.size(); }
   const std::deque<MapUpdate>& items() const { return items_; }
+  // Mutable access for corrections of the queued states (global pose graph); the order
+  // and due frames must not change.
+  std::deque<MapUpdate>& mutable_items() { return items_; }
 
  private:
   int delay_;
@@ -118,6 +121,9 @@ class MapUpdater {
 
   // Updates still queued (not yet handed to the worker). Call after a barrier.
   const std::deque<MapUpdate>& queued() const { return queue_.items(); }
+  // The same, mutable, to correct queued states (global pose graph). Call after a barrier
+  // and before the next Schedule (the worker then holds no batch); keep order and due frames.
+  std::deque<MapUpdate>& mutable_queued() { return queue_.mutable_items(); }
   int update_delay_frames() const { return queue_.update_delay_frames(); }
   bool background() const { return background_; }
   // Total updates applied so far.

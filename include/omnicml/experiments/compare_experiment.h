@@ -4,7 +4,10 @@
 //
 // "static" is the baseline of a map that does not adapt: it learns on the first day
 // (active forgetting) and is frozen from the second day on (CmlEngine::SetForgettingMode
-// at the end of day 1). A map static from the start would stay empty.
+// at the end of day 1). A map static from the start would stay empty. With
+// settings.survey (--survey-days N) the first N days build the map from trusted poses in
+// every mode (survey.h), static freezes it after day N ([G]'s static "old" map versus
+// the adapted one), and the errors cover days N + 1 on.
 //
 // OUTDIR layout (every file written atomically; a failure removes what the call created):
 //   passive/, active/, static/   each mode's full run directory (run_recorder.h; with
@@ -48,7 +51,10 @@ struct CompareExperimentOptions {
 struct CompareModeResult {
   std::string mode;                  // "passive", "active", "static"
   std::vector<FrameRecord> records;  // every frame, in order
-  EvaluationResult evaluation;       // Alignment::kNone
+  // Alignment::kNone; of the frames after the survey days (settings.survey), all
+  // frames without a survey.
+  EvaluationResult evaluation;
+  std::int64_t survey_frames = 0;  // frames of the survey days (not in `evaluation`)
   double wall_s = 0;
   int final_views = 0;  // after Finish
   int final_components = 0;
@@ -59,6 +65,7 @@ struct CompareExperimentResult {
   std::string input;                     // RunInput::Describe()
   std::vector<CompareModeResult> modes;  // passive, active, static
   std::string table_text;                // table.txt
+  std::string survey_note;               // SurveyExcludedNote ("" without a survey)
 };
 
 // Runs the experiment of the file comment and writes OUTDIR. Throws omnicml::Error for

@@ -108,6 +108,25 @@ std::unique_ptr<FrameSource> OpenFrameSource(const RunInput& input);
 // per day), or std::nullopt when unknown; for progress and ETA only.
 std::optional<std::int64_t> CountFrames(const RunInput& input, const FrameSource& source);
 
+// Survey mapping (survey.h, docs/design.md "Survey mapping"): the first `days` days
+// build the map from trusted poses, CML runs on it afterwards.
+struct SurveyOptions {
+  // Engine sessions (days) 0 .. days - 1 are survey days; 0 = no survey. >= 0.
+  int days = 0;
+  // TUM file of trusted poses ("" = the input's ground truth).
+  std::string poses_path;
+  // Standard deviations of a trusted pose: the covariance the survey's map updates carry
+  // (and p(x_t) at the survey frames). Metres / radians, > 0.
+  double position_sigma_m = 0.05;
+  double heading_sigma_rad = 0.02;
+
+  // Throws omnicml::Error naming the flag (--survey-days, --survey-poses).
+  void Validate() const;
+  bool enabled() const { return days > 0; }
+  // diag(sigma_x^2, sigma_y^2, sigma_phi^2).
+  Eigen::Matrix3d Covariance() const;
+};
+
 // What `omnicml run` and `omnicml compare` share: input, option overrides, output
 // directory and progress settings (filled from command-line flags).
 struct RunSettings {
@@ -117,6 +136,7 @@ struct RunSettings {
   bool quiet = false;                   // no progress output
   bool no_progress_bar = false;         // plain log lines even on a terminal
   std::int64_t log_every_frames = 500;  // frames between plain progress lines
+  SurveyOptions survey;                 // --survey-days, --survey-poses (none by default)
 };
 
 }  // namespace omnicml

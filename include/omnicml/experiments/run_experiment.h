@@ -54,7 +54,10 @@ struct RunExperimentOptions {
 struct RunExperimentResult {
   std::string run_dir;          // where the run directory went (settings.out_dir or a default)
   RunSummary summary;           // frames, sessions, wall time
-  EvaluationResult evaluation;  // of the recorded frames, Alignment::kNone
+  // Of the recorded frames after the survey days (all frames without a survey; empty,
+  // overall.frames = 0, when every frame was a survey frame), Alignment::kNone.
+  EvaluationResult evaluation;
+  std::int64_t survey_frames = 0;  // frames of the survey days (not in `evaluation`)
   std::size_t views = 0;        // map at the end (after Finish)
   std::size_t components = 0;
   int threads = 1;     // the engine's threads

@@ -155,10 +155,14 @@ struct RunSummary {
 // session but the last, before the next BeginSession, e.g. to change the engine's mode
 // (CmlEngine::SetForgettingMode; the engine is between frames there). Throws what the
 // engine, the source, the recorder or the hook throw.
+// `process` (optional) replaces engine.ProcessFrame(frame) for every frame, e.g. survey
+// mapping from trusted poses (survey.h); empty = ProcessFrame.
 using SessionEndHook = std::function<void(CmlEngine& engine, int session_index)>;
+using FrameProcessor = std::function<FrameResult(CmlEngine& engine, const Frame& frame)>;
 RunSummary RunEngineOverSource(CmlEngine& engine, FrameSource& source, RunRecorder* recorder,
                                const ProgressOptions& progress,
-                               const SessionEndHook& on_session_end = {});
+                               const SessionEndHook& on_session_end = {},
+                               const FrameProcessor& process = {});
 
 }  // namespace omnicml
 

@@ -388,6 +388,16 @@ class EnvironmentModel {
   std::uint64_t AddView(const Descriptor& y, std::vector<ViewComponent> components,
                         const ViewStats& stats);
 
+  // Moves view `view_index` rigidly with the pose it hangs from (the engine's global
+  // pose graph, engine/pose_graph.h): with dphi = wrap(new.phi - old.phi) and R(dphi)
+  // the rotation, every component mean p becomes new.xy + R(dphi) (p.xy - old.xy) with
+  // heading wrap(p.phi + dphi) (the heading relative to the view's panorama turns with
+  // the robot), its covariance J C J^T with J = diag(R(dphi), 1), the footprint's mean
+  // moves and its scatter rotates the same way, and the spatial index follows.
+  // Weights, ids, counters and events are unchanged. Poses in the map frame (m, m, rad).
+  // Precondition: view_index < NumViews() (OMNICML_CHECK).
+  void MoveViewRigidly(std::size_t view_index, const Pose2& old_anchor, const Pose2& new_anchor);
+
   std::size_t NumViews() const { return views_.size(); }
   std::size_t NumComponents() const { return num_components_; }
   // In storage order (the order of the feature rows; changes when views are removed).

@@ -1,0 +1,209 @@
+// The global pose graph (docs/design.md "Global pose graph"; beyond [G], as RTAB-Map and
+// Cartographer do): the poses at which the map was updated, linked by odometry and by
+// appearance loop closures, optimised with Ceres under a robust loss when a loop closes,
+// so that the map (views hang from the node of the update that created them) is moved
+// into one consistent frame instead of keeping the first lap's dead-reckoning drift.
+//
+// Nodes: one per map update the engine queues (CmlEngine::PushUpdate), in frame order,
+// with the pose the update carries. Factors (residuals r, whitened by W with
+// W^T W = Sigma^-1; angles wrapped):
+//   odometry  between consecutive nodes a, b of one odometry segment (a session, or
+//             sessions joined by kContinue): r = W (Between(x_a, x_b) - z_ab), z_ab =
+//             Between(o_a, o_b) of the dead-reckoned poses o (the increments composed),
+//             Sigma_ab = sum of the increments' covariances (IncrementCovariance, summed
+//             without rotating them into a's frame: an approximation) plus floors.
+//   prior     on nodes with a pose from outside the engine: survey frames (their trusted
+//             pose) and the first frame of a kKnownPose session (its start pose):
+//             r = W (x - mu).
+//   closure   between the node c that created the best-matching view i and the current
+//             anchor node t, when t - c >= min_loop_frames: z_ct = Between(x_c, m) with
+//             m = (x_ij, y_ij, wrap(phi_ij + RelativeHeading(y_t, y_i))) from the view's
+//             strongest component j (the pose the view says the robot is at, as in
+//             p(x|y)); Sigma = diag(s^2, s^2, s_phi^2), s^2 = closure_sigma_m^2 + the
+//             largest xy variance of the component, s_phi^2 = closure_sigma_rad^2 +
+//             its heading variance. Under a Cauchy loss rho(s) = c^2 log(1 + s / c^2)
+//             of the squared whitened residual, c = loss_scale, so that a false closure
+//             (aliasing) cannot pull the map apart.
+// Optimisation (Optimize): Levenberg-Marquardt over the newest window_nodes nodes (older
+// nodes referenced by a factor are held constant); then closures whose squared whitened
+// residual exceeds reject_chi2 are removed and the window is solved again without
+// them (closure verification). Single-threaded, fixed options, so
+// the result depends only on the inputs (deterministic; the engine calls it on its own
+// thread while the map-update worker is idle). The gauge: the constant older nodes, the
+// priors, else the window's first node is held constant.
+//
+// Thread-safety: thread-compatible (the engine's thread only).
+#ifndef OMNICML_ENGINE_POSE_GRAPH_H_
+#define OMNICML_ENGINE_POSE_GRAPH_H_
+
+#include <cstddef>
+#include <cstdint>
+#include <deque>
+#include <optional>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "omnicml/common/binary_io.h"
+#include "omnicml/geometry/gaussian_mixture.h"
+#include "omnicml/geometry/pose.h"
+#include "omnicml/tracking/tracker.h"
+
+namespace omnicml {
+
+struct PoseGraphOptions {
+  // Keep and optimise the graph; false: the engine behaves exactly as without it.
+  bool enabled = false;
+  // A match with a view created at least this many frames before the current frame is a
+  // loop closure (nearer matches are the odometry's business). Frames, >= 1.
+  int min_loop_frames = 300;
+  // At most one closure factor per this many frames (a revisit matches at every frame).
+  // Frames, >= 1.
+  int closure_every_frames = 10;
+  // The graph is optimised when a closure factor was added since the last optimisation
+  // and at least this many frames have passed since it. Frames, >= 1.
+  int optimize_every_frames = 50;
+  // Nodes optimised: the newest window_nodes (older ones are constant). Bounds the cost of
+  // one optimisation. Nodes, >= 2.
+  int window_nodes = 3000;
+  // Standard deviations added to a closure's: position (metres, > 0) and heading
+  // (radians, > 0).
+  double closure_sigma_m = 0.3;
+  double closure_sigma_rad = 0.05;
+  // Cauchy loss scale c on the squared whitened closure residual (dimensionless, in
+  // standard deviations, > 0): residuals much beyond c count logarithmically.
+  double loss_scale = 1.0;
+  // Levenberg-Marquardt iterations per optimisation, >= 1.
+  int max_iterations = 10;
+  // Closure verification: after the robust optimisation, a closure whose squared whitened
+  // residual exceeds this is removed as inconsistent (aliasing) and the window solved
+  // again. Dimensionless (chi-square, 3 degrees of freedom), > 0; 25 = 5 sigma.
+  double reject_chi2 = 25.0;
+
+  // Throws omnicml::Error naming the first invalid field ("PoseGraphOptions.<field>").
+  void Validate() const;
+};
+
+template <class V>
+void VisitFields(V& v, PoseGraphOptions& o) {
+  v("enabled", o.enabled);
+  v("min_loop_frames", o.min_loop_frames);
+  v("closure_every_frames", o.closure_every_frames);
+  v("optimize_every_frames", o.optimize_every_frames);
+  v("window_nodes", o.window_nodes);
+  v("closure_sigma_m", o.closure_sigma_m);
+  v("closure_sigma_rad", o.closure_sigma_rad);
+  v("loss_scale", o.loss_scale);
+  v("max_iterations", o.max_iterations);
+  v("reject_chi2", o.reject_chi2);
+}
+
+// One node: the pose of a map update.
+struct PoseGraphNode {
+  std::int64_t frame = 0;     // engine frame index (increasing over the nodes)
+  std::int64_t segment = -1;  // odometry segment; -1: no odometry known for the frame
+  Pose2 pose = Pose2::Zero();            // current estimate (map frame)
+  Pose2 odom = Pose2::Zero();            // dead-reckoned pose in the segment's frame
+  Eigen::Matrix3d odom_cov = Eigen::Matrix3d::Zero();  // summed increment covariances
+  std::optional<Gaussian> prior;         // survey pose or known session start (weight unused)
+  bool operator==(const PoseGraphNode& o) const {
+    return frame == o.frame && segment == o.segment && pose == o.pose && odom == o.odom &&
+           odom_cov == o.odom_cov && prior.has_value() == o.prior.has_value() &&
+           (!prior || (prior->mean == o.prior->mean && prior->covariance == o.prior->covariance));
+  }
+};
+
+// A loop closure: Between(x_from, x_to) measured as z with covariance `covariance`.
+struct PoseGraphClosure {
+  std::int64_t from_frame = 0;  // node of the view's creator
+  std::int64_t to_frame = 0;    // the current anchor's node
+  Pose2 z = Pose2::Zero();
+  Eigen::Matrix3d covariance = Eigen::Matrix3d::Identity();
+  bool operator==(const PoseGraphClosure&) const = default;
+};
+
+// A node moved by an optimisation: its pose before and after.
+struct NodeCorrection {
+  std::int64_t frame = 0;
+  Pose2 before = Pose2::Zero();
+  Pose2 after = Pose2::Zero();
+};
+
+class PoseGraph {
+ public:
+  // `motion` and the variance floors (m^2, rad^2) give the odometry factors'
+  // covariances (IncrementCovariance). Odometry is kept for the newest
+  // max_recent_frames frames that are not nodes yet (the longest a frame can wait to
+  // reach the map: max_pending_multimodal_frames plus one).
+  PoseGraph(const PoseGraphOptions& options, const MotionNoise& motion,
+            double min_translation_variance_m2, double min_rotation_variance_rad2,
+            std::size_t max_recent_frames);
+
+  // Session start: kContinue sessions continue the odometry segment, others start a new
+  // one. `known_start` (kKnownPose) becomes the prior of the node of `first_frame`
+  // (the session's first frame) if that frame becomes a node.
+  void BeginSession(bool continue_segment, std::int64_t first_frame,
+                    const std::optional<Gaussian>& known_start);
+  // The odometry increment u_t of frame t (every processed frame, in order).
+  void AddFrameOdometry(std::int64_t frame, const OdometryIncrement& u);
+  // A map update of `frame` at `pose` (frames increasing; a frame not after the last
+  // node's is ignored). `prior`: a pose from outside the engine (survey).
+  void AddNode(std::int64_t frame, const Pose2& pose, const std::optional<Gaussian>& prior);
+  // A loop closure from the node of `view_created_frame` to the node of `frame`, with the
+  // pose m the view's component says the robot is at and that component's covariance.
+  // Returns false (nothing added) when either node is missing, the frames are less than
+  // min_loop_frames apart, or the last closure is less than closure_every_frames old.
+  bool AddClosure(std::int64_t view_created_frame, std::int64_t frame, const Pose2& m,
+                  const Eigen::Matrix3d& component_covariance);
+  // Whether Optimize should run at `frame` (a closure since the last optimisation, and
+  // optimize_every_frames passed).
+  bool ShouldOptimize(std::int64_t frame) const;
+  // Optimises the window (file comment) and returns the nodes whose pose changed.
+  std::vector<NodeCorrection> Optimize(std::int64_t frame);
+
+  // The node of `frame`, or null.
+  const PoseGraphNode* FindNode(std::int64_t frame) const;
+  const std::vector<PoseGraphNode>& nodes() const { return nodes_; }
+  const std::vector<PoseGraphClosure>& closures() const { return closures_; }
+  std::int64_t optimizations() const { return optimizations_; }
+  std::int64_t rejected_closures() const { return rejected_closures_; }
+
+  // Persistence (engine_io.cc): every field but the options.
+  void Write(BinaryWriter& out) const;
+  void Read(BinaryReader& in);
+  bool operator==(const PoseGraph& o) const;
+
+ private:
+  struct FrameOdometry {
+    std::int64_t frame = 0;
+    std::int64_t segment = 0;
+    Pose2 odom = Pose2::Zero();
+    Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+  };
+  std::size_t IndexOf(std::int64_t frame) const;  // nodes_.size() if absent
+
+  PoseGraphOptions options_;
+  MotionNoise motion_;
+  double min_translation_variance_m2_;
+  double min_rotation_variance_rad2_;
+
+  std::vector<PoseGraphNode> nodes_;
+  std::vector<PoseGraphClosure> closures_;
+  std::deque<FrameOdometry> recent_;  // frames not yet nodes (since the last node)
+  std::size_t max_recent_frames_;
+  std::int64_t segment_ = -1;         // current odometry segment
+  bool new_segment_ = true;           // the next frame starts a segment
+  Pose2 odom_ = Pose2::Zero();        // dead-reckoned pose of the last frame (segment frame)
+  Eigen::Matrix3d odom_cov_ = Eigen::Matrix3d::Zero();  // summed increment covariances
+  std::int64_t start_prior_frame_ = -1;
+  std::optional<Gaussian> start_prior_;
+  std::int64_t last_closure_frame_ = INT64_MIN / 2;
+  std::int64_t last_optimized_frame_ = INT64_MIN / 2;
+  bool closure_since_optimize_ = false;
+  std::int64_t optimizations_ = 0;
+  std::int64_t rejected_closures_ = 0;
+};
+
+}  // namespace omnicml
+
+#endif  // OMNICML_ENGINE_POSE_GRAPH_H_

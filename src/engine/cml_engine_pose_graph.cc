@@ -1,0 +1,90 @@
+// CmlEngine's use of the global pose graph (pose_graph.h, docs/design.md "Global pose
+// graph"): loop closures from appearance matches, optimisation, and moving the map, the
+// queued updates and the tracker with the corrected nodes. Kept apart from
+// cml_engine.cc so the CML pipeline and the graph can change independently.
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <utility>
+
+#include "omnicml/common/common.h"
+#include "omnicml/engine/cml_engine.h"
+
+namespace omnicml {
+namespace {
+
+// g moved rigidly from `before` to `after` (the correction of the node it hangs from):
+// mean xy' = after.xy + R(dphi) (xy - before.xy), phi' = phi + dphi, C' = J C J^T with
+// J = diag(R(dphi), 1) — the transformation of EnvironmentModel::MoveViewRigidly.
+Gaussian MoveRigidly(const Gaussian& g, const Pose2& before, const Pose2& after) {
+  const double dphi = WrapAngle(after.z() - before.z());
+  const double c = std::cos(dphi);
+  const double s = std::sin(dphi);
+  Eigen::Matrix3d j = Eigen::Matrix3d::Identity();
+  j(0, 0) = c;
+  j(0, 1) = -s;
+  j(1, 0) = s;
+  j(1, 1) = c;
+  const Eigen::Vector2d xy = after.head<2>() + j.topLeftCorner<2, 2>() * (g.mean.head<2>() - before.head<2>());
+  Gaussian out = g;
+  out.mean = MakePose(xy.x(), xy.y(), g.mean.z() + dphi);
+  const Eigen::Matrix3d cov = j * g.covariance * j.transpose();
+  out.covariance = 0.5 * (cov + cov.transpose());
+  return out;
+}
+
+}  // namespace
+
+void CmlEngine::UpdatePoseGraph(std::int64_t t, const std::vector<ViewMatch>& matches, FrameStats* stats) {
+  if (matches.empty()) return;
+  const auto t0 = std::chrono::steady_clock::now();
+  // The best match (matches are sorted by distance, ties by view id): the pose it says the
+  // robot is at, as in p(x|y): its strongest component rotated by the relative heading.
+  const ViewMatch& best = matches.front();
+  if (best.relative_heading_rad && best.view_index < model_->NumViews()) {
+    const ReferenceView& view = model_->views()[best.view_index];
+    const ViewComponent* strongest = &view.components.front();
+    for (const ViewComponent& c : view.components) {
+      if (c.weight > strongest->weight) strongest = &c;
+    }
+    const Pose2 m = MakePose(strongest->mean.x(), strongest->mean.y(),
+                             strongest->mean.z() + *best.relative_heading_rad);
+    pose_graph_->AddClosure(view.stats.created_frame, t, m, strongest->covariance);
+  }
+  if (pose_graph_->ShouldOptimize(t)) ApplyPoseGraphCorrections(pose_graph_->Optimize(t), stats);
+  stats->pose_graph_us += std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0).count();
+}
+
+void CmlEngine::ApplyPoseGraphCorrections(std::vector<NodeCorrection> corrections, FrameStats* stats) {
+  if (corrections.empty()) return;
+  // Sorted by frame (Optimize returns them in node order).
+  const auto find = [&](std::int64_t frame) -> const NodeCorrection* {
+    const auto it = std::lower_bound(corrections.begin(), corrections.end(), frame,
+                                     [](const NodeCorrection& c, std::int64_t f) { return c.frame < f; });
+    return it != corrections.end() && it->frame == frame ? &*it : nullptr;
+  };
+  // Views move with the node of the update that created them: later components were
+  // localized against the view, so they share its error (docs/design.md).
+  int moved = 0;
+  for (std::size_t i = 0; i < model_->NumViews(); ++i) {
+    if (const NodeCorrection* c = find(model_->views()[i].stats.created_frame)) {
+      model_->MoveViewRigidly(i, c->before, c->after);
+      ++moved;
+    }
+  }
+  // Updates queued but not yet applied carry their node's old pose.
+  for (MapUpdate& u : updater_->mutable_queued()) {
+    if (const NodeCorrection* c = find(u.frame)) u.state = MoveRigidly(u.state, c->before, c->after);
+  }
+  // The tracker and the anchor follow the newest node (the current anchor).
+  const NodeCorrection& newest = corrections.back();
+  if (anchor_ && anchor_->first == newest.frame) {
+    anchor_->second = MoveRigidly(anchor_->second, newest.before, newest.after);
+    Mixture state = tracker_.state();
+    for (Gaussian& g : state) g = MoveRigidly(g, newest.before, newest.after);
+    tracker_.set_state(std::move(state));
+  }
+  if (stats != nullptr) stats->pose_graph_moved_views += moved;
+}
+
+}  // namespace omnicml

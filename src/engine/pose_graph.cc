@@ -1,0 +1,455 @@
+#include "omnicml/engine/pose_graph.h"
+
+#include <algorithm>
+#include <array>
+#include <map>
+#include <cmath>
+#include <memory>
+
+#include <Eigen/Cholesky>
+#include <Eigen/LU>
+#include <ceres/ceres.h>
+
+#include "omnicml/common/common.h"
+#include "omnicml/engine/trajectory_reconstruction.h"
+
+namespace omnicml {
+namespace {
+
+// atan2(sin a, cos a): wraps to (-pi, pi] and differentiates cleanly for ceres::Jet.
+template <typename T>
+T WrapT(const T& a) {
+  using std::atan2;
+  using std::cos;
+  using std::sin;
+  return atan2(sin(a), cos(a));
+}
+
+// Upper-triangular W with W^T W = sigma^-1 (square-root information).
+Eigen::Matrix3d SqrtInformation(const Eigen::Matrix3d& sigma) {
+  const Eigen::Matrix3d information = sigma.inverse();
+  const Eigen::Matrix3d sym = 0.5 * (information + information.transpose());
+  Eigen::LLT<Eigen::Matrix3d> llt(sym);
+  OMNICML_CHECK(llt.info() == Eigen::Success) << "pose graph: information matrix not SPD";
+  return llt.matrixL().transpose();
+}
+
+// docs/design.md "Global pose graph": r = W (Between(x_a, x_b) - z), angle wrapped
+// (odometry and closure factors).
+struct BetweenFactor {
+  BetweenFactor(const Pose2& z, const Eigen::Matrix3d& w) : z_(z), w_(w) {}
+  template <typename T>
+  bool operator()(const T* a, const T* b, T* residual) const {
+    using std::cos;
+    using std::sin;
+    const T dx = b[0] - a[0];
+    const T dy = b[1] - a[1];
+    const T c = cos(a[2]);
+    const T s = sin(a[2]);
+    T e[3];
+    e[0] = c * dx + s * dy - T(z_[0]);
+    e[1] = -s * dx + c * dy - T(z_[1]);
+    e[2] = WrapT(b[2] - a[2] - T(z_[2]));
+    for (int r = 0; r < 3; ++r) residual[r] = T(w_(r, 0)) * e[0] + T(w_(r, 1)) * e[1] + T(w_(r, 2)) * e[2];
+    return true;
+  }
+  Pose2 z_;
+  Eigen::Matrix3d w_;
+};
+
+// r = W (x - mu), angle wrapped.
+struct PriorFactor {
+  PriorFactor(const Pose2& mu, const Eigen::Matrix3d& w) : mu_(mu), w_(w) {}
+  template <typename T>
+  bool operator()(const T* x, T* residual) const {
+    T e[3];
+    e[0] = x[0] - T(mu_[0]);
+    e[1] = x[1] - T(mu_[1]);
+    e[2] = WrapT(x[2] - T(mu_[2]));
+    for (int r = 0; r < 3; ++r) residual[r] = T(w_(r, 0)) * e[0] + T(w_(r, 1)) * e[1] + T(w_(r, 2)) * e[2];
+    return true;
+  }
+  Pose2 mu_;
+  Eigen::Matrix3d w_;
+};
+
+void WritePose(BinaryWriter& out, const Pose2& p) {
+  for (int i = 0; i < 3; ++i) out.Write<double>(p[i]);
+}
+Pose2 ReadPose(BinaryReader& in, const char* what) {
+  Pose2 p;
+  for (int i = 0; i < 3; ++i) p[i] = in.Read<double>(what);
+  return p;
+}
+void WriteMatrix(BinaryWriter& out, const Eigen::Matrix3d& m) {
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) out.Write<double>(m(r, c));
+}
+Eigen::Matrix3d ReadMatrix(BinaryReader& in, const char* what) {
+  Eigen::Matrix3d m;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) m(r, c) = in.Read<double>(what);
+  return m;
+}
+
+}  // namespace
+
+void PoseGraphOptions::Validate() const {
+  auto fail = [](const char* field, const char* rule, auto value) {
+    throw Error(StrCat("PoseGraphOptions.", field, " must be ", rule, ", got ", value));
+  };
+  if (min_loop_frames < 1) fail("min_loop_frames", ">= 1", min_loop_frames);
+  if (closure_every_frames < 1) fail("closure_every_frames", ">= 1", closure_every_frames);
+  if (optimize_every_frames < 1) fail("optimize_every_frames", ">= 1", optimize_every_frames);
+  if (window_nodes < 2) fail("window_nodes", ">= 2", window_nodes);
+  if (!(closure_sigma_m > 0) || !std::isfinite(closure_sigma_m)) fail("closure_sigma_m", "finite and > 0", closure_sigma_m);
+  if (!(closure_sigma_rad > 0) || !std::isfinite(closure_sigma_rad))
+    fail("closure_sigma_rad", "finite and > 0", closure_sigma_rad);
+  if (!(loss_scale > 0) || !std::isfinite(loss_scale)) fail("loss_scale", "finite and > 0", loss_scale);
+  if (max_iterations < 1) fail("max_iterations", ">= 1", max_iterations);
+  if (!(reject_chi2 > 0)) fail("reject_chi2", "> 0", reject_chi2);
+}
+
+PoseGraph::PoseGraph(const PoseGraphOptions& options, const MotionNoise& motion,
+                     double min_translation_variance_m2, double min_rotation_variance_rad2,
+                     std::size_t max_recent_frames)
+    : options_(options),
+      motion_(motion),
+      min_translation_variance_m2_(min_translation_variance_m2),
+      min_rotation_variance_rad2_(min_rotation_variance_rad2),
+      max_recent_frames_(std::max<std::size_t>(max_recent_frames, 1)) {}
+
+void PoseGraph::BeginSession(bool continue_segment, std::int64_t first_frame,
+                             const std::optional<Gaussian>& known_start) {
+  if (!continue_segment) new_segment_ = true;
+  start_prior_ = known_start;
+  start_prior_frame_ = known_start ? first_frame : -1;
+}
+
+void PoseGraph::AddFrameOdometry(std::int64_t frame, const OdometryIncrement& u) {
+  if (new_segment_) {
+    // A new segment starts at its own origin: its first frame's increment is not used.
+    segment_ += 1;
+    new_segment_ = false;
+    odom_ = Pose2::Zero();
+    odom_cov_ = Eigen::Matrix3d::Zero();
+  } else {
+    ReconstructionOptions r;
+    r.motion = motion_;
+    r.min_translation_variance_m2 = min_translation_variance_m2_;
+    r.min_rotation_variance_rad2 = min_rotation_variance_rad2_;
+    odom_ = Compose(odom_, IncrementToRelativePose(u));
+    odom_cov_ += IncrementCovariance(u, r);
+  }
+  recent_.push_back(FrameOdometry{frame, segment_, odom_, odom_cov_});
+  // Frames older than the longest wait for reconstruction can no longer become nodes.
+  while (recent_.size() > max_recent_frames_) recent_.pop_front();
+}
+
+void PoseGraph::AddNode(std::int64_t frame, const Pose2& pose, const std::optional<Gaussian>& prior) {
+  if (!nodes_.empty() && frame <= nodes_.back().frame) return;
+  PoseGraphNode n;
+  n.frame = frame;
+  n.pose = pose;
+  n.prior = prior;
+  if (!n.prior && start_prior_ && frame == start_prior_frame_) n.prior = start_prior_;
+  while (!recent_.empty() && recent_.front().frame < frame) recent_.pop_front();
+  if (!recent_.empty() && recent_.front().frame == frame) {
+    n.segment = recent_.front().segment;
+    n.odom = recent_.front().odom;
+    n.odom_cov = recent_.front().cov;
+    recent_.pop_front();
+  }
+  nodes_.push_back(std::move(n));
+}
+
+std::size_t PoseGraph::IndexOf(std::int64_t frame) const {
+  const auto it = std::lower_bound(nodes_.begin(), nodes_.end(), frame,
+                                   [](const PoseGraphNode& n, std::int64_t f) { return n.frame < f; });
+  if (it == nodes_.end() || it->frame != frame) return nodes_.size();
+  return static_cast<std::size_t>(it - nodes_.begin());
+}
+
+const PoseGraphNode* PoseGraph::FindNode(std::int64_t frame) const {
+  const std::size_t i = IndexOf(frame);
+  return i < nodes_.size() ? &nodes_[i] : nullptr;
+}
+
+bool PoseGraph::AddClosure(std::int64_t view_created_frame, std::int64_t frame, const Pose2& m,
+                           const Eigen::Matrix3d& component_covariance) {
+  if (frame - view_created_frame < options_.min_loop_frames) return false;
+  if (frame - last_closure_frame_ < options_.closure_every_frames) return false;
+  const PoseGraphNode* from = FindNode(view_created_frame);
+  const PoseGraphNode* to = FindNode(frame);
+  if (from == nullptr || to == nullptr) return false;
+  const Eigen::Matrix2d cxy = 0.5 * (component_covariance.topLeftCorner<2, 2>() +
+                                     component_covariance.topLeftCorner<2, 2>().transpose());
+  // Largest eigenvalue of the symmetric 2x2 block (closed form): an isotropic bound, so
+  // the covariance needs no rotation into the creator's frame.
+  const double half_trace = 0.5 * (cxy(0, 0) + cxy(1, 1));
+  const double half_diff = 0.5 * (cxy(0, 0) - cxy(1, 1));
+  const double largest = half_trace + std::sqrt(half_diff * half_diff + cxy(0, 1) * cxy(0, 1));
+  PoseGraphClosure c;
+  c.from_frame = view_created_frame;
+  c.to_frame = frame;
+  c.z = Between(from->pose, m);
+  const double s2 = options_.closure_sigma_m * options_.closure_sigma_m + std::max(largest, 0.0);
+  const double sphi2 =
+      options_.closure_sigma_rad * options_.closure_sigma_rad + std::max(component_covariance(2, 2), 0.0);
+  c.covariance = Eigen::Vector3d(s2, s2, sphi2).asDiagonal();
+  closures_.push_back(c);
+  last_closure_frame_ = frame;
+  closure_since_optimize_ = true;
+  return true;
+}
+
+bool PoseGraph::ShouldOptimize(std::int64_t frame) const {
+  return closure_since_optimize_ && frame - last_optimized_frame_ >= options_.optimize_every_frames;
+}
+
+std::vector<NodeCorrection> PoseGraph::Optimize(std::int64_t frame) {
+  closure_since_optimize_ = false;
+  last_optimized_frame_ = frame;
+  std::vector<NodeCorrection> out;
+  if (nodes_.size() < 2) return out;
+  const std::size_t first =
+      nodes_.size() > static_cast<std::size_t>(options_.window_nodes)
+          ? nodes_.size() - static_cast<std::size_t>(options_.window_nodes)
+          : 0;
+  // Parameter blocks: the window's poses, plus copies of older nodes a factor touches
+  // (held constant).
+  std::vector<std::array<double, 3>> x(nodes_.size() - first);
+  std::map<std::size_t, std::array<double, 3>> constants;  // node index -> pose (stable addresses)
+  const auto solve = [&]() -> bool {
+  for (std::size_t i = first; i < nodes_.size(); ++i) {
+    for (int k = 0; k < 3; ++k) x[i - first][static_cast<std::size_t>(k)] = nodes_[i].pose[k];
+  }
+  constants.clear();
+  auto block = [&](std::size_t i) -> double* {
+    if (i >= first) return x[i - first].data();
+    auto [it, inserted] = constants.try_emplace(i);
+    if (inserted) it->second = {nodes_[i].pose[0], nodes_[i].pose[1], nodes_[i].pose[2]};
+    return it->second.data();
+  };
+
+  ceres::Problem::Options problem_options;
+  ceres::Problem problem(problem_options);
+  bool gauge = false;
+  // Odometry factors between consecutive nodes of one segment (the first links the
+  // window to its constant predecessor).
+  for (std::size_t i = std::max<std::size_t>(first, 1); i < nodes_.size(); ++i) {
+    const PoseGraphNode& a = nodes_[i - 1];
+    const PoseGraphNode& b = nodes_[i];
+    if (a.segment < 0 || a.segment != b.segment) continue;
+    Eigen::Matrix3d sigma = b.odom_cov - a.odom_cov;
+    sigma = 0.5 * (sigma + sigma.transpose());
+    sigma(0, 0) += min_translation_variance_m2_;
+    sigma(1, 1) += min_translation_variance_m2_;
+    sigma(2, 2) += min_rotation_variance_rad2_;
+    const Pose2 z = Between(a.odom, b.odom);
+    problem.AddResidualBlock(new ceres::AutoDiffCostFunction<BetweenFactor, 3, 3, 3>(
+                                 new BetweenFactor(z, SqrtInformation(sigma))),
+                             nullptr, block(i - 1), block(i));
+    if (i - 1 < first) gauge = true;
+  }
+  for (std::size_t i = first; i < nodes_.size(); ++i) {
+    if (!nodes_[i].prior) continue;
+    problem.AddResidualBlock(new ceres::AutoDiffCostFunction<PriorFactor, 3, 3>(new PriorFactor(
+                                 nodes_[i].prior->mean, SqrtInformation(nodes_[i].prior->covariance))),
+                             nullptr, block(i));
+    gauge = true;
+  }
+  for (const PoseGraphClosure& c : closures_) {
+    const std::size_t a = IndexOf(c.from_frame);
+    const std::size_t b = IndexOf(c.to_frame);
+    if (a >= nodes_.size() || b >= nodes_.size() || (a < first && b < first)) continue;
+    problem.AddResidualBlock(new ceres::AutoDiffCostFunction<BetweenFactor, 3, 3, 3>(
+                                 new BetweenFactor(c.z, SqrtInformation(c.covariance))),
+                             new ceres::CauchyLoss(options_.loss_scale), block(a), block(b));
+    if (a < first || b < first) gauge = true;
+  }
+  for (auto& c : constants) problem.SetParameterBlockConstant(c.second.data());
+  if (!gauge && problem.HasParameterBlock(x[0].data())) problem.SetParameterBlockConstant(x[0].data());
+
+  ceres::Solver::Options so;
+  so.linear_solver_type = x.size() <= 32 ? ceres::DENSE_QR : ceres::SPARSE_NORMAL_CHOLESKY;
+  so.num_threads = 1;
+  so.max_num_iterations = options_.max_iterations;
+  so.function_tolerance = 1e-10;
+  so.logging_type = ceres::SILENT;
+  so.minimizer_progress_to_stdout = false;
+  ceres::Solver::Summary summary;
+  ceres::Solve(so, &problem, &summary);
+  return summary.IsSolutionUsable();
+  };
+  optimizations_ += 1;
+  bool usable = solve();
+  // Closure verification (as RTAB-Map's maximum optimisation error): a closure whose
+  // squared whitened residual after the robust optimisation exceeds reject_chi2 is
+  // inconsistent with the rest of the graph (aliasing); it is removed and the window
+  // solved again without it.
+  if (usable) {
+    const auto pose_of = [&](std::size_t i) -> Pose2 {
+      if (i >= first) return Pose2(x[i - first][0], x[i - first][1], x[i - first][2]);
+      return nodes_[i].pose;
+    };
+    std::vector<PoseGraphClosure> kept;
+    bool rejected = false;
+    for (const PoseGraphClosure& c : closures_) {
+      const std::size_t a = IndexOf(c.from_frame);
+      const std::size_t b = IndexOf(c.to_frame);
+      if (a < nodes_.size() && b < nodes_.size() && (a >= first || b >= first)) {
+        const Pose2 pa = pose_of(a);
+        const Pose2 pb = pose_of(b);
+        double r[3];
+        BetweenFactor(c.z, SqrtInformation(c.covariance))(pa.data(), pb.data(), r);
+        if (r[0] * r[0] + r[1] * r[1] + r[2] * r[2] > options_.reject_chi2) {
+          rejected = true;
+          rejected_closures_ += 1;
+          continue;
+        }
+      }
+      kept.push_back(c);
+    }
+    if (rejected) {
+      closures_ = std::move(kept);
+      usable = solve();
+    }
+  }
+  if (!usable) return out;
+  for (std::size_t i = first; i < nodes_.size(); ++i) {
+    const Pose2 after = MakePose(x[i - first][0], x[i - first][1], x[i - first][2]);
+    if (after == nodes_[i].pose) continue;
+    out.push_back({nodes_[i].frame, nodes_[i].pose, after});
+    nodes_[i].pose = after;
+  }
+  return out;
+}
+
+void PoseGraph::Write(BinaryWriter& out) const {
+  out.Write<std::uint64_t>(nodes_.size());
+  for (const PoseGraphNode& n : nodes_) {
+    out.Write<std::int64_t>(n.frame);
+    out.Write<std::int64_t>(n.segment);
+    WritePose(out, n.pose);
+    WritePose(out, n.odom);
+    WriteMatrix(out, n.odom_cov);
+    out.Write<bool>(n.prior.has_value());
+    if (n.prior) {
+      WritePose(out, n.prior->mean);
+      WriteMatrix(out, n.prior->covariance);
+    }
+  }
+  out.Write<std::uint64_t>(closures_.size());
+  for (const PoseGraphClosure& c : closures_) {
+    out.Write<std::int64_t>(c.from_frame);
+    out.Write<std::int64_t>(c.to_frame);
+    WritePose(out, c.z);
+    WriteMatrix(out, c.covariance);
+  }
+  out.Write<std::uint64_t>(recent_.size());
+  for (const FrameOdometry& f : recent_) {
+    out.Write<std::int64_t>(f.frame);
+    out.Write<std::int64_t>(f.segment);
+    WritePose(out, f.odom);
+    WriteMatrix(out, f.cov);
+  }
+  out.Write<std::int64_t>(segment_);
+  out.Write<bool>(new_segment_);
+  WritePose(out, odom_);
+  WriteMatrix(out, odom_cov_);
+  out.Write<std::int64_t>(start_prior_frame_);
+  out.Write<bool>(start_prior_.has_value());
+  if (start_prior_) {
+    WritePose(out, start_prior_->mean);
+    WriteMatrix(out, start_prior_->covariance);
+  }
+  out.Write<std::int64_t>(last_closure_frame_);
+  out.Write<std::int64_t>(last_optimized_frame_);
+  out.Write<bool>(closure_since_optimize_);
+  out.Write<std::int64_t>(optimizations_);
+  out.Write<std::int64_t>(rejected_closures_);
+}
+
+void PoseGraph::Read(BinaryReader& in) {
+  nodes_.clear();
+  closures_.clear();
+  recent_.clear();
+  const std::size_t n = in.ReadCount("pose_graph.nodes", 8 + 8 + 48 + 72 + 1);
+  for (std::size_t i = 0; i < n; ++i) {
+    PoseGraphNode node;
+    node.frame = in.Read<std::int64_t>("pose_graph.node.frame");
+    node.segment = in.Read<std::int64_t>("pose_graph.node.segment");
+    node.pose = ReadPose(in, "pose_graph.node.pose");
+    node.odom = ReadPose(in, "pose_graph.node.odom");
+    node.odom_cov = ReadMatrix(in, "pose_graph.node.odom_cov");
+    if (in.Read<bool>("pose_graph.node.prior")) {
+      Gaussian g;
+      g.mean = ReadPose(in, "pose_graph.node.prior");
+      g.covariance = ReadMatrix(in, "pose_graph.node.prior");
+      node.prior = g;
+    }
+    if (!nodes_.empty() && node.frame <= nodes_.back().frame) in.Fail("pose_graph.node.frame", "frames not increasing");
+    nodes_.push_back(std::move(node));
+  }
+  const std::size_t c = in.ReadCount("pose_graph.closures", 8 + 8 + 24 + 72);
+  for (std::size_t i = 0; i < c; ++i) {
+    PoseGraphClosure cl;
+    cl.from_frame = in.Read<std::int64_t>("pose_graph.closure.from");
+    cl.to_frame = in.Read<std::int64_t>("pose_graph.closure.to");
+    cl.z = ReadPose(in, "pose_graph.closure.z");
+    cl.covariance = ReadMatrix(in, "pose_graph.closure.covariance");
+    if (Eigen::LLT<Eigen::Matrix3d>(cl.covariance).info() != Eigen::Success || !cl.covariance.allFinite()) {
+      in.Fail("pose_graph.closure.covariance", "not symmetric positive definite");
+    }
+    closures_.push_back(cl);
+  }
+  const std::size_t r = in.ReadCount("pose_graph.recent", 8 + 8 + 24 + 72);
+  for (std::size_t i = 0; i < r; ++i) {
+    FrameOdometry f;
+    f.frame = in.Read<std::int64_t>("pose_graph.recent.frame");
+    f.segment = in.Read<std::int64_t>("pose_graph.recent.segment");
+    f.odom = ReadPose(in, "pose_graph.recent.odom");
+    f.cov = ReadMatrix(in, "pose_graph.recent.cov");
+    recent_.push_back(f);
+  }
+  segment_ = in.Read<std::int64_t>("pose_graph.segment");
+  new_segment_ = in.Read<bool>("pose_graph.new_segment");
+  odom_ = ReadPose(in, "pose_graph.odom");
+  odom_cov_ = ReadMatrix(in, "pose_graph.odom_cov");
+  start_prior_frame_ = in.Read<std::int64_t>("pose_graph.start_prior_frame");
+  start_prior_.reset();
+  if (in.Read<bool>("pose_graph.start_prior")) {
+    Gaussian g;
+    g.mean = ReadPose(in, "pose_graph.start_prior");
+    g.covariance = ReadMatrix(in, "pose_graph.start_prior");
+    start_prior_ = g;
+  }
+  last_closure_frame_ = in.Read<std::int64_t>("pose_graph.last_closure_frame");
+  last_optimized_frame_ = in.Read<std::int64_t>("pose_graph.last_optimized_frame");
+  closure_since_optimize_ = in.Read<bool>("pose_graph.closure_since_optimize");
+  optimizations_ = in.Read<std::int64_t>("pose_graph.optimizations");
+  rejected_closures_ = in.Read<std::int64_t>("pose_graph.rejected_closures");
+}
+
+bool PoseGraph::operator==(const PoseGraph& o) const {
+  auto same_recent = [&] {
+    if (recent_.size() != o.recent_.size()) return false;
+    for (std::size_t i = 0; i < recent_.size(); ++i) {
+      const FrameOdometry& a = recent_[i];
+      const FrameOdometry& b = o.recent_[i];
+      if (a.frame != b.frame || a.segment != b.segment || a.odom != b.odom || a.cov != b.cov) return false;
+    }
+    return true;
+  };
+  const bool same_prior = start_prior_.has_value() == o.start_prior_.has_value() &&
+                          (!start_prior_ || (start_prior_->mean == o.start_prior_->mean &&
+                                             start_prior_->covariance == o.start_prior_->covariance));
+  return nodes_ == o.nodes_ && closures_ == o.closures_ && same_recent() && segment_ == o.segment_ &&
+         new_segment_ == o.new_segment_ && odom_ == o.odom_ && odom_cov_ == o.odom_cov_ && start_prior_frame_ == o.start_prior_frame_ && same_prior &&
+         last_closure_frame_ == o.last_closure_frame_ && last_optimized_frame_ == o.last_optimized_frame_ &&
+         closure_since_optimize_ == o.closure_since_optimize_ && optimizations_ == o.optimizations_ &&
+         rejected_closures_ == o.rejected_closures_;
+}
+
+}  // namespace omnicml

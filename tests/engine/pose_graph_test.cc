@@ -1,0 +1,260 @@
+// The global pose graph (engine/pose_graph.h): a drifted loop closes towards the truth,
+// a false closure under the robust loss leaves the map in place (and wrecks it without),
+// views move rigidly with their node, and in the engine: determinism with 1 and 2
+// threads and save/load round trips.
+#include "omnicml/engine/pose_graph.h"
+
+#include <cmath>
+#include <limits>
+#include <memory>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "omnicml/common/binary_io.h"
+#include "omnicml/common/common.h"
+#include "omnicml/engine/cml_engine.h"
+#include "omnicml/engine/engine_io.h"
+#include "omnicml/sim/simulator.h"
+
+namespace omnicml {
+namespace {
+
+constexpr int kLoopNodes = 200;
+
+// Truth: a circle of radius 10 m, one node per step, counter-clockwise.
+Pose2 TruthAt(int i) {
+  const double a = 2 * kPi * i / kLoopNodes;
+  return MakePose(10 * std::cos(a), 10 * std::sin(a), a + kPi / 2);
+}
+
+struct Loop {
+  std::vector<Pose2> truth;
+  std::vector<Pose2> dead_reckoned;  // odometry from node 0's true pose
+};
+
+// Feeds the graph one lap: odometry increments of the truth with a heading bias of
+// `bias_rad` per step (drift), a node per frame at the dead-reckoned pose, and a known
+// start prior on node 0.
+Loop FeedLoop(PoseGraph* graph, double bias_rad) {
+  Loop loop;
+  Gaussian start;
+  start.mean = TruthAt(0);
+  start.covariance = Eigen::Vector3d(1e-4, 1e-4, 1e-6).asDiagonal();
+  graph->BeginSession(false, 0, start);
+  Pose2 odom = TruthAt(0);
+  for (int i = 0; i < kLoopNodes; ++i) {
+    OdometryIncrement u;
+    if (i > 0) {
+      u = ComputeIncrement(TruthAt(i - 1), TruthAt(i));
+      u.rot2_rad += bias_rad;
+      odom = ApplyIncrement(odom, u);
+    }
+    graph->AddFrameOdometry(i, u);
+    graph->AddNode(i, odom, std::nullopt);
+    loop.truth.push_back(TruthAt(i));
+    loop.dead_reckoned.push_back(odom);
+  }
+  return loop;
+}
+
+double MeanError(const PoseGraph& g, const Loop& loop) {
+  double sum = 0;
+  for (const PoseGraphNode& n : g.nodes()) {
+    sum += (n.pose.head<2>() - loop.truth[static_cast<std::size_t>(n.frame)].head<2>()).norm();
+  }
+  return sum / static_cast<double>(g.nodes().size());
+}
+
+PoseGraphOptions LoopOptions() {
+  PoseGraphOptions o;
+  o.enabled = true;
+  o.min_loop_frames = 50;
+  o.optimize_every_frames = 1;
+  o.max_iterations = 50;
+  return o;
+}
+
+// A lap with heading drift: the closure of its end with its start (the view created at
+// node 0 seen again at the last node, where the truth is) pulls every node towards the
+// truth; the end moves from metres off to within a few decimetres.
+TEST(PoseGraph, DriftedLoopClosesTowardsTruth) {
+  PoseGraph graph(LoopOptions(), MotionNoise{}, 1e-6, 1e-6, 1000);
+  const Loop loop = FeedLoop(&graph, 0.004);
+  const int last = kLoopNodes - 1;
+  const double end_before = (loop.dead_reckoned[last].head<2>() - loop.truth[last].head<2>()).norm();
+  ASSERT_GT(end_before, 3.0);  // the drift is real
+  const double mean_before = MeanError(graph, loop);
+  // The view of node 0 says the robot is at the truth of the last node.
+  ASSERT_TRUE(graph.AddClosure(0, last, loop.truth[last], Eigen::Vector3d(0.01, 0.01, 1e-4).asDiagonal()));
+  ASSERT_TRUE(graph.ShouldOptimize(last));
+  const std::vector<NodeCorrection> moved = graph.Optimize(last);
+  EXPECT_GT(moved.size(), 100u);
+  const double end_after = (graph.nodes().back().pose.head<2>() - loop.truth[last].head<2>()).norm();
+  EXPECT_LT(end_after, 0.5) << "before " << end_before;
+  EXPECT_LT(MeanError(graph, loop), 0.4 * mean_before);
+  // Node 0 is held by its prior.
+  EXPECT_LT((graph.nodes().front().pose.head<2>() - loop.truth[0].head<2>()).norm(), 0.05);
+}
+
+// Exact odometry and one false closure (aliasing: 15 m off). Under the Cauchy loss the
+// map barely moves; with the robust loss made quadratic (a huge scale) it is pulled apart.
+TEST(PoseGraph, FalseClosureDoesNotWreckTheMapUnderTheRobustLoss) {
+  auto worst_move = [](double loss_scale) {
+    PoseGraphOptions o = LoopOptions();
+    o.loss_scale = loss_scale;
+    PoseGraph graph(o, MotionNoise{}, 1e-6, 1e-6, 1000);
+    const Loop loop = FeedLoop(&graph, 0.0);
+    const int last = kLoopNodes - 1;
+    const Pose2 wrong = MakePose(loop.truth[last].x() + 15.0, loop.truth[last].y(), loop.truth[last].z());
+    EXPECT_TRUE(graph.AddClosure(0, last, wrong, Eigen::Vector3d(0.01, 0.01, 1e-4).asDiagonal()));
+    double worst = 0;
+    for (const NodeCorrection& c : graph.Optimize(last)) {
+      worst = std::max(worst, (c.after.head<2>() - c.before.head<2>()).norm());
+    }
+    return worst;
+  };
+  EXPECT_LT(worst_move(1.0), 0.3);
+  EXPECT_GT(worst_move(1e6), 3.0);  // the same closure under least squares
+}
+
+// Closures need min_loop_frames between the nodes, closure_every_frames between closures
+// and both nodes.
+TEST(PoseGraph, ClosureConditions) {
+  PoseGraphOptions o = LoopOptions();
+  o.closure_every_frames = 10;
+  PoseGraph graph(o, MotionNoise{}, 1e-6, 1e-6, 1000);
+  FeedLoop(&graph, 0.0);
+  const Eigen::Matrix3d c = Eigen::Matrix3d::Identity() * 0.01;
+  EXPECT_FALSE(graph.AddClosure(100, 120, TruthAt(120), c));  // 20 < 50 frames apart
+  EXPECT_FALSE(graph.AddClosure(0, 500, TruthAt(0), c));      // no node 500
+  EXPECT_TRUE(graph.AddClosure(0, 150, TruthAt(150), c));
+  EXPECT_FALSE(graph.AddClosure(0, 155, TruthAt(155), c));  // 5 < 10 frames after the last
+  EXPECT_TRUE(graph.AddClosure(0, 160, TruthAt(160), c));
+  EXPECT_EQ(graph.closures().size(), 2u);
+}
+
+// Write/Read restores the graph exactly.
+TEST(PoseGraph, WriteReadRoundTrip) {
+  PoseGraph graph(LoopOptions(), MotionNoise{}, 1e-6, 1e-6, 1000);
+  const Loop loop = FeedLoop(&graph, 0.003);
+  graph.AddClosure(0, kLoopNodes - 1, loop.truth.back(), Eigen::Matrix3d::Identity() * 0.01);
+  graph.Optimize(kLoopNodes - 1);
+  BinaryWriter w;
+  graph.Write(w);
+  PoseGraph copy(LoopOptions(), MotionNoise{}, 1e-6, 1e-6, 1000);
+  BinaryReader r(w.bytes(), "graph");
+  copy.Read(r);
+  EXPECT_TRUE(copy == graph);
+}
+
+// ---- in the engine -------------------------------------------------------------------
+
+CmlEngineOptions GraphEngineOptions(int threads) {
+  CmlEngineOptions o;
+  o.threads = threads;
+  o.pose_graph.enabled = true;
+  o.pose_graph.min_loop_frames = 100;  // home_store: a lap is ~285 frames
+  o.pose_graph.optimize_every_frames = 20;
+  return o;
+}
+
+SimulatorOptions TwoDays() {
+  SimulatorOptions so;
+  so.world = "home_store";
+  so.days = 2;
+  so.frames_per_day = 330;
+  so.seed = 1;
+  so.output = ImageKind::kPanorama;
+  return so;
+}
+
+std::vector<std::uint8_t> ModelBytes(const CmlEngine& e) {
+  BinaryWriter w;
+  e.model().Serialize(w);
+  return w.bytes();
+}
+
+struct RunOutput {
+  std::vector<std::uint8_t> model;
+  std::vector<Pose2> estimates;
+  std::int64_t optimizations = 0;
+};
+
+// Runs `engine` over the frames of `so` from `first_day` to `last_day` (inclusive).
+void Feed(CmlEngine* engine, const SimulatorOptions& so, int first_day, int last_day, RunOutput* out) {
+  SimulatedFrameSource source(so);
+  Frame f;
+  int session = -1;
+  while (source.Next(&f)) {
+    if (f.session_index < first_day || f.session_index > last_day) continue;
+    if (f.session_index != session) {
+      session = f.session_index;
+      engine->BeginSession(source.Session(session));
+    }
+    const FrameResult r = engine->ProcessFrame(f);
+    out->estimates.push_back(r.estimate ? r.estimate->mean.mean : Pose2::Constant(std::numeric_limits<double>::quiet_NaN()));
+  }
+}
+
+// With closures and optimisations happening, 1 and 2 threads give bit-identical maps,
+// estimates and graphs.
+TEST(PoseGraphEngine, DeterministicWithOneOrTwoThreads) {
+  RunOutput runs[2];
+  std::vector<std::uint8_t> graphs[2];
+  for (int threads : {1, 2}) {
+    CmlEngine engine(GraphEngineOptions(threads));
+    RunOutput& out = runs[threads - 1];
+    Feed(&engine, TwoDays(), 0, 1, &out);
+    engine.Finish();
+    out.model = ModelBytes(engine);
+    out.optimizations = engine.pose_graph().optimizations();
+    BinaryWriter w;
+    engine.pose_graph().Write(w);
+    graphs[threads - 1] = w.bytes();
+  }
+  EXPECT_GT(runs[0].optimizations, 0);
+  EXPECT_GT(runs[0].model.size(), 0u);
+  EXPECT_EQ(runs[0].model, runs[1].model);
+  EXPECT_EQ(graphs[0], graphs[1]);
+  ASSERT_EQ(runs[0].estimates.size(), runs[1].estimates.size());
+  for (std::size_t i = 0; i < runs[0].estimates.size(); ++i) {
+    ASSERT_TRUE(runs[0].estimates[i] == runs[1].estimates[i] ||
+                (runs[0].estimates[i].hasNaN() && runs[1].estimates[i].hasNaN()))
+        << "frame " << i;
+  }
+}
+
+// Saving after day 1 and loading gives the same graph, and day 2 then gives exactly the
+// map and graph of one uninterrupted run.
+TEST(PoseGraphEngine, SaveLoadRoundTrip) {
+  CmlEngine whole(GraphEngineOptions(1));
+  RunOutput a;
+  Feed(&whole, TwoDays(), 0, 1, &a);
+
+  CmlEngine first(GraphEngineOptions(1));
+  RunOutput b;
+  Feed(&first, TwoDays(), 0, 0, &b);
+  ASSERT_GT(first.pose_graph().nodes().size(), 0u);
+  const std::vector<std::uint8_t> bytes = EncodeEngine(first);
+  std::unique_ptr<CmlEngine> loaded = DecodeEngine(bytes, "memory");
+  EXPECT_TRUE(loaded->pose_graph() == first.pose_graph());
+  Feed(loaded.get(), TwoDays(), 1, 1, &b);
+  EXPECT_TRUE(loaded->pose_graph() == whole.pose_graph());
+  EXPECT_EQ(ModelBytes(*loaded), ModelBytes(whole));
+  EXPECT_GT(whole.pose_graph().optimizations(), 0);
+}
+
+// Off by default, and then the engine keeps no graph.
+TEST(PoseGraphEngine, OffByDefault) {
+  CmlEngine engine(CmlEngineOptions{});
+  RunOutput out;
+  SimulatorOptions so = TwoDays();
+  so.days = 1;
+  so.frames_per_day = 60;
+  Feed(&engine, so, 0, 0, &out);
+  EXPECT_TRUE(engine.pose_graph().nodes().empty());
+}
+
+}  // namespace
+}  // namespace omnicml

@@ -592,12 +592,49 @@ TEST(EnvironmentModel, OneMissedPassDoesNotForget) {
   EXPECT_EQ(ViewById(m, id).footprint.missed_passes, 0);
   for (int k = 0; k < 5; ++k) m.Update(fx->Make({0}), Est(0, 0, 0), {200 + k, 0});
   EXPECT_EQ(ViewById(m, id).footprint.missed_passes, 0);
-  // Two passes that miss: the second one forgets.
-  for (int pass = 0; pass < 2; ++pass) {
-    for (int k = 0; k < 5; ++k) m.Update(fx->Make({9}), Est(0, 0, 0), {300 + 100 * pass + k, 0});
-  }
-  ASSERT_TRUE(m.FindView(id).has_value() == false || ViewById(m, id).TotalWeight() < w);
+  // Two passes that miss: the first leaves the view as it is, the second forgets.
+  const double w_before = ViewById(m, id).TotalWeight();
+  for (int k = 0; k < 5; ++k) m.Update(fx->Make({9}), Est(0, 0, 0), {300 + k, 0});
+  ASSERT_TRUE(m.FindView(id).has_value());
+  EXPECT_EQ(ViewById(m, id).TotalWeight(), w_before);
+  for (int k = 0; k < 5; ++k) m.Update(fx->Make({9}), Est(0, 0, 0), {400 + k, 0});
+  ASSERT_TRUE(m.FindView(id).has_value() == false || ViewById(m, id).TotalWeight() < w_before);
   m.CheckInvariants();
+}
+
+// forget_by_matched_passes: (19)'s b is divided by the passes in which the view matched,
+// so with the same missed passes a view matched on 3 passes loses 1/3 of the weight
+// fraction a view matched on 1 pass loses (b unclamped here).
+TEST(EnvironmentModel, ForgettingSlowsWithMatchedPasses) {
+  auto fx = MakeFakeExtractor(1);
+  auto decrement = [&](int matched_passes, bool by_passes) {
+    EnvironmentModelOptions o = TestOptions();
+    o.d_for_m = 1.0;
+    o.forget_by_matched_passes = by_passes;
+    EnvironmentModel m(o, fx);
+    std::int64_t frame = 0;
+    for (int pass = 0; pass < matched_passes; ++pass) {
+      for (int k = 0; k < 3; ++k) m.Update(fx->Make({0}), Est(0, 0, 0, 0.5), {frame++, 0});
+      frame += 100;
+    }
+    const std::uint64_t id = m.views()[0].id;
+    EXPECT_EQ(ViewById(m, id).footprint.matched_passes, matched_passes);
+    const double w0 = ViewById(m, id).TotalWeight();
+    // Two missed passes: the first is free (forget_min_missed_passes 1), the second
+    // forgets with one Update.
+    for (int k = 0; k < 3; ++k) m.Update(fx->Make({9}), Est(0, 0, 0, 0.5), {frame++, 0});
+    frame += 100;
+    m.Update(fx->Make({9}), Est(0, 0, 0, 0.5), {frame++, 0});
+    EXPECT_TRUE(m.FindView(id).has_value());
+    m.CheckInvariants();
+    return 1.0 - ViewById(m, id).TotalWeight() / w0;  // the fraction b lost
+  };
+  const double once = decrement(1, true);
+  const double thrice = decrement(3, true);
+  ASSERT_GT(once, 0.0);
+  ASSERT_LT(once, 1.0) << "b must not be clamped for the ratio to hold";
+  EXPECT_NEAR(thrice, once / 3.0, 1e-12);
+  EXPECT_NEAR(decrement(3, false), once, 1e-12) << "without the option passes do not matter";
 }
 
 // A world whose places change for good: after the change the old views go under active

@@ -320,6 +320,32 @@ void CmlEngine::ShapeHypothesis(double best_similarity, Mixture* p_x_y) const {
   }
 }
 
+Descriptor CmlEngine::DescribeBehindBarrier(const Frame& frame, std::int64_t t,
+                                            FrameStats* stats) {
+  // 2. Hand the updates due at t to the worker; it runs while we unwrap and describe.
+  updater_->Schedule(t);
+  Descriptor y;
+  try {
+    // 3. Unwrap / prepare.
+    auto t0 = Clock::now();
+    const cv::Mat panorama = PreparePanoramaOf(frame);
+    stats->unwrap_us = MicrosSince(t0);
+    // 4. Describe.
+    t0 = Clock::now();
+    y = extractor_->Compute(panorama);
+    stats->describe_us = MicrosSince(t0);
+  } catch (...) {
+    updater_->WaitUntilApplied(t);  // never leave the worker running between calls
+    throw;
+  }
+  // 5. Barrier: exactly the updates of frames <= t - delay are in the map.
+  const auto t0 = Clock::now();
+  stats->updates_applied = updater_->WaitUntilApplied(t);
+  stats->update_us = MicrosSince(t0);
+  stats->apply_us = updater_->TakeApplyMicroseconds();
+  return y;
+}
+
 FrameResult CmlEngine::ProcessFrame(const Frame& frame) {
   const auto t_start = Clock::now();
   if (!session_.in_session) throw Error("CmlEngine::ProcessFrame called before BeginSession");
@@ -332,32 +358,11 @@ FrameResult CmlEngine::ProcessFrame(const Frame& frame) {
   result.frame = t;
   result.session = session_.session;
 
-  // 2. Hand the updates due at t to the worker; it runs while we unwrap and describe.
-  updater_->Schedule(t);
-
-  Descriptor y;
-  try {
-    // 3. Unwrap / prepare.
-    auto t0 = Clock::now();
-    const cv::Mat panorama = PreparePanoramaOf(frame);
-    result.stats.unwrap_us = MicrosSince(t0);
-    // 4. Describe.
-    t0 = Clock::now();
-    y = extractor_->Compute(panorama);
-    result.stats.describe_us = MicrosSince(t0);
-  } catch (...) {
-    updater_->WaitUntilApplied(t);  // never leave the worker running between calls
-    throw;
-  }
-
-  // 5. Barrier: exactly the updates of frames <= t - delay are in the map.
-  auto t0 = Clock::now();
-  result.stats.updates_applied = updater_->WaitUntilApplied(t);
-  result.stats.update_us = MicrosSince(t0);
-  result.stats.apply_us = updater_->TakeApplyMicroseconds();
+  // 2.-5. Unwrap and describe while the worker applies the updates due at t; barrier.
+  const Descriptor y = DescribeBehindBarrier(frame, t, &result.stats);
 
   // 6a. p(x|y) from the map (distributed coding).
-  t0 = Clock::now();
+  auto t0 = Clock::now();
   result.stats.num_views = model_->NumViews();
   result.stats.num_map_components = model_->NumComponents();
   const std::vector<ViewMatch> matches = model_->FindMatches(y);

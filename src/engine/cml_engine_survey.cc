@@ -38,23 +38,7 @@ FrameResult CmlEngine::ProcessSurveyFrame(const Frame& frame, const Gaussian& tr
   result.frame = t;
   result.session = session_.session;
   // The same barrier discipline as ProcessFrame: updates due at t run while we describe.
-  updater_->Schedule(t);
-  Descriptor y;
-  try {
-    auto t0 = Clock::now();
-    const cv::Mat panorama = PreparePanoramaOf(frame);
-    result.stats.unwrap_us = MicrosSince(t0);
-    t0 = Clock::now();
-    y = extractor_->Compute(panorama);
-    result.stats.describe_us = MicrosSince(t0);
-  } catch (...) {
-    updater_->WaitUntilApplied(t);
-    throw;
-  }
-  auto t0 = Clock::now();
-  result.stats.updates_applied = updater_->WaitUntilApplied(t);
-  result.stats.update_us = MicrosSince(t0);
-  result.stats.apply_us = updater_->TakeApplyMicroseconds();
+  const Descriptor y = DescribeBehindBarrier(frame, t, &result.stats);
   result.stats.num_views = model_->NumViews();
   result.stats.num_map_components = model_->NumComponents();
 

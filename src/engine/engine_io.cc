@@ -14,6 +14,7 @@
 #include "omnicml/common/common.h"
 #include "omnicml/common/file_io.h"
 #include "omnicml/common/options.h"
+#include "engine/internal/pose_io.h"
 
 namespace omnicml {
 
@@ -31,26 +32,11 @@ constexpr std::size_t kTrailerBytes = 4;
 
 // ---- small value types -------------------------------------------------------------
 
-void WritePose(BinaryWriter& out, const Pose2& p) {
-  for (int i = 0; i < 3; ++i) out.Write<double>(p[i]);
-}
-Pose2 ReadPose(BinaryReader& in, const char* what) {
-  Pose2 p;
-  for (int i = 0; i < 3; ++i) p[i] = in.Read<double>(what);
-  return p;
-}
-void WriteMatrix3(BinaryWriter& out, const Eigen::Matrix3d& m) {
-  for (int r = 0; r < 3; ++r) {
-    for (int c = 0; c < 3; ++c) out.Write<double>(m(r, c));
-  }
-}
-Eigen::Matrix3d ReadMatrix3(BinaryReader& in, const char* what) {
-  Eigen::Matrix3d m;
-  for (int r = 0; r < 3; ++r) {
-    for (int c = 0; c < 3; ++c) m(r, c) = in.Read<double>(what);
-  }
-  return m;
-}
+using internal::ReadMatrix3;
+using internal::ReadPose;
+using internal::WriteMatrix3;
+using internal::WritePose;
+
 void WriteGaussian(BinaryWriter& out, const Gaussian& g) {
   WritePose(out, g.mean);
   WriteMatrix3(out, g.covariance);

@@ -13,6 +13,7 @@
 #include "omnicml/common/common.h"
 #include "omnicml/engine/trajectory_reconstruction.h"
 #include "engine/internal/pose_factors.h"
+#include "engine/internal/pose_io.h"
 
 namespace omnicml {
 namespace {
@@ -21,24 +22,10 @@ using internal::BetweenFactor;
 using internal::PriorFactor;
 using internal::SqrtInformation;
 
-void WritePose(BinaryWriter& out, const Pose2& p) {
-  for (int i = 0; i < 3; ++i) out.Write<double>(p[i]);
-}
-Pose2 ReadPose(BinaryReader& in, const char* what) {
-  Pose2 p;
-  for (int i = 0; i < 3; ++i) p[i] = in.Read<double>(what);
-  return p;
-}
-void WriteMatrix(BinaryWriter& out, const Eigen::Matrix3d& m) {
-  for (int r = 0; r < 3; ++r)
-    for (int c = 0; c < 3; ++c) out.Write<double>(m(r, c));
-}
-Eigen::Matrix3d ReadMatrix(BinaryReader& in, const char* what) {
-  Eigen::Matrix3d m;
-  for (int r = 0; r < 3; ++r)
-    for (int c = 0; c < 3; ++c) m(r, c) = in.Read<double>(what);
-  return m;
-}
+using internal::ReadMatrix3;
+using internal::ReadPose;
+using internal::WriteMatrix3;
+using internal::WritePose;
 
 }  // namespace
 
@@ -281,11 +268,11 @@ void PoseGraph::Write(BinaryWriter& out) const {
     out.Write<std::int64_t>(n.segment);
     WritePose(out, n.pose);
     WritePose(out, n.odom);
-    WriteMatrix(out, n.odom_cov);
+    WriteMatrix3(out, n.odom_cov);
     out.Write<bool>(n.prior.has_value());
     if (n.prior) {
       WritePose(out, n.prior->mean);
-      WriteMatrix(out, n.prior->covariance);
+      WriteMatrix3(out, n.prior->covariance);
     }
   }
   out.Write<std::uint64_t>(closures_.size());
@@ -293,24 +280,24 @@ void PoseGraph::Write(BinaryWriter& out) const {
     out.Write<std::int64_t>(c.from_frame);
     out.Write<std::int64_t>(c.to_frame);
     WritePose(out, c.z);
-    WriteMatrix(out, c.covariance);
+    WriteMatrix3(out, c.covariance);
   }
   out.Write<std::uint64_t>(recent_.size());
   for (const FrameOdometry& f : recent_) {
     out.Write<std::int64_t>(f.frame);
     out.Write<std::int64_t>(f.segment);
     WritePose(out, f.odom);
-    WriteMatrix(out, f.cov);
+    WriteMatrix3(out, f.cov);
   }
   out.Write<std::int64_t>(segment_);
   out.Write<bool>(new_segment_);
   WritePose(out, odom_);
-  WriteMatrix(out, odom_cov_);
+  WriteMatrix3(out, odom_cov_);
   out.Write<std::int64_t>(start_prior_frame_);
   out.Write<bool>(start_prior_.has_value());
   if (start_prior_) {
     WritePose(out, start_prior_->mean);
-    WriteMatrix(out, start_prior_->covariance);
+    WriteMatrix3(out, start_prior_->covariance);
   }
   out.Write<std::int64_t>(last_closure_frame_);
   out.Write<std::int64_t>(last_optimized_frame_);
@@ -330,11 +317,11 @@ void PoseGraph::Read(BinaryReader& in) {
     node.segment = in.Read<std::int64_t>("pose_graph.node.segment");
     node.pose = ReadPose(in, "pose_graph.node.pose");
     node.odom = ReadPose(in, "pose_graph.node.odom");
-    node.odom_cov = ReadMatrix(in, "pose_graph.node.odom_cov");
+    node.odom_cov = ReadMatrix3(in, "pose_graph.node.odom_cov");
     if (in.Read<bool>("pose_graph.node.prior")) {
       Gaussian g;
       g.mean = ReadPose(in, "pose_graph.node.prior");
-      g.covariance = ReadMatrix(in, "pose_graph.node.prior");
+      g.covariance = ReadMatrix3(in, "pose_graph.node.prior");
       node.prior = g;
     }
     if (!nodes_.empty() && node.frame <= nodes_.back().frame) in.Fail("pose_graph.node.frame", "frames not increasing");
@@ -346,7 +333,7 @@ void PoseGraph::Read(BinaryReader& in) {
     cl.from_frame = in.Read<std::int64_t>("pose_graph.closure.from");
     cl.to_frame = in.Read<std::int64_t>("pose_graph.closure.to");
     cl.z = ReadPose(in, "pose_graph.closure.z");
-    cl.covariance = ReadMatrix(in, "pose_graph.closure.covariance");
+    cl.covariance = ReadMatrix3(in, "pose_graph.closure.covariance");
     if (Eigen::LLT<Eigen::Matrix3d>(cl.covariance).info() != Eigen::Success || !cl.covariance.allFinite()) {
       in.Fail("pose_graph.closure.covariance", "not symmetric positive definite");
     }
@@ -358,19 +345,19 @@ void PoseGraph::Read(BinaryReader& in) {
     f.frame = in.Read<std::int64_t>("pose_graph.recent.frame");
     f.segment = in.Read<std::int64_t>("pose_graph.recent.segment");
     f.odom = ReadPose(in, "pose_graph.recent.odom");
-    f.cov = ReadMatrix(in, "pose_graph.recent.cov");
+    f.cov = ReadMatrix3(in, "pose_graph.recent.cov");
     recent_.push_back(f);
   }
   segment_ = in.Read<std::int64_t>("pose_graph.segment");
   new_segment_ = in.Read<bool>("pose_graph.new_segment");
   odom_ = ReadPose(in, "pose_graph.odom");
-  odom_cov_ = ReadMatrix(in, "pose_graph.odom_cov");
+  odom_cov_ = ReadMatrix3(in, "pose_graph.odom_cov");
   start_prior_frame_ = in.Read<std::int64_t>("pose_graph.start_prior_frame");
   start_prior_.reset();
   if (in.Read<bool>("pose_graph.start_prior")) {
     Gaussian g;
     g.mean = ReadPose(in, "pose_graph.start_prior");
-    g.covariance = ReadMatrix(in, "pose_graph.start_prior");
+    g.covariance = ReadMatrix3(in, "pose_graph.start_prior");
     start_prior_ = g;
   }
   last_closure_frame_ = in.Read<std::int64_t>("pose_graph.last_closure_frame");

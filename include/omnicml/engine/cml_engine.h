@@ -340,6 +340,12 @@ class CmlEngine {
   std::unique_ptr<MapUpdater> MakeUpdater(int threads);
   void MakeUnwrapper();
   cv::Mat PreparePanoramaOf(const Frame& frame) const;
+  // Frame t's descriptor behind the update barrier (ProcessFrame steps 2-5, also used by
+  // ProcessSurveyFrame): hands the updates due at t to the worker, unwraps and describes
+  // `frame` meanwhile, then waits until exactly the updates of frames <= t - delay are in
+  // the map. Fills the unwrap/describe/update/apply timings and updates_applied of
+  // `stats`. Never leaves the worker running when it throws.
+  Descriptor DescribeBehindBarrier(const Frame& frame, std::int64_t t, FrameStats* stats);
   void QueueUnimodal(std::int64_t frame, const Descriptor& y, const Estimate& estimate, FrameResult* result);
   // Multimodal pending frames are dropped; unimodal ones (waiting for a confident anchor)
   // are queued with their filtered estimate. `t` is the frame producing the updates.

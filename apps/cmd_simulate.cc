@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <chrono>
 #include <filesystem>
+#include <functional>
 #include <iomanip>
 #include <iostream>
 #include <sstream>
@@ -152,17 +153,9 @@ void RunSimulate(const SimulateArgs& args, const CLI::App& cmd) {
   writer.AddFile("simulation.yaml", OptionsYaml(options, world));
   writer.AddFile("world.yaml", world_text);
   std::vector<DaySamples> samples(options.days);
-  Frame frame;
-  int session = -1;
-  std::int64_t frames = 0;
-  while (source.Next(&frame)) {
-    if (frame.session_index != session) {
-      session = frame.session_index;
-      writer.BeginSession(source.Session(session));
-    }
-    writer.Write(frame);
-    ++frames;
-    if (!args.preview.empty()) {
+  std::function<void(const Frame&)> sample_preview;
+  if (!args.preview.empty()) {
+    sample_preview = [&](const Frame& frame) {
       const std::int64_t m = options.frames_per_day;
       const std::int64_t i = frame.index_in_session;
       if (i == 0 || i == m / 4 || i == m / 2 || i == 3 * m / 4) {
@@ -172,8 +165,9 @@ void RunSimulate(const SimulateArgs& args, const CLI::App& cmd) {
           day.poses.push_back(*frame.map_T_robot_truth);
         }
       }
-    }
+    };
   }
+  const std::int64_t frames = WriteFrames(source, writer, sample_preview);
   writer.Finish();
   if (!args.preview.empty()) WriteImage(args.preview, ComposePreview(source, samples));
   const double seconds =

@@ -694,6 +694,23 @@ void LogWriter::AddFile(const std::string& file_name, const std::string& content
   WriteFileAtomic(path, contents, FileSync::kDeferred);
 }
 
+std::int64_t WriteFrames(FrameSource& source, LogWriter& writer,
+                         const std::function<void(const Frame&)>& on_frame) {
+  Frame frame;
+  int session = -1;
+  std::int64_t frames = 0;
+  while (source.Next(&frame)) {
+    if (frame.session_index != session) {
+      session = frame.session_index;
+      writer.BeginSession(source.Session(session));
+    }
+    writer.Write(frame);
+    ++frames;
+    if (on_frame) on_frame(frame);
+  }
+  return frames;
+}
+
 void LogWriter::Finish() {
   if (finished_) throw Error("LogWriter: Finish called twice");
   if (session_names_.empty()) throw Error(StrCat(log_dir_, ": no session was written"));

@@ -111,15 +111,7 @@ class CliLimits : public ::testing::Test {
     sim.output = ImageKind::kPanorama;
     SimulatedFrameSource source(sim);
     LogWriter writer((*dir_ / "log").string());
-    Frame frame;
-    int session = -1;
-    while (source.Next(&frame)) {
-      if (frame.session_index != session) {
-        session = frame.session_index;
-        writer.BeginSession(source.Session(session));
-      }
-      writer.Write(frame);
-    }
+    WriteFrames(source, writer);
     writer.Finish();
   }
   static void TearDownTestSuite() {

@@ -56,15 +56,7 @@ std::map<std::string, std::string> ReadTree(const fs::path& root) {
 void WriteLog(const SimulatorOptions& options, const std::string& dir) {
   SimulatedFrameSource source(options);
   LogWriter writer(dir);
-  Frame frame;
-  int session = -1;
-  while (source.Next(&frame)) {
-    if (frame.session_index != session) {
-      session = frame.session_index;
-      writer.BeginSession(source.Session(session));
-    }
-    writer.Write(frame);
-  }
+  WriteFrames(source, writer);
   writer.Finish();
 }
 

@@ -36,6 +36,7 @@
 
 #include <cstdint>
 #include <fstream>
+#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
@@ -205,6 +206,13 @@ class LogWriter {
   double last_stamp_s_ = 0.0;
   int session_channels_ = 0;
 };
+
+// Copies every frame of `source` into `writer`: BeginSession(source.Session(k)) where a new
+// session starts, then Write. `on_frame` (optional) sees each frame after it was written
+// (progress, previews). Does not call Finish. Returns the number of frames written.
+// Throws what the source, the writer or on_frame throw.
+std::int64_t WriteFrames(FrameSource& source, LogWriter& writer,
+                         const std::function<void(const Frame&)>& on_frame = {});
 
 // Formats a double in the shortest form that parses back to the same bits
 // (std::to_chars). Throws omnicml::Error on NaN or infinity.

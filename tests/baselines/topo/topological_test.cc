@@ -377,13 +377,7 @@ TEST(TopologicalLocalizer, CrossSequenceOverRawRingLog) {
     sim.output = ImageKind::kRawRing;
     SimulatedFrameSource source(sim);
     LogWriter writer(dir.string());
-    Frame f;
-    int session = -1;
-    while (source.Next(&f)) {
-      if (f.session_index != session)
-        writer.BeginSession(source.Session(session = f.session_index));
-      writer.Write(f);
-    }
+    WriteFrames(source, writer);
     writer.Finish();
   }
   const AdjacencyMap map = ParseAdjacencyMap(

@@ -32,13 +32,11 @@
 #if defined(OMNICML_HAVE_JEMALLOC)
 #include <jemalloc/jemalloc.h>
 #endif
-#include <sys/resource.h>
 
 #include <unistd.h>
 
 #include <chrono>
 #include <cmath>
-#include <cstdlib>
 #include <cstdint>
 #include <cstdio>
 #include <filesystem>
@@ -158,14 +156,13 @@ class SoakMeter {
   std::vector<DayRow> rows_;
 };
 
-std::string FormatRows(const std::vector<DayRow>& rows, char sep, bool header_units) {
+std::string FormatRows(const std::vector<DayRow>& rows, char sep) {
   std::ostringstream os;
   const char* names[] = {"day",       "views",      "components", "events_held", "events_logged",
                          "map_mb",    "rss_mb",     "anon_mb",    "heap_mb",    "peak_mb",    "run_dir_mb",  "frames",
                          "localized", "mean_err_m", "day_s"};
   for (std::size_t i = 0; i < std::size(names); ++i) os << (i ? std::string(1, sep) : "") << names[i];
   os << "\n";
-  (void)header_units;
   char buf[512];
   for (const DayRow& r : rows) {
     std::snprintf(buf, sizeof buf,
@@ -233,10 +230,10 @@ int Main(int argc, char** argv) {
   std::cout << "soak: " << settings.input.Describe() << ", forgetting " << forgetting
             << ", threads " << threads << ", " << summary.frames << " frames, "
             << FormatFixed(wall_s, 1) << " s\n";
-  std::cout << FormatRows(meter.rows(), '\t', true);
+  std::cout << FormatRows(meter.rows(), '\t');
   std::cout << "run directory after Commit: " << out_dir << " "
             << FormatFixed(DirectoryMiB(out_dir), 2) << " MiB\n";
-  if (!csv_path.empty()) WriteFileAtomic(csv_path, FormatRows(meter.rows(), ',', false));
+  if (!csv_path.empty()) WriteFileAtomic(csv_path, FormatRows(meter.rows(), ','));
   return 0;
 }
 

@@ -95,6 +95,11 @@ double Ratio(int num, int den) {
   return den > 0 ? static_cast<double>(num) / static_cast<double>(den) : kNaN;
 }
 
+// "12.3 %", or "-" when undefined (NaN).
+std::string Percent(double v) {
+  return std::isfinite(v) ? FormatFixed(100.0 * v, 1) + " %" : std::string("-");
+}
+
 std::string Number(double v) { return std::isfinite(v) ? ShortestDouble(v) : "nan"; }
 
 }  // namespace
@@ -162,12 +167,11 @@ void WriteChangeDetectionCsv(std::ostream& os, const std::vector<ChangeDetection
 
 std::string FormatChangeDetection(const std::vector<ChangeDetectionDay>& days) {
   std::ostringstream os;
-  auto pct = [](double v) { return std::isfinite(v) ? FormatFixed(100.0 * v, 1) + " %" : std::string("-"); };
   for (const ChangeDetectionDay& d : days) {
     os << "change detection day " << d.day << ": " << d.changed_items << " items changed, "
        << d.cells_scored << " cells crossed, " << d.cells_truly_changed << " truly changed, "
-       << d.cells_detected << " detected, precision " << pct(d.precision) << " recall "
-       << pct(d.recall) << "\n";
+       << d.cells_detected << " detected, precision " << Percent(d.precision) << " recall "
+       << Percent(d.recall) << "\n";
   }
   if (!days.empty()) os << "change detection all days: " << ChangeDetectionTotals(days) << "\n";
   return os.str();
@@ -180,11 +184,8 @@ std::string ChangeDetectionTotals(const std::vector<ChangeDetectionDay>& days) {
     det += d.cells_detected;
     truly += d.cells_truly_changed;
   }
-  auto pct = [](double v) {
-    return std::isfinite(v) ? FormatFixed(100.0 * v, 1) + " %" : std::string("-");
-  };
-  return StrCat("precision ", pct(Ratio(tp, det)), " (", tp, "/", det, "), recall ",
-                pct(Ratio(tp, truly)), " (", tp, "/", truly, ") over ", days.size(), " day(s)");
+  return StrCat("precision ", Percent(Ratio(tp, det)), " (", tp, "/", det, "), recall ",
+                Percent(Ratio(tp, truly)), " (", tp, "/", truly, ") over ", days.size(), " day(s)");
 }
 
 }  // namespace omnicml

@@ -100,7 +100,10 @@ std::string Percent(double v) {
   return std::isfinite(v) ? FormatFixed(100.0 * v, 1) + " %" : std::string("-");
 }
 
-std::string Number(double v) { return std::isfinite(v) ? ShortestDouble(v) : "nan"; }
+std::string Number(double v) {
+  if (std::isinf(v)) return v > 0 ? "inf" : "-inf";
+  return std::isfinite(v) ? ShortestDouble(v) : "nan";
+}
 
 }  // namespace
 
@@ -134,8 +137,10 @@ ChangeDetectionDay ScoreChangeDetection(const MapHealth& health, const WorldDayC
     if (!crossed.count({cell.ix, cell.iy})) continue;
     ++out.cells_scored;
     const Eigen::Vector2d centre((cell.ix + 0.5) * options.cell_m, (cell.iy + 0.5) * options.cell_m);
-    const bool truly = DistanceToChanges(changes, centre) <= options.radius_m;
+    const double distance = DistanceToChanges(changes, centre);
+    const bool truly = distance <= options.radius_m;
     const bool detected = cell.health == CellHealth::kChanged || cell.health == CellHealth::kNew;
+    out.cells.push_back(ScoredCell{cell, distance, truly, detected});
     out.cells_truly_changed += truly;
     out.cells_detected += detected;
     out.true_positives += truly && detected;
@@ -163,6 +168,22 @@ void WriteChangeDetectionCsv(std::ostream& os, const std::vector<ChangeDetection
      << total.cells_truly_changed << "," << total.cells_detected << "," << total.true_positives
      << "," << Number(Ratio(total.true_positives, total.cells_detected)) << ","
      << Number(Ratio(total.true_positives, total.cells_truly_changed)) << "\n";
+}
+
+void WriteChangeCellsCsv(std::ostream& os, const std::vector<ChangeDetectionDay>& days,
+                         double cell_m) {
+  os << "day,ix,iy,x_m,y_m,health,views,insertions,removals,expected,missed,forgotten,"
+        "distance_to_change_m,truly_changed,detected\n";
+  for (const ChangeDetectionDay& d : days) {
+    for (const ScoredCell& s : d.cells) {
+      const MapCell& c = s.cell;
+      os << d.day << "," << c.ix << "," << c.iy << "," << Number((c.ix + 0.5) * cell_m) << ","
+         << Number((c.iy + 0.5) * cell_m) << "," << ToString(c.health) << "," << c.views << ","
+         << c.insertions_recent << "," << c.removals_recent << "," << c.expected_recent << ","
+         << c.missed_recent << "," << c.forgotten_recent << "," << Number(s.distance_m) << ","
+         << s.truly_changed << "," << s.detected << "\n";
+    }
+  }
 }
 
 std::string FormatChangeDetection(const std::vector<ChangeDetectionDay>& days) {

@@ -176,6 +176,9 @@ RunExperimentResult RunExperiment(const RunExperimentOptions& o) {
     std::ostringstream csv;
     WriteChangeDetectionCsv(csv, change_days);
     recorder.AddFile("change_detection.csv", csv.str());
+    std::ostringstream cells_csv;
+    WriteChangeCellsCsv(cells_csv, change_days, ChangeDetectionOptions{}.cell_m);
+    recorder.AddFile("change_cells.csv", cells_csv.str());
     notes.emplace_back("change detection (health changed/new vs the day events)",
                        change_days.empty() ? std::string("no day after the map's first")
                                            : ChangeDetectionTotals(change_days));
@@ -185,6 +188,7 @@ RunExperimentResult RunExperiment(const RunExperimentOptions& o) {
     // Never leave the file of an earlier simulated run in this run directory.
     std::error_code ec;
     std::filesystem::remove(std::filesystem::path(result.run_dir) / "change_detection.csv", ec);
+    std::filesystem::remove(std::filesystem::path(result.run_dir) / "change_cells.csv", ec);
   }
   result.change_detection = change_days;
   if (!o.map_out.empty()) WriteFileAtomic(o.map_out, map_bytes);

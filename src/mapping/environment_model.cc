@@ -112,7 +112,7 @@ const char* RemovalReason(Touch t) {
     case Touch::kPassive:
       return "passive forgetting (17)";
     case Touch::kActive:
-      return "active forgetting (18)-(19)";
+      return kActiveForgettingReason;
     default:
       return "weight below w_min";
   }

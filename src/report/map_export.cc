@@ -779,6 +779,12 @@ MapHealth ComputeMapHealth(const EnvironmentModel& model, int latest_session,
         acc.cell.last_seen_session =
             std::max(acc.cell.last_seen_session, view.stats.last_seen_session);
         if (view.stats.created_session != latest_session) acc.all_created_latest = false;
+        const ViewFootprint& f = view.footprint;
+        if (view.stats.created_session < latest_session && f.last_expected_frame >= 0 &&
+            f.last_expected_session == latest_session) {
+          acc.cell.expected_recent += 1;
+          if (view.stats.last_seen_session < latest_session) acc.cell.missed_recent += 1;
+        }
       }
     }
   }
@@ -798,13 +804,19 @@ MapHealth ComputeMapHealth(const EnvironmentModel& model, int latest_session,
     if (e.type == MapEventType::kViewRemoved || e.type == MapEventType::kComponentRemoved) {
       it->second.cell.removals_recent += 1;
     }
+    if (e.type == MapEventType::kComponentRemoved && e.reason == kActiveForgettingReason) {
+      it->second.cell.forgotten_recent += 1;
+    }
   }
   for (auto& [key, acc] : cells) {
     MapCell& cell = acc.cell;
     if (cell.views > 0 && acc.all_created_latest && latest_session > health.first_session) {
       cell.health = CellHealth::kNew;
       ++health.fresh;
-    } else if (cell.insertions_recent > 0 || cell.removals_recent > 0) {
+    } else if (cell.insertions_recent > 0 || cell.missed_recent > 0 || cell.forgotten_recent > 0) {
+      // Evidence that the appearance changed: nothing matched (insertion), or views the
+      // robot confidently passed through no longer matched. Removals alone are the map's
+      // bookkeeping (passive forgetting (17), merges) and happen where nothing changed.
       cell.health = CellHealth::kChanged;
       ++health.changed;
     } else if (cell.last_seen_session <= latest_session - options.stale_sessions) {
@@ -911,13 +923,16 @@ std::string InspectText(const CmlEngine& engine, const MapHealthOptions& options
       }
     }
     os << "cells (x_m, y_m = lower-left corner):\n";
-    os << "   x_m     y_m  views  components  weight  last_seen  inserted  removed  health\n";
+    os << "   x_m     y_m  views  components  weight  last_seen  inserted  removed  expected  "
+          "missed  forgotten  health\n";
     for (const MapCell& c : health.cells) {
-      char buf[160];
-      std::snprintf(buf, sizeof buf, "%6.1f  %6.1f  %5d  %10d  %6.2f  %9s  %8d  %7d  %s\n",
+      char buf[200];
+      std::snprintf(buf, sizeof buf,
+                    "%6.1f  %6.1f  %5d  %10d  %6.2f  %9s  %8d  %7d  %8d  %6d  %9d  %s\n",
                     c.ix * options.cell_m, c.iy * options.cell_m, c.views, c.components,
                     c.total_weight, DescribeSession(c.last_seen_session).c_str(),
-                    c.insertions_recent, c.removals_recent, ToString(c.health).c_str());
+                    c.insertions_recent, c.removals_recent, c.expected_recent, c.missed_recent,
+                    c.forgotten_recent, ToString(c.health).c_str());
       os << buf;
     }
   }

@@ -9,7 +9,10 @@
 #include <gtest/gtest.h>
 
 #include "omnicml/common/common.h"
+#include "omnicml/mapping/environment_model.h"
+#include "omnicml/report/map_export.h"
 #include "omnicml/sim/world.h"
+#include "testing/fake_descriptor.h"
 
 namespace omnicml {
 namespace {
@@ -130,6 +133,61 @@ TEST(ChangeDetection, ScoreCountsCellsCrossedByThePath) {
       << text;
   o.cell_m = 0;
   EXPECT_THROW(ScoreChangeDetection(health, changes, path, o), Error);
+}
+
+// The health rule (ComputeMapHealth): a place whose look changed for good is "changed"
+// even when no view is inserted there (a view it expected stopped matching while another
+// still matches), a place that looks as before is "ok", and the cell counts say why.
+TEST(MapHealth, ChangedWhereExpectedViewsStopMatching) {
+  auto fx = testing::MakeFakeExtractor(2);
+  EnvironmentModelOptions o;
+  o.e_max = 1.0;
+  o.top_k = 0;
+  o.d_for_m = 1.0;
+  o.forgetting = ForgettingMode::kActive;
+  EnvironmentModel m(o, fx);
+  auto at = [](double x) {
+    Gaussian g;
+    g.mean = MakePose(x, 0.5, 0.0);
+    g.covariance = Eigen::Vector3d(0.01 * 0.01, 0.01 * 0.01, 0.05 * 0.05).asDiagonal();
+    return g;
+  };
+  std::int64_t frame = 0;
+  // A pass: 3 Updates at place P (x = 1, cell (0,0) of 2 m) with look `p`, then 3 at
+  // place Q (x = 9, cell (4,0)) with look 0.
+  auto pass = [&](float p, int session) {
+    for (int k = 0; k < 3; ++k) m.Update(fx->Make({p, 0.0f}), at(1.0), {frame++, session});
+    frame += 50;
+    for (int k = 0; k < 3; ++k) m.Update(fx->Make({0.0f, 20.0f}), at(9.0), {frame++, session});
+    frame += 50;
+  };
+  // Session 0: P shows two looks on alternate passes (a lamp on and off), so P holds
+  // two views; Q one.
+  for (int l = 0; l < 4; ++l) pass(l % 2 == 0 ? 0.0f : 5.0f, 0);
+  ASSERT_EQ(m.NumViews(), 3u);
+  // Session 1: the lamp stays off for good; Q is as before.
+  for (int l = 0; l < 2; ++l) pass(0.0f, 1);
+  m.CheckInvariants();
+  EXPECT_EQ(m.NumViews(), 3u) << "nothing is inserted: every frame matches a view";
+
+  const MapHealth health = ComputeMapHealth(m, /*latest_session=*/1, MapHealthOptions{});
+  const MapCell* p = nullptr;
+  const MapCell* q = nullptr;
+  for (const MapCell& c : health.cells) {
+    if (c.ix == 0 && c.iy == 0) p = &c;
+    if (c.ix == 4 && c.iy == 0) q = &c;
+  }
+  ASSERT_NE(p, nullptr);
+  ASSERT_NE(q, nullptr);
+  EXPECT_EQ(p->insertions_recent, 0);
+  EXPECT_EQ(p->expected_recent, 2);
+  EXPECT_EQ(p->missed_recent, 1) << "the lamp-on view was expected and never matched";
+  EXPECT_EQ(p->health, CellHealth::kChanged);
+  EXPECT_EQ(q->expected_recent, 1);
+  EXPECT_EQ(q->missed_recent, 0);
+  EXPECT_EQ(q->health, CellHealth::kOk);
+  EXPECT_EQ(health.changed, 1);
+  EXPECT_EQ(health.ok, 1);
 }
 
 }  // namespace

@@ -1,7 +1,7 @@
 // Change detection scored against the simulator's ground truth (issue 15): the map's
 // health by area (report/map_export.h ComputeMapHealth: a cell is "changed" when views
-// were inserted or components removed there in the latest session, "new" when all its
-// views are from the latest session) compared, day by day, with the places the world's
+// were inserted there in the latest session or views of earlier sessions expected there
+// failed to match, "new" when all its views are from the latest session) compared, day by day, with the places the world's
 // day events changed.
 //
 // Ground truth of day d (1-based, d >= 2): the items whose state differs between
@@ -60,6 +60,14 @@ WorldDayChanges ChangesOfDay(const World& world, int day, std::uint64_t seed);
 // there are none.
 double DistanceToChanges(const WorldDayChanges& changes, const Eigen::Vector2d& p_m);
 
+// One scored cell of a day: the map's evidence there and the truth.
+struct ScoredCell {
+  MapCell cell;                // the health map's cell (health and evidence)
+  double distance_m = 0.0;     // from the cell centre to the nearest change (inf: none)
+  bool truly_changed = false;  // distance_m <= radius_m
+  bool detected = false;       // health changed or new
+};
+
 struct ChangeDetectionDay {
   int day = 0;                // 1-based simulated day
   int session = 0;            // engine session of that day
@@ -70,6 +78,7 @@ struct ChangeDetectionDay {
   int true_positives = 0;
   double precision = 0.0;     // NaN without detections
   double recall = 0.0;        // NaN without truly changed cells
+  std::vector<ScoredCell> cells;  // the scored cells, in the health map's order
 };
 
 // Scores `health` (the map's health at the end of the day, latest session = that day's)
@@ -81,6 +90,9 @@ ChangeDetectionDay ScoreChangeDetection(const MapHealth& health, const WorldDayC
 // change_detection.csv: a header and one row per scored day; then the totals row
 // (day "all", precision and recall of the summed counts).
 void WriteChangeDetectionCsv(std::ostream& os, const std::vector<ChangeDetectionDay>& days);
+// change_cells.csv: one row per scored cell and day (the evidence behind the scores).
+void WriteChangeCellsCsv(std::ostream& os, const std::vector<ChangeDetectionDay>& days,
+                         double cell_m);
 // One line per day plus the totals, for the console and the report.
 std::string FormatChangeDetection(const std::vector<ChangeDetectionDay>& days);
 // "precision P % (tp/detected), recall R % (tp/changed) over N day(s)" of the summed counts.

@@ -274,6 +274,8 @@ enum class MapEventType : std::uint8_t {
 };
 // "view_inserted", "view_removed", "component_added", "component_merged", "component_removed".
 std::string ToString(MapEventType type);
+// MapEvent::reason of a component removed after active forgetting (18)-(19) lowered it.
+inline constexpr const char* kActiveForgettingReason = "active forgetting (18)-(19)";
 
 // One change of the map, so a user can tell a changed place (components forgotten at a
 // place, then a new view inserted there) from a newly visited one (insertion only).

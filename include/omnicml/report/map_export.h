@@ -142,6 +142,13 @@ struct MapCell {
   int last_seen_session = -1;  // latest last_seen_session of its views
   int insertions_recent = 0;   // view insertions in the cell during the latest session
   int removals_recent = 0;     // component/view removals in the cell during the latest session
+  // Evidence of change (active forgetting's pass bookkeeping, docs/forgetting.md): views
+  // of earlier sessions the latest session expected to match here (the estimate passed
+  // confidently through their footprint, or they matched), those of them that never
+  // matched in it, and components removed here by active forgetting (18)-(19) in it.
+  int expected_recent = 0;
+  int missed_recent = 0;
+  int forgotten_recent = 0;
   CellHealth health = CellHealth::kOk;
 };
 struct MapHealth {
@@ -152,7 +159,10 @@ struct MapHealth {
 };
 // `latest_session`: the engine's current session (session_state().session).
 // Definitions: new = every view in the cell was created in the latest session;
-// changed (otherwise) = view insertions or removals there in the latest session;
+// changed (otherwise) = in the latest session a view was inserted there (nothing
+// matched), or a view of an earlier session expected there never matched (missed_recent),
+// or active forgetting removed a component there (forgotten_recent); removals by passive
+// forgetting or merges alone do not make a cell changed (they happen where nothing did);
 // stale (otherwise) = no view seen in the last stale_sessions sessions; ok otherwise.
 MapHealth ComputeMapHealth(const EnvironmentModel& model, int latest_session,
                            const MapHealthOptions& options = {});

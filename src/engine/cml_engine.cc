@@ -23,6 +23,15 @@ bool IsFinitePose(const Pose2& p) { return p.allFinite(); }
 
 }  // namespace
 
+void GatedMatchingOptions::Validate() const {
+  if (!(gate_sigmas > 0.0) || !std::isfinite(gate_sigmas)) {
+    throw Error(StrCat("gate_sigmas must be finite and > 0, got ", gate_sigmas));
+  }
+  if (full_search_every_frames < 1) {
+    throw Error(StrCat("full_search_every_frames must be >= 1, got ", full_search_every_frames));
+  }
+}
+
 void CmlEngineOptions::Validate() const {
   auto nested = [](const char* prefix, auto&& validate) {
     try {
@@ -36,6 +45,7 @@ void CmlEngineOptions::Validate() const {
   nested("model", [&] { model.Validate(); });
   nested("reconstruction", [&] { reconstruction.Validate(); });
   nested("pose_graph", [&] { pose_graph.Validate(); });
+  nested("gated_matching", [&] { gated_matching.Validate(); });
   if (update_delay_frames < 1) {
     throw Error(StrCat("CmlEngineOptions.update_delay_frames must be >= 1, got ", update_delay_frames));
   }
@@ -361,11 +371,34 @@ FrameResult CmlEngine::ProcessFrame(const Frame& frame) {
   // 2.-5. Unwrap and describe while the worker applies the updates due at t; barrier.
   const Descriptor y = DescribeBehindBarrier(frame, t, &result.stats);
 
-  // 6a. p(x|y) from the map (distributed coding).
+  // 1. Odometry increment (zero on a session's first frame, see BeginSession), and the
+  // prior p(x|u) = Propagate(p(x_{t-1}), u_t) (empty without a state).
+  current_increment_ = session_.has_prev_odom ? ComputeIncrement(session_.prev_odom, frame.odom_T_robot)
+                                              : OdometryIncrement{};
+  const Mixture p_x_u = tracker_.HasState()
+                            ? Propagate(tracker_.state(), current_increment_, options_.tracker.motion)
+                            : Mixture{};
+
+  // 6a. p(x|y) from the map (distributed coding), gated while tracking confidently.
   auto t0 = Clock::now();
   result.stats.num_views = model_->NumViews();
   result.stats.num_map_components = model_->NumComponents();
-  const std::vector<ViewMatch> matches = model_->FindMatches(y);
+  std::vector<ViewMatch> matches;
+  const GatedMatchingOptions& gm = options_.gated_matching;
+  if (gm.enabled && p_x_u.size() == 1 && t % gm.full_search_every_frames != 0) {
+    const Eigen::Matrix2d c_xy = p_x_u[0].covariance.topLeftCorner<2, 2>();
+    const double variance = 0.5 * (c_xy(0, 0) + c_xy(1, 1)) +
+                            std::sqrt(0.25 * (c_xy(0, 0) - c_xy(1, 1)) * (c_xy(0, 0) - c_xy(1, 1)) +
+                                      c_xy(0, 1) * c_xy(1, 0)) +
+                            options_.appearance_sigma_m * options_.appearance_sigma_m;
+    const EnvironmentModel::Disc gate{p_x_u[0].mean.x(), p_x_u[0].mean.y(),
+                                      gm.gate_sigmas * std::sqrt(variance)};
+    matches = model_->FindMatchesNear(y, {gate}, &result.stats.matching_candidates);
+    result.stats.gated_matching = true;
+  } else {
+    matches = model_->FindMatches(y);
+    result.stats.matching_candidates = model_->NumViews();
+  }
   Mixture p_x_y = model_->Hypothesis(matches);
   result.stats.num_matches = static_cast<int>(matches.size());
   for (const ViewMatch& m : matches) result.stats.best_similarity = std::max(result.stats.best_similarity, m.similarity);
@@ -373,9 +406,6 @@ FrameResult CmlEngine::ProcessFrame(const Frame& frame) {
   ShapeHypothesis(result.stats.best_similarity, &p_x_y);
   result.stats.match_us = MicrosSince(t0);
 
-  // 1. Odometry increment (zero on a session's first frame, see BeginSession).
-  current_increment_ = session_.has_prev_odom ? ComputeIncrement(session_.prev_odom, frame.odom_T_robot)
-                                              : OdometryIncrement{};
   if (options_.pose_graph.enabled) pose_graph_->AddFrameOdometry(t, current_increment_);
 
   // 6b. p(x_t) = Fuse(Propagate(p(x_{t-1}), u_t), p(x|y)).
@@ -395,7 +425,6 @@ FrameResult CmlEngine::ProcessFrame(const Frame& frame) {
     // full whatever its own weight, so an aliased match (symmetric rooms, heading off by
     // ~180 deg) that once entered as a new hypothesis won within two or three frames
     // against a confident p(x|u); with the prior, evidence there grows multiplicatively.
-    const Mixture p_x_u = Propagate(tracker_.state(), current_increment_, options_.tracker.motion);
     double total_u = 0.0;
     for (const Gaussian& a : p_x_u) total_u += a.weight;
     for (Gaussian& b : p_x_y) {

@@ -278,8 +278,8 @@ void EnvironmentModel::CheckDescriptor(const Descriptor& y, const char* where) c
   }
 }
 
-std::vector<ViewMatch> EnvironmentModel::Search(const Descriptor& y, int top_k,
-                                                bool exhaustive) const {
+std::vector<ViewMatch> EnvironmentModel::Search(const Descriptor& y, int top_k, bool exhaustive,
+                                                const std::vector<std::size_t>* only) const {
   const std::size_t n = feature_size_;
   const float* query = y.features.data();
   const float* rows = features_.data();
@@ -297,7 +297,9 @@ std::vector<ViewMatch> EnvironmentModel::Search(const Descriptor& y, int top_k,
       out.push_back(m);
     }
   };
-  if (view_index_.built() && !exhaustive) {
+  if (only != nullptr) {
+    for (const std::size_t i : *only) consider(i);
+  } else if (view_index_.built() && !exhaustive) {
     // Candidate stage (view_index.h): every view with E < e_max is among the candidates,
     // and each candidate gets the same exact distance as in the scan below, so the
     // matches are the same.
@@ -394,6 +396,22 @@ std::vector<ViewMatch> EnvironmentModel::FindAllMatches(const Descriptor& y) con
 std::vector<ViewMatch> EnvironmentModel::FindMatchesExhaustive(const Descriptor& y) const {
   CheckDescriptor(y, "FindMatchesExhaustive");
   return Search(y, options_.top_k, /*exhaustive=*/true);
+}
+
+std::vector<ViewMatch> EnvironmentModel::FindMatchesNear(const Descriptor& y,
+                                                         const std::vector<Disc>& discs,
+                                                         std::size_t* candidates) const {
+  CheckDescriptor(y, "FindMatchesNear");
+  std::vector<std::size_t> only;
+  for (const Disc& d : discs) {
+    for (const SpatialEntry& e : spatial_.QueryRadius(d.x_m, d.y_m, d.radius_m)) {
+      only.push_back(index_of_id_.at(e.view_id));
+    }
+  }
+  std::sort(only.begin(), only.end());
+  only.erase(std::unique(only.begin(), only.end()), only.end());
+  if (candidates != nullptr) *candidates = only.size();
+  return Search(y, options_.top_k, /*exhaustive=*/false, &only);
 }
 
 Mixture EnvironmentModel::Hypothesis(const Descriptor& y) const {

@@ -246,6 +246,64 @@ TEST(CmlEngine, MappingBeatsOdometry) {
   EXPECT_LT(err_engine / n, 0.5 * err_odom / n) << "engine " << err_engine / n << " odometry " << err_odom / n;
 }
 
+// Pose-gated matching (GatedMatchingOptions): while tracking, p(x|y) compares the views
+// near p(x|u) only; the full search still runs every full_search_every_frames frames and
+// whenever p(x_t) is not one Gaussian; tracking stays as accurate as with the full search,
+// and the run is bit-identical with 1 and 2 threads.
+TEST(CmlEngine, GatedMatchingComparesFewerViewsAndTracksAsWell) {
+  const std::vector<RouteFrame> route = MakeLaps(4, 0.25, 4);
+  struct Run {
+    double late_error = 0.0;
+    int gated = 0, late = 0;
+    double candidates = 0.0, views = 0.0;  // sums over gated frames
+    std::vector<FrameResult> results;
+  };
+  auto run = [&](bool gated, int threads) {
+    CmlEngineOptions o = TestOptions();
+    o.threads = threads;
+    o.gated_matching.enabled = gated;
+    o.appearance_sigma_m = 0.2;
+    CmlEngine engine(o);
+    engine.BeginSession(PanoramaSession("d1", SessionStartMode::kKnownPose, route[0].truth));
+    Run out;
+    for (std::size_t i = 0; i < route.size(); ++i) {
+      FrameResult r = engine.ProcessFrame(MakeFrame(route[i], 0, static_cast<std::int64_t>(i)));
+      EXPECT_TRUE(r.estimate.has_value());
+      if (!r.estimate) continue;
+      if (r.stats.gated_matching) {
+        ++out.gated;
+        EXPECT_NE(r.frame % o.gated_matching.full_search_every_frames, 0) << "frame " << r.frame;
+        EXPECT_LE(r.stats.matching_candidates, r.stats.num_views);
+        out.candidates += static_cast<double>(r.stats.matching_candidates);
+        out.views += static_cast<double>(r.stats.num_views);
+      } else {
+        EXPECT_EQ(r.stats.matching_candidates, r.stats.num_views);
+      }
+      if (i >= route.size() / 2) {
+        out.late_error += PositionError(r, route[i].truth);
+        ++out.late;
+      }
+      out.results.push_back(std::move(r));
+    }
+    engine.Finish();
+    engine.model().CheckInvariants();
+    return out;
+  };
+  const Run full = run(false, 1);
+  const Run gated = run(true, 1);
+  EXPECT_EQ(full.gated, 0);
+  // Most frames are tracked by one Gaussian; 1 in 10 searches the whole map.
+  EXPECT_GT(gated.gated, static_cast<int>(route.size()) / 2);
+  EXPECT_LT(gated.candidates, 0.8 * gated.views) << "the gate must leave views out";
+  EXPECT_LT(gated.late_error / gated.late, full.late_error / full.late + 0.05)
+      << "gated " << gated.late_error / gated.late << " full " << full.late_error / full.late;
+  const Run gated2 = run(true, 2);
+  ASSERT_EQ(gated2.results.size(), gated.results.size());
+  for (std::size_t i = 0; i < gated.results.size(); ++i) {
+    ExpectSameEstimate(gated.results[i], gated2.results[i]);
+  }
+}
+
 // The worker thread changes nothing: estimates and map are bit-identical with threads
 // 1 and 2, and from run to run.
 TEST(CmlEngine, BitIdenticalAcrossThreadCounts) {

@@ -123,6 +123,49 @@ TEST(EnvironmentModelOptions, ValidateNamesTheField) {
   EXPECT_THROW(ForgettingModeFromString("sometimes"), Error);
 }
 
+// FindMatchesNear compares only the views with a component inside one of the discs: a
+// disc over every view gives FindMatches' result; a disc that leaves a matching view out
+// drops exactly that view.
+TEST(EnvironmentModel, FindMatchesNearComparesOnlyViewsInTheDiscs) {
+  auto fx = MakeFakeExtractor(2);
+  EnvironmentModelOptions o = TestOptions();
+  EnvironmentModel m(o, fx);
+  // Five views of nearly the same look 2 m apart along x (AddView: no matching needed).
+  for (int k = 0; k < 5; ++k) {
+    ViewComponent c;
+    c.mean = MakePose(2.0 * k, 0.0, 0.0);
+    c.covariance = Eigen::Vector3d(0.01, 0.01, 0.01).asDiagonal();
+    c.weight = 0.5;
+    c.eta = 1.0;
+    ViewStats stats;
+    stats.created_frame = k;
+    m.AddView(fx->Make({0.1f * static_cast<float>(k), 0.0f}), {c}, stats);
+  }
+  const Descriptor y = fx->Make({0.2f, 0.0f});
+  const std::vector<ViewMatch> all = m.FindMatches(y);
+  ASSERT_EQ(all.size(), 5u);
+  std::size_t candidates = 0;
+  const std::vector<ViewMatch> wide = m.FindMatchesNear(y, {{4.0, 0.0, 100.0}}, &candidates);
+  EXPECT_EQ(candidates, 5u);
+  ASSERT_EQ(wide.size(), all.size());
+  for (std::size_t i = 0; i < all.size(); ++i) {
+    EXPECT_EQ(wide[i].view_id, all[i].view_id);
+    EXPECT_EQ(wide[i].distance, all[i].distance);
+  }
+  // Discs around x = 0 and x = 8 (radius 2.5 m): views at 0, 2 and 6, 8; the one at 4 m
+  // is not compared. Overlapping discs count a view once.
+  const std::vector<ViewMatch> near =
+      m.FindMatchesNear(y, {{0.0, 0.0, 2.5}, {8.0, 0.0, 2.5}, {1.0, 0.0, 1.5}}, &candidates);
+  EXPECT_EQ(candidates, 4u);
+  ASSERT_EQ(near.size(), 4u);
+  std::vector<ViewMatch> expected;
+  for (const ViewMatch& v : all) {
+    if (v.view_id != m.views()[2].id) expected.push_back(v);
+  }
+  for (std::size_t i = 0; i < near.size(); ++i) EXPECT_EQ(near[i].view_id, expected[i].view_id);
+  EXPECT_TRUE(m.FindMatchesNear(y, {}).empty());
+}
+
 // Insertion happens exactly when every E >= e_max (boundary E == e_max inserts).
 TEST(EnvironmentModel, InsertionExactlyWhenEveryDistanceAtLeastEmax) {
   auto fx = MakeFakeExtractor(2);

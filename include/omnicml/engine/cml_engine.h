@@ -68,6 +68,34 @@
 
 namespace omnicml {
 
+// Pose-gated matching (issue 19; an engine-level addition to [G]): while p(x_t) is one
+// Gaussian (confident tracking), p(x|y) is computed from the views that have a component
+// inside the gate of the propagated prior p(x|u) only, so the exact descriptor distance
+// is computed for the views near the robot instead of for the whole map. A match outside
+// that gate could only enter the fusion as a new hypothesis at the floor weight
+// hypothesis_weight_scale; such hypotheses (kidnapping, loop closure after long drift)
+// are still found by the full search, which runs whenever p(x_t) is multimodal or
+// empty (global localization) and on every frame whose index is a multiple of
+// full_search_every_frames. The map update (Update: insertion iff no view of the whole
+// map matches) is never gated.
+struct GatedMatchingOptions {
+  bool enabled = false;
+  // Gate radius around the prior's mean: gate_sigmas x sqrt(largest eigenvalue of its xy
+  // covariance + appearance_sigma_m^2) (the spread a match's component gets in p(x|y)).
+  // Dimensionless, > 0.
+  double gate_sigmas = 4.0;
+  // Frames, >= 1: every frame index that is a multiple of this searches the whole map.
+  int full_search_every_frames = 10;
+
+  void Validate() const;  // throws omnicml::Error naming the field
+};
+template <class V>
+void VisitFields(V& v, GatedMatchingOptions& o) {
+  v("enabled", o.enabled);
+  v("gate_sigmas", o.gate_sigmas);
+  v("full_search_every_frames", o.full_search_every_frames);
+}
+
 struct CmlEngineOptions {
   // Which descriptor and its parameters (descriptor_factory.h).
   DescriptorOptions descriptor;
@@ -147,6 +175,8 @@ struct CmlEngineOptions {
   // odometry and appearance loop closures optimised under a robust loss when a loop
   // closes; the views move with the nodes that created them. Off by default.
   PoseGraphOptions pose_graph;
+  // Pose-gated matching while tracking (above). Off by default.
+  GatedMatchingOptions gated_matching;
 
   // Throws omnicml::Error naming the first invalid field (including nested options,
   // prefixed "descriptor.", "tracker.", "model.", "reconstruction.").
@@ -177,6 +207,7 @@ void VisitFields(V& v, CmlEngineOptions& o) {
   v.Section("model", o.model);
   v.Section("reconstruction", o.reconstruction);
   v.Section("pose_graph", o.pose_graph);
+  v.Section("gated_matching", o.gated_matching);
 }
 
 // Timing (microseconds, wall clock) and sizes of one ProcessFrame call.
@@ -196,6 +227,9 @@ struct FrameStats {
   int num_matches = 0;                  // views with E < e_max (after top_k)
   double best_similarity = 0.0;         // S of the best matching view, 0 without match
   int hypothesis_components = 0;        // components of p(x|y)
+  bool gated_matching = false;          // p(x|y) from the views near p(x|u) only
+  std::size_t matching_candidates = 0;  // views whose descriptor distance was computed
+                                        // (all views without the gate or the index)
   int mixture_components = 0;           // components of p(x_t)
   int updates_applied = 0;              // map updates applied before this frame's query
   int updates_queued = 0;               // updates pushed by this frame (incl. reconstructed)

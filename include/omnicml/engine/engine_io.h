@@ -52,7 +52,7 @@ namespace omnicml {
 //    pose_graph; after the model, the graph's nodes, closures, recent frame odometry and
 //    its state (pose_graph.h Write). Files of version 6 are rejected with both versions
 //    named (re-run to rebuild them).
-inline constexpr std::uint32_t kEngineFormatVersion = 7;
+inline constexpr std::uint32_t kEngineFormatVersion = 8;
 // The 8 magic bytes (including the terminating NUL).
 inline constexpr char kEngineMagic[8] = {'O', 'M', 'N', 'I', 'C', 'M', 'L', '\0'};
 

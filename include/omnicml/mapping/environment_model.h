@@ -356,6 +356,17 @@ class EnvironmentModel {
   // FindMatches by the exhaustive scan over every view, whether or not the index is
   // active: the reference the index is tested and benchmarked against. Same result.
   std::vector<ViewMatch> FindMatchesExhaustive(const Descriptor& y) const;
+  // A disc of the map's plane: centre (x, y) and radius, metres.
+  struct Disc {
+    double x_m = 0.0, y_m = 0.0, radius_m = 0.0;
+  };
+  // Pose-gated matching: FindMatches restricted to the views with a component whose
+  // mean lies strictly inside one of `discs` (spatial index); only those get the exact
+  // distance. Same order and top_k as FindMatches, so when every view with E < e_max has
+  // such a component the result equals FindMatches'. *candidates (optional): how many
+  // views were compared.
+  std::vector<ViewMatch> FindMatchesNear(const Descriptor& y, const std::vector<Disc>& discs,
+                                         std::size_t* candidates = nullptr) const;
 
   // Whether the extractor's distance is bounded below by the L2 norm of the feature
   // difference, so the candidate index may serve it (Fourier L1/L2, colour histogram
@@ -449,7 +460,9 @@ class EnvironmentModel {
 
  private:
   void CheckDescriptor(const Descriptor& y, const char* where) const;
-  std::vector<ViewMatch> Search(const Descriptor& y, int top_k, bool exhaustive = false) const;
+  // `only` (optional): compare these view indices (sorted, unique) instead of every view.
+  std::vector<ViewMatch> Search(const Descriptor& y, int top_k, bool exhaustive = false,
+                                const std::vector<std::size_t>* only = nullptr) const;
   // Builds, maintains or drops the candidate index after the views changed.
   void MaintainIndex();
   // Builds the index over every view and keeps it iff it pays (index_max_bounded_fraction).

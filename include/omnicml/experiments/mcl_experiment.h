@@ -47,9 +47,9 @@ struct MclExperimentOptions {
   std::string descriptor = "ifh";  // ifh | fourier | color
   double grid_resolution_m = 0.1;  // grid rasterised from the world
   int particles = 5000;
-  int random_samples = 50;        // injected per step
+  int random_samples = MclOptions{}.random_samples_per_step;  // injected per step ([W])
   double heading_gate_deg = 0.0;  // half width of d(psi); 0: heading independent (omni)
-  int top_k = 10;                 // retrieved references per query (0 = all)
+  int top_k = MclOptions{}.top_k;  // retrieved references per query (0 = all)
   double prior_fraction = 0.2;    // [W] eq. (8)
   double min_likelihood = MclOptions{}.min_likelihood;
   double max_distance_from_reference_m = 2.5;  // visibility areas cut-off (0 = off)

@@ -260,7 +260,7 @@ TEST(Mcl, TrackingWithoutInjectionNeverJumpsOnAnySeed) {
   for (std::uint64_t seed : {1u, 2u, 5u}) {
     const SimData d = MakeSim(seed);
     MclOptions o = SmallOptions();
-    o.adaptive_injection = true;
+    o.injection = MclInjection::kAugmented;
     o.max_injection_fraction = 0.0;  // never inject
     auto refs = d.refs;
     ComputeVisibilityAreas(d.grid, o, &refs);

@@ -67,27 +67,62 @@
 
 namespace omnicml {
 
+// When random samples are injected into the particle set (step 5).
+enum class MclInjection {
+  // [W]: random_samples_per_step uniform samples every step.
+  kEveryStep,
+  // Augmented MCL (Thrun et al., Probabilistic Robotics, Table 8.3): num_particles *
+  // max(0, 1 - w_fast / w_slow) samples, at most max_injection_fraction * num_particles.
+  kAugmented,
+  // Issue 18 (beyond [W]): only while the lost detector says the cloud is lost, i.e. the
+  // cloud's mean likelihood has been below lost_likelihood_ratio times the likelihood at
+  // the best retrieved reference for lost_after_steps consecutive steps; then
+  // lost_injection_fraction * num_particles samples per step.
+  kWhenLost,
+};
+
 struct MclOptions {
   // Number of particles (>= 10). [W] used 5000.
   int num_particles = 5000;
-  // Random samples injected per step, uniform over the free cells ([W]: 50); in
-  // [0, num_particles / 2]. Used only with adaptive_injection = false.
+  // Which injection rule; see MclInjection. Default kWhenLost (issue 18: [W]'s kEveryStep
+  // jumps to the mirror end of home_store on 4 of 5 seeds, docs/baselines_results.md).
+  MclInjection injection = MclInjection::kWhenLost;
+  // kEveryStep: random samples injected per step, uniform over the free cells ([W]: 50);
+  // in [0, num_particles / 2].
   int random_samples_per_step = 50;
-  // Augmented MCL (Thrun et al., Probabilistic Robotics, Table 8.3): inject
-  // num_particles * max(0, 1 - w_fast / w_slow) samples per step (at most
-  // max_injection_fraction * num_particles), where w_slow and w_fast are exponential
-  // averages of the mean raw particle likelihood with rates alpha_slow < alpha_fast.
-  // false (default): [W]'s fixed random_samples_per_step every step. max_injection_fraction
-  // 0 gives a filter that never injects (no jump to an aliased place, no kidnap recovery).
-  bool adaptive_injection = false;
+  // kAugmented: w_slow and w_fast are exponential averages of the mean raw particle
+  // likelihood with rates alpha_slow < alpha_fast. max_injection_fraction 0 gives a
+  // filter that never injects (no jump to an aliased place, no kidnap recovery).
   double alpha_slow = 0.05;  // in (0, 1), < alpha_fast
   double alpha_fast = 0.5;   // in (0, 1]
   double max_injection_fraction = 0.25;  // in [0, 0.5]
-  // Fraction of the injected samples drawn inside the visibility areas of the retrieved
-  // references (reference j with probability proportional to xi_j, a cell of sigma_j,
-  // uniform heading: sensor resetting, Lenser & Veloso 2000); the rest uniform over the
-  // free cells. In [0, 1]; 0 = [W]'s uniform injection.
+  // kWhenLost: the cloud is inconsistent at a step when its largest raw particle
+  // likelihood is below lost_likelihood_ratio times the likelihood of a particle at the
+  // best retrieved reference (its pose, with the heading implied by the panoramas when
+  // relative_heading); lost after lost_after_steps inconsistent steps in a row (>= 1);
+  // while lost, lost_injection_fraction * num_particles samples are injected per step.
+  // Keep the ratio above prior_fraction (a cloud outside every retrieved area gets the
+  // eq. (8) prior, ratio ~ prior_fraction).
+  double lost_likelihood_ratio = 0.3;   // in (0, 1]
+  int lost_after_steps = 3;
+  double lost_injection_fraction = 0.1;  // in (0, 0.5]
+  // Fraction of the injected samples (kAugmented, kWhenLost) drawn inside the visibility
+  // areas of the retrieved references (reference j with probability proportional to xi_j,
+  // a cell of sigma_j; heading uniform, or the heading implied by the panoramas with
+  // relative_heading: sensor resetting, Lenser & Veloso 2000); the rest uniform over the
+  // free cells. In [0, 1].
   double injection_near_retrieved_fraction = 0.8;
+  // Issue 18 (beyond [W]): relative heading from the panoramas. A Fourier signature
+  // (MakeMclHeadingExtractor) of every reference and query gives RelativeHeading(y_t, y_j),
+  // so reference j implies the robot heading phi_j + RelativeHeading(y_t, y_j). In eq. (7)
+  // a covering reference then counts xi_j only for particles whose heading is within
+  // relative_heading_half_width_rad of that implied heading (K_i still counts every
+  // covering reference). This breaks the point symmetry a rotation-invariant descriptor
+  // sees: a mirror-end reference matches at a heading offset that the particles there do
+  // not have. Needs heading descriptors on references and queries (MclFrame); without
+  // them the filter behaves as relative_heading = false.
+  bool relative_heading = true;
+  double relative_heading_half_width_rad = 30.0 * kPi / 180.0;  // in (0, pi]
   // The filter's odometry error model (a1: rad^2/rad^2, a2: rad^2/m^2, a3: m^2/m^2, a4:
   // m^2/rad^2), a little wider than the simulated worlds' noise.
   MotionNoise motion{.a1 = 0.02, .a2 = 0.005, .a3 = 0.01, .a4 = 0.002};
@@ -95,8 +130,11 @@ struct MclOptions {
   double heading_gate_half_width_rad = 5.0 * kPi / 180.0;
   // With true, d(psi) = 1 for every heading (omni views).
   bool heading_independent = true;
-  // Retrieval: the k most similar references get xi_j > 0 (0 = all references).
-  int top_k = 10;
+  // Retrieval: the k most similar references get xi_j > 0 (0 = all references). [W]:
+  // 10. Issue 18: 30, because during an aliasing episode on home_store the references at
+  // the true place rank 2-15 with xi only ~10 % below the mirror's (seed 2, steps
+  // 104-129); with 10 they drop to xi = 0 and the true cloud to the floor.
+  int top_k = 30;
   // [W] eq. (8): a particle outside every (gated) visibility area is weighted by
   // prior_fraction times the mean similarity of the retrieved references. In [0, 1].
   double prior_fraction = 0.2;
@@ -131,12 +169,20 @@ struct MclOptions {
 template <class V>
 void VisitFields(V& v, MclOptions& o) {
   v("num_particles", o.num_particles);
+  v.NamedEnum("injection", o.injection,
+              {{MclInjection::kEveryStep, "every_step"},
+               {MclInjection::kAugmented, "augmented"},
+               {MclInjection::kWhenLost, "when_lost"}});
   v("random_samples_per_step", o.random_samples_per_step);
-  v("adaptive_injection", o.adaptive_injection);
   v("alpha_slow", o.alpha_slow);
   v("alpha_fast", o.alpha_fast);
   v("max_injection_fraction", o.max_injection_fraction);
+  v("lost_likelihood_ratio", o.lost_likelihood_ratio);
+  v("lost_after_steps", o.lost_after_steps);
+  v("lost_injection_fraction", o.lost_injection_fraction);
   v("injection_near_retrieved_fraction", o.injection_near_retrieved_fraction);
+  v("relative_heading", o.relative_heading);
+  v("relative_heading_half_width_rad", o.relative_heading_half_width_rad);
   v.Section("motion", o.motion);
   v("heading_gate_half_width_rad", o.heading_gate_half_width_rad);
   v("heading_independent", o.heading_independent);
@@ -168,10 +214,17 @@ std::string MclOptionsToYaml(const MclOptions& options);
 struct MclReference {
   Pose2 map_T_robot = Pose2::Zero();
   Descriptor descriptor;
+  // Fourier signature of the same panorama (MakeMclHeadingExtractor) for the relative
+  // heading; empty features when not computed.
+  Descriptor heading_descriptor;
   double axis_rad = 0.0;            // optical axis used for sigma_j, map frame
   std::vector<int> visibility;      // sigma_j: linear cell indices, ascending
   std::optional<CellIndex> lambda;  // lambda_j, the wall point on the axis
 };
+
+// The extractor of the heading descriptors (a Fourier signature with default options):
+// the one ReadMclFrames(..., heading) and MonteCarloLocalizer use.
+std::shared_ptr<const DescriptorExtractor> MakeMclHeadingExtractor();
 
 // Computes axis_rad and sigma_j for each reference (views are modified in place).
 void ComputeVisibilityAreas(const OccupancyGrid& grid, const MclOptions& options,
@@ -197,6 +250,13 @@ struct MclStepStats {
   double effective_sample_size = 0.0;  // 1 / sum w_i^2 of the normalised weights
   int injected = 0;                    // random samples added by this step's resampling
   int injected_near_retrieved = 0;     // of those, drawn in retrieved visibility areas
+  // kWhenLost detector: max likelihood / likelihood at the best retrieved reference,
+  // the consecutive inconsistent steps, and whether the filter counted as lost.
+  double consistency_ratio = 1.0;
+  int inconsistent_steps = 0;
+  double max_likelihood = 0.0;   // largest raw particle weight
+  double best_likelihood = 0.0;  // at the best retrieved reference (kWhenLost only)
+  bool lost = false;
 };
 
 class MonteCarloLocalizer {
@@ -216,12 +276,23 @@ class MonteCarloLocalizer {
 
   // Step 1: prediction with the odometry increment.
   void Predict(const OdometryIncrement& u);
-  // Steps 2-5 for a query descriptor (of the extractor's kind). Returns the estimate of
-  // the weighted set. Throws omnicml::Error when the descriptor does not match.
-  MclEstimate Correct(const Descriptor& query);
+  // Steps 2-5 for a query descriptor (of the extractor's kind) and, with
+  // options.relative_heading, its heading descriptor (MakeMclHeadingExtractor; nullptr or
+  // empty: no heading information this step). Returns the estimate of the weighted set.
+  // Throws omnicml::Error when a descriptor does not match.
+  MclEstimate Correct(const Descriptor& query, const Descriptor* heading_query = nullptr);
 
   // [W] eqs. (7)-(8) for one pose, given xi_j for every reference (size = references).
   double Likelihood(const Pose2& map_T_robot, const std::vector<double>& xi) const;
+  // The same with implied robot headings per reference (radians, map frame; NaN =
+  // unknown, that reference not gated), see MclOptions::relative_heading.
+  double Likelihood(const Pose2& map_T_robot, const std::vector<double>& xi,
+                    const std::vector<double>& implied_heading_rad) const;
+  // Implied robot heading phi_j + RelativeHeading(y_t, y_j) for every reference with
+  // xi_j > 0 and a heading descriptor; NaN for the others (and all NaN without
+  // relative_heading or heading_query).
+  std::vector<double> ImpliedHeadings(const std::vector<double>& xi,
+                                      const Descriptor* heading_query) const;
   // Retrieval similarities xi_j of a query (step 2).
   std::vector<double> Similarities(const Descriptor& query) const;
   // Estimate of a weighted particle set (weights need not be normalised).
@@ -242,15 +313,18 @@ class MonteCarloLocalizer {
  private:
   Pose2 RandomFreePose();
   // A pose in the visibility area of a reference drawn with probability proportional to
-  // xi (uniform heading); RandomFreePose() when no retrieved reference has an area.
-  Pose2 RandomPoseNearRetrieved(const std::vector<double>& xi);
-  // Number of samples to inject this step (fixed or Augmented MCL).
-  int InjectionCount(double mean_likelihood);
+  // xi (heading uniform, or the implied heading plus noise when known);
+  // RandomFreePose() when no retrieved reference has an area.
+  Pose2 RandomPoseNearRetrieved(const std::vector<double>& xi,
+                                const std::vector<double>& implied_heading_rad);
+  // Number of samples to inject this step (MclInjection); updates the detector state.
+  int InjectionCount(double mean_likelihood, double max_likelihood, double best_likelihood);
 
   MclOptions options_;
   OccupancyGrid grid_;
   std::vector<MclReference> references_;
   std::shared_ptr<const DescriptorExtractor> extractor_;
+  std::shared_ptr<const DescriptorExtractor> heading_extractor_;  // relative_heading only
   std::vector<int> free_cells_;
   // Per cell, the references whose sigma_j contains it (CSR).
   std::vector<int> cell_start_;
@@ -261,6 +335,9 @@ class MonteCarloLocalizer {
   bool have_averages_ = false;
   double w_slow_ = 0.0;
   double w_fast_ = 0.0;
+  // kWhenLost detector state; reset by Initialize*.
+  int inconsistent_steps_ = 0;
+  double last_ratio_ = 1.0;
   MclStepStats last_step_;
 };
 
@@ -280,13 +357,17 @@ struct MclFrame {
   Pose2 odom_T_robot = Pose2::Zero();
   std::optional<Pose2> truth;
   Descriptor descriptor;
+  Descriptor heading_descriptor;  // MakeMclHeadingExtractor's; empty when not computed
 };
 
 // Reads every stride-th frame of the given sessions (0-based; empty = all) from a source
-// and computes their descriptors. Only panorama sessions are supported (ImageKind::
-// kPanorama): throws omnicml::Error naming the session for a raw ring session.
+// and computes their descriptors (and, with heading_extractor, their heading
+// descriptors). Raw ring sessions (ImageKind::kRawRing) are unwrapped first with their
+// session's calibration (OmniUnwrapper; the panorama size of the calibration). Throws
+// omnicml::Error naming the session when its calibration is invalid.
 std::vector<MclFrame> ReadMclFrames(FrameSource& source, const DescriptorExtractor& extractor,
-                                    const std::vector<int>& sessions, int stride = 1);
+                                    const std::vector<int>& sessions, int stride = 1,
+                                    const DescriptorExtractor* heading_extractor = nullptr);
 
 // References from frames with ground truth (those without are skipped).
 std::vector<MclReference> MakeReferences(const std::vector<MclFrame>& frames);

@@ -52,7 +52,8 @@ struct MclExperimentOptions {
   int top_k = MclOptions{}.top_k;  // retrieved references per query (0 = all)
   double prior_fraction = 0.2;    // [W] eq. (8)
   double min_likelihood = MclOptions{}.min_likelihood;
-  double max_distance_from_reference_m = 2.5;  // visibility areas cut-off (0 = off)
+  // visibility areas cut-off (0 = off)
+  double max_distance_from_reference_m = MclOptions{}.visibility.max_distance_from_reference_m;
   bool global = false;                         // single run: uniform start
   std::uint64_t mcl_seed = 1;                  // filter seed
   std::string out_dir;                         // single run: run directory ("" = none)

@@ -144,11 +144,14 @@ struct MclOptions {
   double axis_offset_rad = 0.0;
   // Visibility areas of the references. The ray and distance limits are generous: in an
   // aisle the wall on an omni view's axis may be 20 m away, and the area is kept near
-  // the reference by max_distance_from_reference_m instead.
+  // the reference by max_distance_from_reference_m instead. That cut-off was 2.5 m until
+  // issue 18; 0.75 m (about two reference spacings on home_store) bounds the tracking
+  // error: home_store seeds 1-5, max position error worst 1.9 m with 2.5 m, 1.2 m with
+  // 1.0 m, 0.79 m with 0.75 m (docs/baselines_results.md).
   VisibilityOptions visibility{.max_ray_range_m = 50.0,
                                .max_distance_m = 50.0,
                                .max_view_angle_rad = kPi / 4,
-                               .max_distance_from_reference_m = 2.5};
+                               .max_distance_from_reference_m = 0.75};
   // Best cluster: particles are binned on a grid of this cell size (metres, > 0); the
   // 3 x 3 window of bins with the largest weight is the cluster seed.
   double cluster_cell_m = 0.5;

@@ -182,8 +182,8 @@ int MonteCarloLocalizer::InjectionCount(double mean_likelihood, double max_likel
     // worse than a particle at the best retrieved reference would; lost after
     // lost_after_steps of those in a row. The best particle, not the mean: during an
     // aliasing episode the true place's references still rank within top_k, so some
-    // particles keep eq. (7) support (ratio >= 0.4 on home_store seed 2), whereas a
-    // kidnapped cloud falls to the eq. (8) prior (ratio ~ prior_fraction).
+    // particles keep eq. (7) support (mcl.h: ratio >= 0.26 on home_store seeds 1-5),
+    // whereas a kidnapped cloud falls to the eq. (8) prior (ratio ~ prior_fraction).
     last_ratio_ = best_likelihood > 0 ? max_likelihood / best_likelihood : 1.0;
     inconsistent_steps_ =
         last_ratio_ < options_.lost_likelihood_ratio ? inconsistent_steps_ + 1 : 0;

@@ -21,23 +21,31 @@
 //      rotation-invariant descriptor). prior = prior_fraction * mean of the non-zero xi_j.
 //      A particle in a non-free cell gets weight 0; every weight is at least
 //      min_likelihood (so the set never degenerates to all zeros).
+//      Issue 18 (beyond [W], relative_heading, default): the panoramas' relative heading
+//      (Fourier signature) gives the robot heading each retrieved reference implies,
+//      phi_j + RelativeHeading(y_t, y_j); in (7) xi_j counts only for particles within
+//      relative_heading_half_width_rad of it (K_i unchanged).
 //   4. Estimate (from the weighted set): the sample mean (circular mean for phi) and the
 //      best cluster (see MclEstimate).
 //   5. Low-variance resampling (Thrun et al., Probabilistic Robotics, Table 4.4) to
-//      num_particles - m particles, plus m injected samples with uniform heading ([W]'s
-//      random sample injection, which lets the filter recover from kidnapping). [W]
-//      injects m = random_samples_per_step uniformly over the free cells every step (the
-//      default); adaptive_injection switches to Augmented MCL (Probabilistic Robotics,
-//      Table 8.3): m = num_particles * max(0, 1 - w_fast / w_slow), capped, a share of
-//      them in the visibility areas of the retrieved references (sensor resetting).
-//      Issue 18, measured on home_store: known-start tracking jumps 20-24 m to the mirror
-//      end of the point-symmetric store when retrieval aliases for 10-25 frames in a row
-//      (all top_k references at the mirror end, the true cell's likelihood at the floor);
-//      injected samples at the mirror multiply about 2x per step and take the cluster.
-//      Without injection the filter does not jump (max error 1.4-1.7 m, seeds 1-5), but
-//      the likelihood drop of such an episode is as deep and as long as after a
-//      kidnapping, so Augmented MCL injects during it too and jumps as well: no
-//      injection rule from the likelihood alone separates the two (still open).
+//      num_particles - m particles, plus m injected samples (MclInjection). [W] injects
+//      m = random_samples_per_step uniformly over the free cells every step (kEveryStep),
+//      which lets the filter recover from kidnapping; kAugmented is Augmented MCL
+//      (Probabilistic Robotics, Table 8.3); kWhenLost (default, issue 18) injects only
+//      while a lost detector fires, a share of the samples in the visibility areas of the
+//      retrieved references with their implied heading (sensor resetting).
+//      Issue 18, measured on home_store (docs/baselines_results.md): with kEveryStep and
+//      top_k 10, known-start tracking jumps 20-24 m to the mirror end of the store when
+//      retrieval aliases for 10-25 frames in a row (the true place's references drop to
+//      ranks 2-15, so xi = 0 there and the true cloud sits at the floor; injected
+//      samples at the mirror multiply ~2x per step). Augmented MCL jumps as well: the
+//      mean likelihood drops as deep as after a kidnapping. What separates the two is
+//      whether any particle still has eq. (7) support: with top_k 30 the true place's
+//      references stay retrieved (xi ~10 % below the mirror's), so the best particle
+//      keeps a good part of the likelihood at the best retrieved reference (tracking run
+//      0, seeds 1-5: minimum ratio 0.89 / 0.82 / 0.52 / 0.26 / 0.85, never two steps
+//      below 0.3 in a row), whereas a kidnapped cloud falls to the eq. (8) prior (ratio
+//      ~ prior_fraction). kWhenLost uses that ratio, with lost_after_steps of hysteresis.
 //
 // Visibility areas (occupancy_grid.h VisibilityArea): [W]'s camera had one optical axis;
 // an omni view has none. We use the reference's heading plus axis_offset_rad as its

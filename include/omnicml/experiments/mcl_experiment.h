@@ -1,7 +1,7 @@
 // The experiments of baseline [W] (`omnicml mcl`): Monte Carlo localization with image
 // retrieval gated by visibility areas (baselines/mcl/mcl.h) over a simulated world or a
-// panorama log. References are every ref_every-th frame of train_day (with ground
-// truth); the queries are every frame of test_day (days 1-based).
+// log (panorama or raw ring sessions). References are every ref_every-th frame of
+// train_day (with ground truth); the queries are every frame of test_day (days 1-based).
 //
 //   single run (experiment ""): one filter over the test day; the summary text and,
 //       with out_dir, the run directory of WriteMclRunDirectory.
@@ -32,7 +32,7 @@
 namespace omnicml {
 
 struct MclExperimentOptions {
-  std::vector<std::string> log_dirs;  // panorama logs with ground truth (instead of world)
+  std::vector<std::string> log_dirs;  // logs with ground truth, panorama or raw ring (instead of world)
   std::string map_yaml;               // occupancy grid (map_server); required with log_dirs
   std::string world = "home_store";   // built-in world or world YAML
   int days = 2;                       // simulated days, >= max(train_day, test_day)

@@ -32,7 +32,7 @@
 namespace omnicml {
 
 struct MclExperimentOptions {
-  std::vector<std::string> log_dirs;  // logs with ground truth, panorama or raw ring (instead of world)
+  std::vector<std::string> log_dirs;  // logs with ground truth, panorama or raw ring
   std::string map_yaml;               // occupancy grid (map_server); required with log_dirs
   std::string world = "home_store";   // built-in world or world YAML
   int days = 2;                       // simulated days, >= max(train_day, test_day)

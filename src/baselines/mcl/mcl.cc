@@ -6,9 +6,9 @@
 #include <limits>
 #include <numeric>
 
+#include "omnicml/common/common.h"
 #include "omnicml/common/options.h"
 #include "omnicml/logs/antworld.h"
-#include "omnicml/common/common.h"
 #include "omnicml/unwrap/omni_unwrapper.h"
 
 namespace omnicml {
@@ -39,7 +39,9 @@ void MclOptions::Validate() const {
   if (!(lost_likelihood_ratio > 0 && lost_likelihood_ratio <= 1)) {
     fail("lost_likelihood_ratio", "must be in (0, 1]");
   }
-  if (lost_after_steps < 1) fail("lost_after_steps", StrCat("must be >= 1, got ", lost_after_steps));
+  if (lost_after_steps < 1) {
+    fail("lost_after_steps", StrCat("must be >= 1, got ", lost_after_steps));
+  }
   if (!(lost_injection_fraction > 0 && lost_injection_fraction <= 0.5)) {
     fail("lost_injection_fraction", "must be in (0, 0.5]");
   }
@@ -188,8 +190,7 @@ int MonteCarloLocalizer::InjectionCount(double mean_likelihood, double max_likel
     inconsistent_steps_ =
         last_ratio_ < options_.lost_likelihood_ratio ? inconsistent_steps_ + 1 : 0;
     if (inconsistent_steps_ < options_.lost_after_steps) return 0;
-    return static_cast<int>(
-        std::lround(options_.lost_injection_fraction * options_.num_particles));
+    return static_cast<int>(std::lround(options_.lost_injection_fraction * options_.num_particles));
   }
   // Probabilistic Robotics, Table 8.3, lines 9-10 (averages start at the first value).
   if (!have_averages_) {
@@ -514,12 +515,11 @@ std::vector<MclFrame> ReadMclFrames(FrameSource& source, const DescriptorExtract
       // One unwrapper per session (its calibration and ring size).
       if (unwrapper_session != frame.session_index) {
         try {
-          unwrapper = std::make_unique<OmniUnwrapper>(info.camera.calibration,
-                                                      info.camera.image_width,
-                                                      info.camera.image_height);
+          unwrapper = std::make_unique<OmniUnwrapper>(
+              info.camera.calibration, info.camera.image_width, info.camera.image_height);
         } catch (const Error& e) {
-          throw Error(StrCat("mcl: session ", info.name, ": cannot unwrap its ring images: ",
-                             e.what()));
+          throw Error(
+              StrCat("mcl: session ", info.name, ": cannot unwrap its ring images: ", e.what()));
         }
         unwrapper_session = frame.session_index;
       }

@@ -350,7 +350,8 @@ SimData MakeSim(std::uint64_t seed) {
   dopt.kind = DescriptorKind::kInvariantFeatureHistogram;
   d.extractor = MakeDescriptorExtractor(dopt);
   SimulatedFrameSource source(so, world);
-  const auto frames = ReadMclFrames(source, *d.extractor, {0, 1}, 1, MakeMclHeadingExtractor().get());
+  const auto frames =
+      ReadMclFrames(source, *d.extractor, {0, 1}, 1, MakeMclHeadingExtractor().get());
   std::vector<MclFrame> train;
   for (const auto& f : frames) {
     if (f.session == 0 && f.index % 2 == 0) train.push_back(f);
@@ -470,25 +471,25 @@ TEST(Mcl, TrackingWithoutInjectionNeverJumpsOnAnySeed) {
 // bounded number of steps: [W]'s steady injection and the default injection when lost.
 TEST(Mcl, RecoversFromKidnapping) {
   for (const MclInjection injection : {MclInjection::kEveryStep, MclInjection::kWhenLost}) {
-  const SimData& d = Sim();
-  MclOptions o = SmallOptions();
-  o.num_particles = 2000;
-  o.random_samples_per_step = 50;
-  o.injection = injection;
-  auto refs = d.refs;
-  ComputeVisibilityAreas(d.grid, o, &refs);
-  MonteCarloLocalizer mcl(o, d.grid, refs, d.extractor);
-  MclRunSpec spec;
-  spec.kidnap_step = 20;
-  spec.kidnap_to_frame = 90;
-  const auto rec = RunMcl(mcl, d.test, spec);
-  ASSERT_GT(rec.size(), 40u);
-  EXPECT_TRUE(rec[21].kidnapped);
-  EXPECT_GT(rec[21].position_error_m, 2.0);  // it really was lost
-  const int steps = StepsToConverge(rec, 21, 1.0, 35 * kPi / 180, 3);
-  RecordProperty(StrCat("steps_to_recover_", static_cast<int>(injection)), std::to_string(steps));
-  EXPECT_GE(steps, 0);
-  EXPECT_LE(steps, 40);
+    const SimData& d = Sim();
+    MclOptions o = SmallOptions();
+    o.num_particles = 2000;
+    o.random_samples_per_step = 50;
+    o.injection = injection;
+    auto refs = d.refs;
+    ComputeVisibilityAreas(d.grid, o, &refs);
+    MonteCarloLocalizer mcl(o, d.grid, refs, d.extractor);
+    MclRunSpec spec;
+    spec.kidnap_step = 20;
+    spec.kidnap_to_frame = 90;
+    const auto rec = RunMcl(mcl, d.test, spec);
+    ASSERT_GT(rec.size(), 40u);
+    EXPECT_TRUE(rec[21].kidnapped);
+    EXPECT_GT(rec[21].position_error_m, 2.0);  // it really was lost
+    const int steps = StepsToConverge(rec, 21, 1.0, 35 * kPi / 180, 3);
+    RecordProperty(StrCat("steps_to_recover_", static_cast<int>(injection)), std::to_string(steps));
+    EXPECT_GE(steps, 0);
+    EXPECT_LE(steps, 40);
   }
 }
 

@@ -111,7 +111,7 @@ struct MclOptions {
   // while lost, lost_injection_fraction * num_particles samples are injected per step.
   // Keep the ratio above prior_fraction (a cloud outside every retrieved area gets the
   // eq. (8) prior, ratio ~ prior_fraction).
-  double lost_likelihood_ratio = 0.3;   // in (0, 1]
+  double lost_likelihood_ratio = 0.3;  // in (0, 1]
   int lost_after_steps = 3;
   double lost_injection_fraction = 0.1;  // in (0, 0.5]
   // Fraction of the injected samples (kAugmented, kWhenLost) drawn inside the visibility

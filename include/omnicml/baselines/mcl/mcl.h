@@ -93,7 +93,8 @@ struct MclOptions {
   // Number of particles (>= 10). [W] used 5000.
   int num_particles = 5000;
   // Which injection rule; see MclInjection. Default kWhenLost (issue 18: [W]'s kEveryStep
-  // jumps to the mirror end of home_store on 4 of 5 seeds, docs/baselines_results.md).
+  // jumps to the mirror end of home_store on 3 of 5 seeds and 5-7 m on the other two,
+  // docs/baselines_results.md).
   MclInjection injection = MclInjection::kWhenLost;
   // kEveryStep: random samples injected per step, uniform over the free cells ([W]: 50);
   // in [0, num_particles / 2].

@@ -1,12 +1,13 @@
 // `omnicml mcl`: baseline [W], Monte Carlo localization with image retrieval and
-// visibility areas (experiments/mcl_experiment.h), over a simulated world or a panorama
-// log.
+// visibility areas (experiments/mcl_experiment.h), over a simulated world or a log
+// (panorama or raw ring sessions).
 //
 //   omnicml mcl --world home_store --days 2 --frames-per-day 300 --seed 1 --out RUNDIR
 //       references: every --ref-every-th frame of --train-day (with ground truth);
 //       queries: every frame of --test-day; writes the run directory (frames.csv,
 //       days.csv, config.yaml, report.html, summary.txt, map.yaml + map.pgm).
-//   omnicml mcl LOGDIR --map map.yaml ...   (panorama sessions with ground truth)
+//   omnicml mcl LOGDIR --map map.yaml ...   (sessions with ground truth; raw rings are
+//       unwrapped with the session's calibration)
 //   omnicml mcl --world home_store --experiment tracking|global|kidnap|noise --runs 20
 //       prints the [W] experiment tables (see README "Baselines").
 //   --config RUNDIR/config.yaml   the filter's options of an earlier run (MclOptions).
@@ -61,7 +62,9 @@ const CommandRegistration kRegistration{
       auto config = std::make_shared<std::string>();
       CLI::App* cmd = app.add_subcommand(
           "mcl", "Monte Carlo localization with image retrieval and visibility areas [W]");
-      cmd->add_option("logdirs", a->log_dirs, "Panorama log directories (instead of --world)");
+      cmd->add_option("logdirs", a->log_dirs,
+                      "Log directories, panorama or raw ring (unwrapped with the session's "
+                      "calibration), instead of --world");
       cmd->add_option("--map", a->map_yaml,
                       "Occupancy grid in map_server format (YAML + PGM); default: rasterised "
                       "from the world");

@@ -59,6 +59,9 @@ MclPrepared PrepareMcl(const MclExperimentOptions& a) {
   if (a.train_day < 1 || a.test_day < 1) throw Error("mcl: --train-day and --test-day are 1-based");
   const std::vector<int> sessions = {a.train_day - 1, a.test_day - 1};
   std::vector<MclFrame> frames;
+  // Heading descriptors only when the filter uses them (MclOptions::relative_heading).
+  const std::shared_ptr<const DescriptorExtractor> heading =
+      p.options.relative_heading ? MakeMclHeadingExtractor() : nullptr;
   if (!a.log_dirs.empty()) {
     if (a.map_yaml.empty()) throw Error("mcl: a LOGDIR input needs --map map.yaml (map_server)");
     p.grid = LoadOccupancyGrid(a.map_yaml);
@@ -66,7 +69,7 @@ MclPrepared PrepareMcl(const MclExperimentOptions& a) {
     if (std::max(a.train_day, a.test_day) > reader.NumSessions()) {
       throw Error(StrCat("mcl: the log has ", reader.NumSessions(), " session(s)"));
     }
-    frames = ReadMclFrames(reader, *p.extractor, sessions);
+    frames = ReadMclFrames(reader, *p.extractor, sessions, 1, heading.get());
     p.input = StrCat("log ", a.log_dirs.front(), " map ", a.map_yaml);
   } else {
     if (std::max(a.train_day, a.test_day) > a.days) {
@@ -88,7 +91,7 @@ MclPrepared PrepareMcl(const MclExperimentOptions& a) {
     so.people = a.people;
     so.Validate();
     SimulatedFrameSource source(so, world);
-    frames = ReadMclFrames(source, *p.extractor, sessions);
+    frames = ReadMclFrames(source, *p.extractor, sessions, 1, heading.get());
     p.grid = a.map_yaml.empty()
                  ? MakeOccupancyGrid(world, StateAtDayStart(world, a.test_day, a.seed),
                                      {.resolution_m = a.grid_resolution_m})

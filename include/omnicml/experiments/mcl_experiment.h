@@ -1,7 +1,7 @@
 // The experiments of baseline [W] (`omnicml mcl`): Monte Carlo localization with image
 // retrieval gated by visibility areas (baselines/mcl/mcl.h) over a simulated world or a
-// panorama log. References are every ref_every-th frame of train_day (with ground
-// truth); the queries are every frame of test_day (days 1-based).
+// log (panorama or raw ring sessions). References are every ref_every-th frame of
+// train_day (with ground truth); the queries are every frame of test_day (days 1-based).
 //
 //   single run (experiment ""): one filter over the test day; the summary text and,
 //       with out_dir, the run directory of WriteMclRunDirectory.
@@ -32,7 +32,7 @@
 namespace omnicml {
 
 struct MclExperimentOptions {
-  std::vector<std::string> log_dirs;  // panorama logs with ground truth (instead of world)
+  std::vector<std::string> log_dirs;  // logs with ground truth, panorama or raw ring
   std::string map_yaml;               // occupancy grid (map_server); required with log_dirs
   std::string world = "home_store";   // built-in world or world YAML
   int days = 2;                       // simulated days, >= max(train_day, test_day)
@@ -47,12 +47,13 @@ struct MclExperimentOptions {
   std::string descriptor = "ifh";  // ifh | fourier | color
   double grid_resolution_m = 0.1;  // grid rasterised from the world
   int particles = 5000;
-  int random_samples = 50;        // injected per step
+  int random_samples = MclOptions{}.random_samples_per_step;  // injected per step ([W])
   double heading_gate_deg = 0.0;  // half width of d(psi); 0: heading independent (omni)
-  int top_k = 10;                 // retrieved references per query (0 = all)
+  int top_k = MclOptions{}.top_k;  // retrieved references per query (0 = all)
   double prior_fraction = 0.2;    // [W] eq. (8)
   double min_likelihood = MclOptions{}.min_likelihood;
-  double max_distance_from_reference_m = 2.5;  // visibility areas cut-off (0 = off)
+  // visibility areas cut-off (0 = off)
+  double max_distance_from_reference_m = MclOptions{}.visibility.max_distance_from_reference_m;
   bool global = false;                         // single run: uniform start
   std::uint64_t mcl_seed = 1;                  // filter seed
   std::string out_dir;                         // single run: run directory ("" = none)

@@ -3,16 +3,20 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <limits>
 #include <numeric>
 
+#include "omnicml/common/common.h"
 #include "omnicml/common/options.h"
 #include "omnicml/logs/antworld.h"
-#include "omnicml/common/common.h"
+#include "omnicml/unwrap/omni_unwrapper.h"
 
 namespace omnicml {
 namespace {
 
 bool FiniteNonNeg(double v) { return std::isfinite(v) && v >= 0; }
+
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
 }  // namespace
 
@@ -31,6 +35,18 @@ void MclOptions::Validate() const {
   }
   if (!(max_injection_fraction >= 0 && max_injection_fraction <= 0.5)) {
     fail("max_injection_fraction", "must be in [0, 0.5]");
+  }
+  if (!(lost_likelihood_ratio > 0 && lost_likelihood_ratio <= 1)) {
+    fail("lost_likelihood_ratio", "must be in (0, 1]");
+  }
+  if (lost_after_steps < 1) {
+    fail("lost_after_steps", StrCat("must be >= 1, got ", lost_after_steps));
+  }
+  if (!(lost_injection_fraction > 0 && lost_injection_fraction <= 0.5)) {
+    fail("lost_injection_fraction", "must be in (0, 0.5]");
+  }
+  if (!(relative_heading_half_width_rad > 0 && relative_heading_half_width_rad <= kPi)) {
+    fail("relative_heading_half_width_rad", "must be in (0, pi]");
   }
   if (!(injection_near_retrieved_fraction >= 0 && injection_near_retrieved_fraction <= 1)) {
     fail("injection_near_retrieved_fraction", "must be in [0, 1]");
@@ -62,6 +78,12 @@ void MclOptions::Validate() const {
   if (!FiniteNonNeg(init_sigma_phi_rad)) fail("init_sigma_phi_rad", "must be >= 0");
 }
 
+std::shared_ptr<const DescriptorExtractor> MakeMclHeadingExtractor() {
+  DescriptorOptions o;
+  o.kind = DescriptorKind::kFourier;
+  return MakeDescriptorExtractor(o);
+}
+
 void ComputeVisibilityAreas(const OccupancyGrid& grid, const MclOptions& options,
                             std::vector<MclReference>* references) {
   for (MclReference& r : *references) {
@@ -87,6 +109,7 @@ MonteCarloLocalizer::MonteCarloLocalizer(const MclOptions& options, OccupancyGri
   options_.Validate();
   if (!extractor_) throw Error("mcl: no descriptor extractor");
   if (references_.empty()) throw Error("mcl: no reference views");
+  if (options_.relative_heading) heading_extractor_ = MakeMclHeadingExtractor();
   for (const auto& r : references_) {
     if (r.descriptor.kind != extractor_->kind()) {
       throw Error(StrCat("mcl: reference descriptor of kind ", ToString(r.descriptor.kind),
@@ -122,7 +145,8 @@ Pose2 MonteCarloLocalizer::RandomFreePose() {
   return MakePose(p.x(), p.y(), (2.0 * u01(rng_) - 1.0) * kPi);
 }
 
-Pose2 MonteCarloLocalizer::RandomPoseNearRetrieved(const std::vector<double>& xi) {
+Pose2 MonteCarloLocalizer::RandomPoseNearRetrieved(const std::vector<double>& xi,
+                                                   const std::vector<double>& implied) {
   double total = 0;
   for (std::size_t j = 0; j < xi.size(); ++j) {
     if (!references_[j].visibility.empty()) total += xi[j];
@@ -144,11 +168,30 @@ Pose2 MonteCarloLocalizer::RandomPoseNearRetrieved(const std::vector<double>& xi
   const double res = grid_.resolution_m();
   const Eigen::Vector2d p =
       grid_.origin_m() + Eigen::Vector2d((c.x + u01(rng_)) * res, (c.y + u01(rng_)) * res);
-  return MakePose(p.x(), p.y(), (2.0 * u01(rng_) - 1.0) * kPi);
+  double phi = (2.0 * u01(rng_) - 1.0) * kPi;
+  if (j < implied.size() && std::isfinite(implied[j])) {
+    // Within the gate of the heading this reference implies.
+    phi = WrapAngle(implied[j] + phi / kPi * options_.relative_heading_half_width_rad);
+  }
+  return MakePose(p.x(), p.y(), phi);
 }
 
-int MonteCarloLocalizer::InjectionCount(double mean_likelihood) {
-  if (!options_.adaptive_injection) return options_.random_samples_per_step;
+int MonteCarloLocalizer::InjectionCount(double mean_likelihood, double max_likelihood,
+                                        double best_likelihood) {
+  if (options_.injection == MclInjection::kEveryStep) return options_.random_samples_per_step;
+  if (options_.injection == MclInjection::kWhenLost) {
+    // Issue 18: inconsistent = even the cloud's best particle explains the query much
+    // worse than a particle at the best retrieved reference would; lost after
+    // lost_after_steps of those in a row. The best particle, not the mean: during an
+    // aliasing episode the true place's references still rank within top_k, so some
+    // particles keep eq. (7) support (mcl.h: ratio >= 0.26 on home_store seeds 1-5),
+    // whereas a kidnapped cloud falls to the eq. (8) prior (ratio ~ prior_fraction).
+    last_ratio_ = best_likelihood > 0 ? max_likelihood / best_likelihood : 1.0;
+    inconsistent_steps_ =
+        last_ratio_ < options_.lost_likelihood_ratio ? inconsistent_steps_ + 1 : 0;
+    if (inconsistent_steps_ < options_.lost_after_steps) return 0;
+    return static_cast<int>(std::lround(options_.lost_injection_fraction * options_.num_particles));
+  }
   // Probabilistic Robotics, Table 8.3, lines 9-10 (averages start at the first value).
   if (!have_averages_) {
     w_slow_ = w_fast_ = mean_likelihood;
@@ -164,6 +207,7 @@ int MonteCarloLocalizer::InjectionCount(double mean_likelihood) {
 
 void MonteCarloLocalizer::InitializeGlobal() {
   have_averages_ = false;
+  inconsistent_steps_ = 0;
   particles_.assign(options_.num_particles, Particle{});
   const double w = 1.0 / options_.num_particles;
   for (Particle& p : particles_) {
@@ -174,6 +218,7 @@ void MonteCarloLocalizer::InitializeGlobal() {
 
 void MonteCarloLocalizer::InitializeAt(const Pose2& pose) {
   have_averages_ = false;
+  inconsistent_steps_ = 0;
   particles_.assign(options_.num_particles, Particle{});
   std::normal_distribution<double> n01(0.0, 1.0);
   const double w = 1.0 / options_.num_particles;
@@ -220,7 +265,32 @@ std::vector<double> MonteCarloLocalizer::Similarities(const Descriptor& query) c
 }
 
 double MonteCarloLocalizer::Likelihood(const Pose2& pose, const std::vector<double>& xi) const {
+  return Likelihood(pose, xi, {});
+}
+
+std::vector<double> MonteCarloLocalizer::ImpliedHeadings(const std::vector<double>& xi,
+                                                         const Descriptor* heading_query) const {
+  std::vector<double> out(references_.size(), kNaN);
+  if (!heading_extractor_ || heading_query == nullptr || heading_query->features.empty()) {
+    return out;
+  }
+  if (heading_query->kind != heading_extractor_->kind()) {
+    throw Error(StrCat("mcl: heading descriptor of kind ", ToString(heading_query->kind),
+                       ", expected ", ToString(heading_extractor_->kind())));
+  }
+  for (std::size_t j = 0; j < references_.size(); ++j) {
+    const Descriptor& h = references_[j].heading_descriptor;
+    if (!(xi[j] > 0) || h.features.empty()) continue;
+    const std::optional<double> rel = heading_extractor_->RelativeHeading(*heading_query, h);
+    if (rel) out[j] = WrapAngle(references_[j].map_T_robot.z() + *rel);
+  }
+  return out;
+}
+
+double MonteCarloLocalizer::Likelihood(const Pose2& pose, const std::vector<double>& xi,
+                                       const std::vector<double>& implied) const {
   OMNICML_CHECK(xi.size() == references_.size());
+  OMNICML_CHECK(implied.empty() || implied.size() == references_.size());
   const CellIndex c = grid_.CellOf(pose.head<2>());
   if (!grid_.IsFree(c)) return 0.0;
   const int cell = grid_.Linear(c);
@@ -233,7 +303,12 @@ double MonteCarloLocalizer::Likelihood(const Pose2& pose, const std::vector<doub
       d = std::abs(psi) <= options_.heading_gate_half_width_rad ? 1.0 : 0.0;
     }
     k += d;
-    sum += xi[j] * d;
+    double gate = 1.0;  // issue 18: the heading the panoramas imply for reference j
+    if (!implied.empty() && std::isfinite(implied[j]) &&
+        std::abs(WrapAngle(pose.z() - implied[j])) > options_.relative_heading_half_width_rad) {
+      gate = 0.0;
+    }
+    sum += xi[j] * d * gate;
   }
   if (k > 0) return sum / k;  // [W] eq. (7)
   // [W] eq. (8): outside every visibility area the prior applies.
@@ -332,13 +407,26 @@ MclEstimate MonteCarloLocalizer::Estimate(const std::vector<Particle>& particles
   return est;
 }
 
-MclEstimate MonteCarloLocalizer::Correct(const Descriptor& query) {
+MclEstimate MonteCarloLocalizer::Correct(const Descriptor& query, const Descriptor* heading_query) {
   OMNICML_CHECK(!particles_.empty()) << "Correct before Initialize";
   const std::vector<double> xi = Similarities(query);
-  double sum = 0;
+  const std::vector<double> implied = ImpliedHeadings(xi, heading_query);
+  double sum = 0, max_likelihood = 0;
   for (Particle& p : particles_) {
-    p.weight = std::max(Likelihood(p.pose, xi), options_.min_likelihood);
+    p.weight = std::max(Likelihood(p.pose, xi, implied), options_.min_likelihood);
     sum += p.weight;
+    max_likelihood = std::max(max_likelihood, p.weight);
+  }
+  // The likelihood of a particle at the best retrieved reference (its position, the
+  // heading the panoramas imply or its own): what a consistent cloud would explain.
+  double best_likelihood = 0;
+  if (options_.injection == MclInjection::kWhenLost) {
+    for (std::size_t j = 0; j < xi.size(); ++j) {
+      if (!(xi[j] > 0)) continue;
+      Pose2 at = references_[j].map_T_robot;
+      if (std::isfinite(implied[j])) at.z() = implied[j];
+      best_likelihood = std::max(best_likelihood, Likelihood(at, xi, implied));
+    }
   }
   const double mean_likelihood = sum / static_cast<double>(particles_.size());
   double sum_sq = 0;
@@ -347,7 +435,7 @@ MclEstimate MonteCarloLocalizer::Correct(const Descriptor& query) {
     sum_sq += p.weight * p.weight;
   }
   const MclEstimate est = Estimate(particles_);
-  const int inject = InjectionCount(mean_likelihood);
+  const int inject = InjectionCount(mean_likelihood, max_likelihood, best_likelihood);
   std::vector<Particle> next =
       LowVarianceResample(particles_, options_.num_particles - inject, rng_);
   // [W]'s random sample injection, a share of it near the retrieved references.
@@ -355,14 +443,20 @@ MclEstimate MonteCarloLocalizer::Correct(const Descriptor& query) {
   const int near = static_cast<int>(
       std::lround(options_.injection_near_retrieved_fraction * static_cast<double>(inject)));
   for (int i = 0; i < inject; ++i) {
-    next.push_back({i < near ? RandomPoseNearRetrieved(xi) : RandomFreePose(), 0.0});
+    next.push_back({i < near ? RandomPoseNearRetrieved(xi, implied) : RandomFreePose(), 0.0});
   }
   last_step_ = MclStepStats{.mean_likelihood = mean_likelihood,
                             .w_slow = w_slow_,
                             .w_fast = w_fast_,
                             .effective_sample_size = 1.0 / sum_sq,
                             .injected = inject,
-                            .injected_near_retrieved = near};
+                            .injected_near_retrieved = near,
+                            .consistency_ratio = last_ratio_,
+                            .inconsistent_steps = inconsistent_steps_,
+                            .max_likelihood = max_likelihood,
+                            .best_likelihood = best_likelihood,
+                            .lost = options_.injection == MclInjection::kWhenLost &&
+                                    inconsistent_steps_ >= options_.lost_after_steps};
   const double w = 1.0 / options_.num_particles;
   for (Particle& p : next) p.weight = w;
   particles_ = std::move(next);
@@ -400,22 +494,36 @@ std::vector<Particle> LowVarianceResample(const std::vector<Particle>& particles
 // ----------------------------------------------------------------------------- sequences
 
 std::vector<MclFrame> ReadMclFrames(FrameSource& source, const DescriptorExtractor& extractor,
-                                    const std::vector<int>& sessions, int stride) {
+                                    const std::vector<int>& sessions, int stride,
+                                    const DescriptorExtractor* heading_extractor) {
   if (stride < 1) throw Error("mcl: stride must be >= 1");
   std::vector<MclFrame> out;
   Frame frame;
   auto wanted = [&](int s) {
     return sessions.empty() || std::find(sessions.begin(), sessions.end(), s) != sessions.end();
   };
+  std::unique_ptr<OmniUnwrapper> unwrapper;
+  int unwrapper_session = -1;
   int last = sessions.empty() ? source.NumSessions() - 1
                               : *std::max_element(sessions.begin(), sessions.end());
   while (source.Next(&frame)) {
     if (frame.session_index > last) break;
     if (!wanted(frame.session_index) || frame.index_in_session % stride != 0) continue;
-    if (source.Session(frame.session_index).camera.kind != ImageKind::kPanorama) {
-      throw Error(StrCat("mcl: session ", source.Session(frame.session_index).name,
-                         " delivers raw ring images; MCL needs panoramas (simulate with "
-                         "--panorama, or unwrap first)"));
+    const SessionInfo& info = source.Session(frame.session_index);
+    cv::Mat panorama = frame.image;
+    if (info.camera.kind == ImageKind::kRawRing) {
+      // One unwrapper per session (its calibration and ring size).
+      if (unwrapper_session != frame.session_index) {
+        try {
+          unwrapper = std::make_unique<OmniUnwrapper>(
+              info.camera.calibration, info.camera.image_width, info.camera.image_height);
+        } catch (const Error& e) {
+          throw Error(
+              StrCat("mcl: session ", info.name, ": cannot unwrap its ring images: ", e.what()));
+        }
+        unwrapper_session = frame.session_index;
+      }
+      panorama = unwrapper->Unwrap(frame.image);
     }
     MclFrame f;
     f.index = frame.global_index;
@@ -423,7 +531,8 @@ std::vector<MclFrame> ReadMclFrames(FrameSource& source, const DescriptorExtract
     f.stamp_s = frame.stamp_s;
     f.odom_T_robot = frame.odom_T_robot;
     f.truth = frame.map_T_robot_truth;
-    f.descriptor = extractor.Compute(frame.image);
+    f.descriptor = extractor.Compute(panorama);
+    if (heading_extractor != nullptr) f.heading_descriptor = heading_extractor->Compute(panorama);
     out.push_back(std::move(f));
   }
   return out;
@@ -436,6 +545,7 @@ std::vector<MclReference> MakeReferences(const std::vector<MclFrame>& frames) {
     MclReference r;
     r.map_T_robot = *f.truth;
     r.descriptor = f.descriptor;
+    r.heading_descriptor = f.heading_descriptor;
     refs.push_back(std::move(r));
   }
   return refs;
@@ -469,7 +579,7 @@ std::vector<MclStepRecord> RunMcl(MonteCarloLocalizer& mcl, const std::vector<Mc
       }
       mcl.Predict(u);
     }
-    const MclEstimate est = mcl.Correct(f.descriptor);
+    const MclEstimate est = mcl.Correct(f.descriptor, &f.heading_descriptor);
     const auto t1 = std::chrono::steady_clock::now();
     MclStepRecord r;
     r.step = step;

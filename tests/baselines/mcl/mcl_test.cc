@@ -184,6 +184,147 @@ TEST(Mcl, GlobalInitIsFreeAndDeterministic) {
   EXPECT_EQ(a.particles().back().pose, b.particles().back().pose);
 }
 
+// ------------------------------------------------------------------ issue 18: aliasing
+
+// A point-symmetric pair in the open room: reference A at (3, 5) heading 0 and its mirror
+// B at (7, 5) heading pi see the same panorama in their own frames (same IFH, same
+// Fourier signature); C and D elsewhere give the retrieval its scale.
+struct MirrorRoom {
+  OccupancyGrid grid = OpenRoom();
+  std::vector<MclReference> refs;
+  cv::Mat panorama = MakeSyntheticPanorama(120, 24, 7);
+  std::shared_ptr<const DescriptorExtractor> heading = MakeMclHeadingExtractor();
+};
+
+MirrorRoom MakeMirrorRoom(const MclOptions& o) {
+  MirrorRoom m;
+  const Descriptor h = m.heading->Compute(m.panorama);
+  const Descriptor other = m.heading->Compute(MakeSyntheticPanorama(120, 24, 8));
+  const std::vector<std::pair<Pose2, float>> refs = {{MakePose(3, 5, 0), 0.50f},
+                                                     {MakePose(7, 5, kPi), 0.52f},
+                                                     {MakePose(5, 2, kPi / 2), 0.0f},
+                                                     {MakePose(5, 8, -kPi / 2), 1.0f}};
+  for (std::size_t i = 0; i < refs.size(); ++i) {
+    MclReference r;
+    r.map_T_robot = refs[i].first;
+    r.descriptor = OneNumber(refs[i].second);
+    r.heading_descriptor = i < 2 ? h : other;
+    m.refs.push_back(std::move(r));
+  }
+  ComputeVisibilityAreas(m.grid, o, &m.refs);
+  return m;
+}
+
+// The mirror reference matches only at a 180-degree heading offset: with the panoramas'
+// relative heading, a particle at the mirror with the tracked heading gets no eq. (7)
+// credit, one turned by pi does; at the true place the tracked heading gets it.
+TEST(Mcl, RelativeHeadingGatesTheMirrorReference) {
+  MclOptions o;
+  o.num_particles = 100;
+  const MirrorRoom m = MakeMirrorRoom(o);
+  ASSERT_FALSE(m.refs[0].visibility.empty());
+  ASSERT_FALSE(m.refs[1].visibility.empty());
+  MonteCarloLocalizer mcl(o, m.grid, m.refs, Ifh());
+  const Descriptor query = OneNumber(0.51f);
+  const Descriptor heading_query = m.heading->Compute(m.panorama);  // robot at A, heading 0
+  const std::vector<double> xi = mcl.Similarities(query);
+  const std::vector<double> implied = mcl.ImpliedHeadings(xi, &heading_query);
+  EXPECT_NEAR(WrapAngle(implied[0]), 0.0, 0.05);
+  EXPECT_NEAR(std::abs(WrapAngle(implied[1])), kPi, 0.05);
+  const double at_a = mcl.Likelihood(MakePose(3, 5, 0), xi, implied);
+  const double mirror_tracked = mcl.Likelihood(MakePose(7, 5, 0), xi, implied);
+  const double mirror_turned = mcl.Likelihood(MakePose(7, 5, kPi), xi, implied);
+  EXPECT_GT(at_a, 0.9);
+  EXPECT_GT(mirror_turned, 0.9);
+  EXPECT_EQ(mirror_tracked, 0.0);
+  // Without heading information the mirror is as good as the truth ([W]'s model).
+  EXPECT_GT(mcl.Likelihood(MakePose(7, 5, 0), xi), 0.9);
+}
+
+// Runs a filter standing still at `truth` for `steps` steps with the given query; returns
+// the position errors per step and the samples injected.
+std::vector<double> StandStill(MonteCarloLocalizer& mcl, const Pose2& start, const Pose2& truth,
+                               const Descriptor& query, const Descriptor* heading, int steps,
+                               int* injected) {
+  mcl.InitializeAt(start);
+  std::vector<double> err;
+  *injected = 0;
+  for (int s = 0; s < steps; ++s) {
+    if (s > 0) mcl.Predict({0.0, 0.0, 0.0});
+    const MclEstimate e = mcl.Correct(query, heading);
+    *injected += mcl.last_step().injected;
+    err.push_back((e.cluster.head<2>() - truth.head<2>()).norm());
+  }
+  return err;
+}
+
+// Issue 18, the aliasing episode in miniature: the robot stays at A while retrieval
+// ranks the mirror B first (xi_B = 1, xi_A ~ 0.96). [W]'s filter, whose retrieval keeps
+// only the best reference (as home_store's top 10 did during an episode), gives the true
+// cloud the floor; its steady uniform injection lands at B and takes over. The default
+// filter (top_k covering both, injection only when lost) stays at A and never injects.
+TEST(Mcl, AliasingMirrorDoesNotCaptureTheDefaultFilter) {
+  MclOptions w;  // [W]
+  w.num_particles = 500;
+  w.injection = MclInjection::kEveryStep;
+  w.random_samples_per_step = 20;
+  w.top_k = 1;
+  w.relative_heading = false;
+  w.seed = 5;
+  MclOptions d;  // default filter
+  d.num_particles = 500;
+  d.seed = 5;
+  const MirrorRoom m = MakeMirrorRoom(d);
+  const Pose2 truth = MakePose(3.2, 5, 0);
+  const Descriptor query = OneNumber(0.52f);
+  const Descriptor heading_query = m.heading->Compute(m.panorama);
+  int injected_w = 0, injected_d = 0;
+  MonteCarloLocalizer old_filter(w, m.grid, m.refs, Ifh());
+  const auto err_w = StandStill(old_filter, truth, truth, query, nullptr, 40, &injected_w);
+  MonteCarloLocalizer new_filter(d, m.grid, m.refs, Ifh());
+  const auto err_d = StandStill(new_filter, truth, truth, query, &heading_query, 40, &injected_d);
+  EXPECT_GT(err_w.back(), 3.0) << "[W]'s filter was expected to jump to the mirror";
+  EXPECT_GT(injected_w, 0);
+  EXPECT_LT(*std::max_element(err_d.begin(), err_d.end()), 0.5);
+  EXPECT_EQ(injected_d, 0);
+}
+
+// Kidnapping in the same room: after 10 steps at A the robot is at C (its query now
+// unique to C). The lost detector fires after lost_after_steps inconsistent steps,
+// samples are injected near the retrieved reference with its implied heading, and the
+// filter converges at C; it injected nothing before the kidnapping.
+TEST(Mcl, LostDetectorRecoversFromKidnapping) {
+  MclOptions o;
+  o.num_particles = 500;
+  o.seed = 9;
+  const MirrorRoom m = MakeMirrorRoom(o);
+  ASSERT_FALSE(m.refs[2].visibility.empty());
+  MonteCarloLocalizer mcl(o, m.grid, m.refs, Ifh());
+  const Descriptor at_a = OneNumber(0.50f), at_c = OneNumber(0.0f);
+  const Descriptor heading_a = m.heading->Compute(m.panorama);
+  const Descriptor heading_c = m.refs[2].heading_descriptor;
+  mcl.InitializeAt(MakePose(3, 5, 0));
+  for (int s = 0; s < 10; ++s) {
+    mcl.Correct(at_a, &heading_a);
+    EXPECT_EQ(mcl.last_step().injected, 0);
+    EXPECT_FALSE(mcl.last_step().lost);
+  }
+  const Pose2 c = m.refs[2].map_T_robot;
+  int first_lost = -1, recovered = -1;
+  for (int s = 0; s < 30; ++s) {
+    mcl.Predict({0.0, 0.0, 0.0});
+    const MclEstimate e = mcl.Correct(at_c, &heading_c);
+    if (first_lost < 0 && mcl.last_step().lost) first_lost = s;
+    const double err = (e.cluster.head<2>() - c.head<2>()).norm();
+    if (recovered < 0 && err < 1.0 && std::abs(WrapAngle(e.cluster.z() - c.z())) < 0.6) {
+      recovered = s;
+    }
+  }
+  EXPECT_EQ(first_lost, o.lost_after_steps - 1);
+  ASSERT_GE(recovered, 0);
+  EXPECT_LE(recovered, first_lost + 3);
+}
+
 // ------------------------------------------------------------------ simulated logs
 
 // Day 1 (references) and day 2 (queries) of home_store with small panoramas, for a seed.
@@ -209,7 +350,8 @@ SimData MakeSim(std::uint64_t seed) {
   dopt.kind = DescriptorKind::kInvariantFeatureHistogram;
   d.extractor = MakeDescriptorExtractor(dopt);
   SimulatedFrameSource source(so, world);
-  const auto frames = ReadMclFrames(source, *d.extractor, {0, 1});
+  const auto frames =
+      ReadMclFrames(source, *d.extractor, {0, 1}, 1, MakeMclHeadingExtractor().get());
   std::vector<MclFrame> train;
   for (const auto& f : frames) {
     if (f.session == 0 && f.index % 2 == 0) train.push_back(f);
@@ -253,6 +395,51 @@ TEST(Mcl, TrackingErrorBoundedOnSimulatedLog) {
   EXPECT_LT(max_head, 0.35);
 }
 
+// Issue 18: the default filter (top_k 30, injection only when lost, relative heading)
+// tracks every seed from the known start without jumping and within [W]'s accuracy.
+TEST(Mcl, DefaultFilterTracksEverySeed) {
+  for (std::uint64_t seed : {1u, 2u, 5u}) {
+    const SimData d = MakeSim(seed);
+    MclOptions o;
+    o.num_particles = 1000;
+    o.seed = 11;
+    auto refs = d.refs;
+    ComputeVisibilityAreas(d.grid, o, &refs);
+    MonteCarloLocalizer mcl(o, d.grid, refs, d.extractor);
+    const auto rec = RunMcl(mcl, d.test, {.known_start = true});
+    double max_err = 0, max_head = 0;
+    for (const auto& r : rec) {
+      max_err = std::max(max_err, r.position_error_m);
+      max_head = std::max(max_head, r.heading_error_rad);
+    }
+    RecordProperty(StrCat("max_position_error_m_seed_", seed), std::to_string(max_err));
+    EXPECT_LT(max_err, 1.0) << "seed " << seed;
+    EXPECT_LT(max_head, 20 * kPi / 180) << "seed " << seed;
+  }
+}
+
+// Raw ring sessions are unwrapped with their calibration before the descriptors.
+TEST(Mcl, ReadsRawRingSessions) {
+  World world = LoadBuiltinWorld("home_store");
+  SimulatorOptions so;
+  so.days = 1;
+  so.frames_per_day = 3;
+  so.seed = 1;
+  so.output = ImageKind::kRawRing;
+  so.people = false;
+  SimulatedFrameSource source(so, world);
+  const auto extractor = Ifh();
+  const auto heading = MakeMclHeadingExtractor();
+  const auto frames = ReadMclFrames(source, *extractor, {}, 1, heading.get());
+  ASSERT_EQ(frames.size(), 3u);
+  for (const MclFrame& f : frames) {
+    EXPECT_EQ(f.descriptor.kind, DescriptorKind::kInvariantFeatureHistogram);
+    EXPECT_FALSE(f.descriptor.features.empty());
+    EXPECT_EQ(f.heading_descriptor.kind, DescriptorKind::kFourier);
+    EXPECT_TRUE(f.truth.has_value());
+  }
+}
+
 // Issue 18: a filter that never injects random samples does not jump to the aliased
 // (mirror) end of the point-symmetric store, on every seed, even where retrieval aliases
 // for many frames in a row (seeds 2, 5); [W]'s steady injection jumps 20-24 m there.
@@ -260,7 +447,7 @@ TEST(Mcl, TrackingWithoutInjectionNeverJumpsOnAnySeed) {
   for (std::uint64_t seed : {1u, 2u, 5u}) {
     const SimData d = MakeSim(seed);
     MclOptions o = SmallOptions();
-    o.adaptive_injection = true;
+    o.injection = MclInjection::kAugmented;
     o.max_injection_fraction = 0.0;  // never inject
     auto refs = d.refs;
     ComputeVisibilityAreas(d.grid, o, &refs);
@@ -281,26 +468,29 @@ TEST(Mcl, TrackingWithoutInjectionNeverJumpsOnAnySeed) {
 }
 
 // After a kidnapping (carried half a lap without odometry) the filter recovers within a
-// bounded number of steps thanks to random sample injection.
+// bounded number of steps: [W]'s steady injection and the default injection when lost.
 TEST(Mcl, RecoversFromKidnapping) {
-  const SimData& d = Sim();
-  MclOptions o = SmallOptions();
-  o.num_particles = 2000;
-  o.random_samples_per_step = 50;
-  auto refs = d.refs;
-  ComputeVisibilityAreas(d.grid, o, &refs);
-  MonteCarloLocalizer mcl(o, d.grid, refs, d.extractor);
-  MclRunSpec spec;
-  spec.kidnap_step = 20;
-  spec.kidnap_to_frame = 90;
-  const auto rec = RunMcl(mcl, d.test, spec);
-  ASSERT_GT(rec.size(), 40u);
-  EXPECT_TRUE(rec[21].kidnapped);
-  EXPECT_GT(rec[21].position_error_m, 2.0);  // it really was lost
-  const int steps = StepsToConverge(rec, 21, 1.0, 35 * kPi / 180, 3);
-  RecordProperty("steps_to_recover", std::to_string(steps));
-  EXPECT_GE(steps, 0);
-  EXPECT_LE(steps, 40);  // measured 35 steps
+  for (const MclInjection injection : {MclInjection::kEveryStep, MclInjection::kWhenLost}) {
+    const SimData& d = Sim();
+    MclOptions o = SmallOptions();
+    o.num_particles = 2000;
+    o.random_samples_per_step = 50;
+    o.injection = injection;
+    auto refs = d.refs;
+    ComputeVisibilityAreas(d.grid, o, &refs);
+    MonteCarloLocalizer mcl(o, d.grid, refs, d.extractor);
+    MclRunSpec spec;
+    spec.kidnap_step = 20;
+    spec.kidnap_to_frame = 90;
+    const auto rec = RunMcl(mcl, d.test, spec);
+    ASSERT_GT(rec.size(), 40u);
+    EXPECT_TRUE(rec[21].kidnapped);
+    EXPECT_GT(rec[21].position_error_m, 2.0);  // it really was lost
+    const int steps = StepsToConverge(rec, 21, 1.0, 35 * kPi / 180, 3);
+    RecordProperty(StrCat("steps_to_recover_", static_cast<int>(injection)), std::to_string(steps));
+    EXPECT_GE(steps, 0);
+    EXPECT_LE(steps, 40);
+  }
 }
 
 }  // namespace

@@ -30,6 +30,7 @@ void GatedMatchingOptions::Validate() const {
   if (full_search_every_frames < 1) {
     throw Error(StrCat("full_search_every_frames must be >= 1, got ", full_search_every_frames));
   }
+  if (min_views < 0) throw Error(StrCat("min_views must be >= 0, got ", min_views));
 }
 
 void CmlEngineOptions::Validate() const {
@@ -385,7 +386,8 @@ FrameResult CmlEngine::ProcessFrame(const Frame& frame) {
   result.stats.num_map_components = model_->NumComponents();
   std::vector<ViewMatch> matches;
   const GatedMatchingOptions& gm = options_.gated_matching;
-  if (gm.enabled && p_x_u.size() == 1 && t % gm.full_search_every_frames != 0) {
+  if (gm.enabled && p_x_u.size() == 1 && t % gm.full_search_every_frames != 0 &&
+      model_->NumViews() >= static_cast<std::size_t>(gm.min_views)) {
     const Eigen::Matrix2d c_xy = p_x_u[0].covariance.topLeftCorner<2, 2>();
     const double variance = 0.5 * (c_xy(0, 0) + c_xy(1, 1)) +
                             std::sqrt(0.25 * (c_xy(0, 0) - c_xy(1, 1)) * (c_xy(0, 0) - c_xy(1, 1)) +

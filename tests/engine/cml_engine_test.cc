@@ -262,6 +262,7 @@ TEST(CmlEngine, GatedMatchingComparesFewerViewsAndTracksAsWell) {
     CmlEngineOptions o = TestOptions();
     o.threads = threads;
     o.gated_matching.enabled = gated;
+    o.gated_matching.min_views = 0;
     o.appearance_sigma_m = 0.2;
     CmlEngine engine(o);
     engine.BeginSession(PanoramaSession("d1", SessionStartMode::kKnownPose, route[0].truth));

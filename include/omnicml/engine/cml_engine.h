@@ -86,6 +86,10 @@ struct GatedMatchingOptions {
   double gate_sigmas = 4.0;
   // Frames, >= 1: every frame index that is a multiple of this searches the whole map.
   int full_search_every_frames = 10;
+  // Views, >= 0: the gate applies only to maps of at least this many views (below, the
+  // scan of every view costs no more than the spatial query: map_scale_benchmark,
+  // FindMatchesNear against FindMatches).
+  int min_views = 1000;
 
   void Validate() const;  // throws omnicml::Error naming the field
 };
@@ -94,6 +98,7 @@ void VisitFields(V& v, GatedMatchingOptions& o) {
   v("enabled", o.enabled);
   v("gate_sigmas", o.gate_sigmas);
   v("full_search_every_frames", o.full_search_every_frames);
+  v("min_views", o.min_views);
 }
 
 struct CmlEngineOptions {

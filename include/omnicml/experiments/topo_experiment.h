@@ -36,9 +36,9 @@ struct TopoExperimentOptions {
   std::string places;                // adjacency-map YAML ("" = from the route)
   double place_length_m = 3.0;       // without places: one place every this many metres
   std::string out_dir;               // run directory (required)
-  int bins = 32;                     // histogram bins per band
+  int bins = TopologicalHistogramDefaults().bins;  // histogram bins per band
   int filter_width = 5;              // low-pass filter width, bins (odd)
-  bool normalized_rgb = false;       // bands 4-6 from r, g, b instead of R, G, B
+  bool normalized_rgb = TopologicalHistogramDefaults().normalized_rgb;  // bands 4-6 r, g, b
   std::string distance = "jeffrey";  // jeffrey | chi_square | l1 | l2 | intersection
   double band_threshold = 0.05;      // smallest confidence with which a band votes
   double action_threshold = 0.1;     // smallest overall confidence of a confident class

@@ -12,6 +12,7 @@
 #include <sstream>
 #include <utility>
 
+#include <opencv2/imgproc.hpp>
 #include <yaml-cpp/yaml.h>
 
 #include "omnicml/common/options.h"
@@ -363,6 +364,9 @@ void TopologicalOptions::Validate() const {
   if (!(action_threshold >= 0.0) || !std::isfinite(action_threshold)) {
     throw Error(StrCat("action_threshold: must be >= 0, got ", action_threshold));
   }
+  if (average_block_px < 1 || average_block_px > 16) {
+    throw Error(StrCat("average_block_px: must be in 1..16, got ", average_block_px));
+  }
   if (calibration_exclusion_frames < 0) {
     throw Error(StrCat("calibration_exclusion_frames: must be >= 0, got ",
                        calibration_exclusion_frames));
@@ -420,6 +424,19 @@ TopologicalLocalizer::TopologicalLocalizer(AdjacencyMap map, const TopologicalOp
 }
 
 Descriptor TopologicalLocalizer::Describe(const cv::Mat& panorama) const {
+  const int block = options_.average_block_px;
+  if (block > 1 && !panorama.empty() && panorama.cols >= 2 * block &&
+      panorama.rows >= 2 * block) {
+    // Block averages (a last partial block of a row or column is dropped).
+    cv::Mat averaged;
+    cv::resize(panorama(cv::Rect(0, 0, panorama.cols / block * block,
+                                 panorama.rows / block * block)),
+               averaged, cv::Size(panorama.cols / block, panorama.rows / block), 0, 0,
+               cv::INTER_AREA);
+    Descriptor d = histogram_.Compute(averaged);
+    d.panorama_width = panorama.cols;
+    return d;
+  }
   return histogram_.Compute(panorama);
 }
 

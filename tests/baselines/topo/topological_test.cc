@@ -114,6 +114,9 @@ TEST(TopologicalOptions, ValidateNamesTheField) {
   o.histogram.bins = 1;
   EXPECT_THAT(ErrorOf([&] { o.Validate(); }), HasSubstr("bins"));
   o = {};
+  o.average_block_px = 0;
+  EXPECT_THAT(ErrorOf([&] { o.Validate(); }), HasSubstr("average_block_px"));
+  o = {};
   o.calibration_exclusion_frames = -1;
   EXPECT_THAT(ErrorOf([&] { o.Validate(); }), HasSubstr("calibration_exclusion_frames"));
   o = {};
@@ -217,6 +220,37 @@ TEST(TopologicalLocalizer, LearnedBandThresholdsSilenceUninformativeBands) {
   EXPECT_EQ(d.state, PlaceState::kConfident);
   EXPECT_EQ(d.place, 0);
   EXPECT_EQ(d.voting_bands, 3);
+}
+
+// With the default 4 x 4 block averages, the hue and chromaticity histograms of a dark,
+// noisy copy of a rendered panorama stay much closer to those of the bright original
+// than without (the sensor noise would scatter the dark near-grey pixels).
+TEST(TopologicalLocalizer, BlockAveragesSteadyChromaticityOfDarkNoisyImages) {
+  const World world = LoadBuiltinWorld("institute");
+  Renderer renderer(world);
+  const cv::Mat bright = renderer.RenderPanorama(Pose2(7.5, 7.5, 0.3));
+  cv::Mat dark;
+  bright.convertTo(dark, CV_32FC3, 0.25);
+  cv::Mat noise(dark.size(), CV_32FC3);
+  cv::RNG rng(3);
+  rng.fill(noise, cv::RNG::NORMAL, 0.0, 2.0);
+  dark += noise;
+  dark.convertTo(dark, CV_8UC3);
+  auto chroma_distance = [&](int block) {
+    TopologicalOptions options;
+    options.average_block_px = block;
+    const TopologicalLocalizer loc(LineMap(), options);
+    const int bins = options.histogram.bins;
+    const Descriptor a = loc.Describe(bright), b = loc.Describe(dark);
+    double d = 0.0;
+    for (int band : {0, 3, 4, 5}) {  // H, r, g, b
+      d += ColorHistogram::JeffreyDivergence(a.features.data() + band * bins,
+                                             b.features.data() + band * bins, bins);
+    }
+    return d;
+  };
+  EXPECT_EQ(TopologicalOptions{}.average_block_px, 4);
+  EXPECT_LT(chroma_distance(4), 0.5 * chroma_distance(1));
 }
 
 // A query never matches a reference within calibration_exclusion_frames of itself: with a

@@ -113,10 +113,11 @@ AdjacencyMap PlacesFromRoute(const RoutePath& route, double place_length_m);
 enum class PlaceState { kConfident, kUncertain, kConfused };
 std::string ToString(PlaceState state);  // confident|uncertain|confused
 
-// The localizer's histogram defaults: [UN]'s six bands with the normalised r, g, b
-// (chromaticity, unchanged when a room's lights change its brightness), 64 bins per band
-// (near-grey walls put most chromaticity values within a few hundredths of 1/3; issue 18
-// measured 64 against 32 bins on home_store and institute, seeds 1-3, all day pairs).
+// The localizer's histogram defaults (issue 18, docs/experiments.md "[UN] ..."): [UN]'s
+// six bands with the normalised r, g, b (chromaticity: unchanged when a room's lights
+// change its brightness) and 64 bins per band (near-grey walls put most chromaticity
+// values within a few hundredths of 1/3). Chosen among bins {32, 64} on home_store and
+// institute, seeds 1-3, all day pairs, one setting for both worlds.
 inline ColorHistogramOptions TopologicalHistogramDefaults() {
   ColorHistogramOptions o;
   o.bins = 64;
@@ -127,6 +128,13 @@ inline ColorHistogramOptions TopologicalHistogramDefaults() {
 struct TopologicalOptions {
   // The six histograms and their distance ([UN]: Jeffrey divergence, low-pass filtered).
   ColorHistogramOptions histogram = TopologicalHistogramDefaults();
+  // Describe averages blocks of this many x this many pixels (cv::INTER_AREA) before the
+  // histograms; 1 = off. Averaging n^2 pixels divides the sensor noise by n, which
+  // otherwise scatters the hue and chromaticity of the dark near-grey pixels of a room
+  // whose lights are off (issue 18: with 4, institute's hue band names another place in
+  // 10 % instead of 59 % of the frames of rooms whose lights changed between the days).
+  // Chosen among {1, 4, 8}. Not in [UN]. 1..16.
+  int average_block_px = 4;
   // Per band (H, L, S, R|r, G|g, B|b), the smallest confidence C_b, in [0, 1], with which
   // the band's vote counts.
   std::array<double, ColorHistogram::kBands> band_threshold = {0.05, 0.05, 0.05, 0.05, 0.05, 0.05};
@@ -159,6 +167,7 @@ struct TopologicalOptions {
 template <class V>
 void VisitFields(V& v, TopologicalOptions& o) {
   v.Section("histogram", o.histogram);
+  v("average_block_px", o.average_block_px);
   v("band_threshold", o.band_threshold);
   v("action_threshold", o.action_threshold);
   v("learn_band_thresholds", o.learn_band_thresholds);
@@ -218,8 +227,9 @@ class TopologicalLocalizer {
   // Throws omnicml::Error on invalid options or an empty map.
   TopologicalLocalizer(AdjacencyMap map, const TopologicalOptions& options = {});
 
-  // The six histograms of a panorama (CV_8UC3 BGR or CV_8UC1). Throws omnicml::Error on a
-  // bad image.
+  // The six histograms of a panorama (CV_8UC3 BGR or CV_8UC1), after averaging
+  // average_block_px blocks (when the image holds at least 2 x 2 blocks). Throws
+  // omnicml::Error on a bad image.
   Descriptor Describe(const cv::Mat& panorama) const;
 
   // Adds a reference image (its Describe() result) to `place`. Throws omnicml::Error on a

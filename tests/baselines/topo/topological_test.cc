@@ -464,7 +464,8 @@ TEST(TopologicalLocalizer, SimulatedCrossDayMostlyCorrect) {
 
 // Issue 18: institute with the repository's room places (datasets/places/
 // institute_rooms.yaml, the corridor one place as in [UN]), train day 1, test day 2, on
-// several seeds (short laps): confident answers are rarely wrong.
+// several seeds (short laps): confident answers are rarely wrong (issue 18 target:
+// <= 1 %, i.e. at most one of the 90 frames; 0 on each seed with the defaults).
 TEST(TopologicalLocalizer, InstituteRoomsRarelyConfidentWrongOnSeveralSeeds) {
   const AdjacencyMap map =
       LoadAdjacencyMap(std::string(OMNICML_SOURCE_DIR) + "/datasets/places/institute_rooms.yaml");
@@ -484,7 +485,7 @@ TEST(TopologicalLocalizer, InstituteRoomsRarelyConfidentWrongOnSeveralSeeds) {
     const TopologicalCounts c = RunCrossSequence(&source, &loc, cross).counts;
     std::cout << TopologicalSummaryTable(c, StrCat("institute rooms seed ", seed, " day 1 -> 2"));
     ASSERT_EQ(c.frames, 90);
-    EXPECT_LE(c.confident_wrong, 0.05 * c.frames) << "seed " << seed;
+    EXPECT_LE(c.confident_wrong, 1) << "seed " << seed;
     EXPECT_GT(c.confident_correct, 0.4 * c.frames) << "seed " << seed;
   }
 }

@@ -65,8 +65,8 @@ TopoExperimentResult RunTopoExperiment(const TopoExperimentOptions& experiment) 
     CheckLimit("topo: --frames-per-day", a.frames_per_day, 1, kMaxFramesPerDay);
     const std::int64_t days = a.days > 0 ? a.days : std::max(a.train_day, a.test_day);
     if (days * a.frames_per_day > kMaxSimulatedFrames) {
-      throw Error(StrCat("topo: days x --frames-per-day exceeds the limit of ",
-                         kMaxSimulatedFrames, " frames"));
+      throw Error(StrCat("topo: days x --frames-per-day exceeds the limit of ", kMaxSimulatedFrames,
+                         " frames"));
     }
   }
   CheckOutputDirectory(a.out_dir, "--out");

@@ -12,13 +12,13 @@
 #include <sstream>
 #include <utility>
 
-#include <opencv2/imgproc.hpp>
 #include <yaml-cpp/yaml.h>
+#include <opencv2/imgproc.hpp>
 
-#include "omnicml/common/options.h"
-#include "omnicml/geometry/planar_geometry.h"
 #include "omnicml/common/common.h"
 #include "omnicml/common/file_io.h"
+#include "omnicml/common/options.h"
+#include "omnicml/geometry/planar_geometry.h"
 #include "omnicml/logs/log_format.h"
 #include "omnicml/unwrap/omni_unwrapper.h"
 
@@ -368,12 +368,11 @@ void TopologicalOptions::Validate() const {
     throw Error(StrCat("average_block_px: must be in 1..16, got ", average_block_px));
   }
   if (calibration_exclusion_frames < 0) {
-    throw Error(StrCat("calibration_exclusion_frames: must be >= 0, got ",
-                       calibration_exclusion_frames));
+    throw Error(
+        StrCat("calibration_exclusion_frames: must be >= 0, got ", calibration_exclusion_frames));
   }
   if (!(calibration_max_wrong >= 0.0 && calibration_max_wrong <= 1.0)) {
-    throw Error(
-        StrCat("calibration_max_wrong: must be in [0, 1], got ", calibration_max_wrong));
+    throw Error(StrCat("calibration_max_wrong: must be in [0, 1], got ", calibration_max_wrong));
   }
   if (global_search_after_frames < 0) {
     throw Error(
@@ -425,14 +424,12 @@ TopologicalLocalizer::TopologicalLocalizer(AdjacencyMap map, const TopologicalOp
 
 Descriptor TopologicalLocalizer::Describe(const cv::Mat& panorama) const {
   const int block = options_.average_block_px;
-  if (block > 1 && !panorama.empty() && panorama.cols >= 2 * block &&
-      panorama.rows >= 2 * block) {
+  if (block > 1 && !panorama.empty() && panorama.cols >= 2 * block && panorama.rows >= 2 * block) {
     // Block averages (a last partial block of a row or column is dropped).
     cv::Mat averaged;
-    cv::resize(panorama(cv::Rect(0, 0, panorama.cols / block * block,
-                                 panorama.rows / block * block)),
-               averaged, cv::Size(panorama.cols / block, panorama.rows / block), 0, 0,
-               cv::INTER_AREA);
+    cv::resize(
+        panorama(cv::Rect(0, 0, panorama.cols / block * block, panorama.rows / block * block)),
+        averaged, cv::Size(panorama.cols / block, panorama.rows / block), 0, 0, cv::INTER_AREA);
     Descriptor d = histogram_.Compute(averaged);
     d.panorama_width = panorama.cols;
     return d;
@@ -494,8 +491,7 @@ BandVotes TopologicalLocalizer::ClassifyBands(const Descriptor& descriptor,
 
 BandVotes TopologicalLocalizer::ClassifyBandsExcluding(const float* features,
                                                        const std::vector<int>& candidates,
-                                                       int exclude_from,
-                                                       int exclude_to) const {
+                                                       int exclude_from, int exclude_to) const {
   const std::size_t fs = histogram_.FeatureSize();
   std::vector<char> is_candidate(map_.size(), 0);
   for (int c : candidates) {

@@ -46,9 +46,9 @@
 
 #include "omnicml/descriptors/color_histogram.h"
 #include "omnicml/descriptors/descriptor.h"
-#include "omnicml/unwrap/frame.h"
 #include "omnicml/geometry/pose.h"
 #include "omnicml/sim/simulator.h"
+#include "omnicml/unwrap/frame.h"
 
 namespace omnicml {
 
@@ -182,8 +182,8 @@ void VisitFields(V& v, TopologicalOptions& o) {
 // topo_config.yaml (kTopoRunKeys) are accepted and skipped, so that file loads back.
 // Throws omnicml::Error "<file>:<line>: ..." naming the key.
 inline const std::vector<std::string> kTopoRunKeys = {
-    "world", "log", "days", "frames_per_day", "seed", "step_m", "people", "train_day",
-    "test_day", "places", "reference_stride_frames", "known_start"};
+    "world",     "log",      "days",   "frames_per_day",          "seed",       "step_m", "people",
+    "train_day", "test_day", "places", "reference_stride_frames", "known_start"};
 TopologicalOptions ParseTopologicalOptionsYaml(const std::string& yaml_text,
                                                const std::string& source);
 TopologicalOptions LoadTopologicalOptions(const std::string& path);
@@ -211,8 +211,8 @@ struct PlaceDecision {
 // What LearnBandThresholds measured on the reference images, per band.
 struct BandCalibration {
   int queries = 0;  // reference images used as queries (their place had references left)
-  std::array<int, ColorHistogram::kBands> votes{};    // queries where the band voted
-  std::array<int, ColorHistogram::kBands> correct{};  // ... for the query's own place
+  std::array<int, ColorHistogram::kBands> votes{};         // queries where the band voted
+  std::array<int, ColorHistogram::kBands> correct{};       // ... for the query's own place
   std::array<double, ColorHistogram::kBands> threshold{};  // learned (before the max)
 };
 
@@ -318,7 +318,7 @@ struct CrossSequenceOptions {
 struct CrossSequenceResult {
   std::vector<TopologicalFrameResult> frames;
   TopologicalCounts counts;
-  int references = 0;  // reference images taken from the training session
+  int references = 0;           // reference images taken from the training session
   BandCalibration calibration;  // when options().learn_band_thresholds
   int places_with_references = 0;
 };

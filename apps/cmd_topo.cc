@@ -77,7 +77,8 @@ const CommandRegistration kRegistration{
       cmd->add_option("--filter-width", a->filter_width, "Low-pass filter width, bins (odd)")
           ->capture_default_str();
       cmd->add_flag("--normalized-rgb", a->normalized_rgb,
-                    "Bands 4-6 from r, g, b instead of R, G, B");
+                    "Bands 4-6 from r, g, b (default); --normalized-rgb=false: R, G, B")
+          ->capture_default_str();
       cmd->add_option("--distance", a->distance, "jeffrey | chi_square | l1 | l2 | intersection")
           ->capture_default_str();
       cmd->add_option("--band-threshold", a->band_threshold,

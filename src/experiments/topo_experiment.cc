@@ -65,8 +65,8 @@ TopoExperimentResult RunTopoExperiment(const TopoExperimentOptions& experiment) 
     CheckLimit("topo: --frames-per-day", a.frames_per_day, 1, kMaxFramesPerDay);
     const std::int64_t days = a.days > 0 ? a.days : std::max(a.train_day, a.test_day);
     if (days * a.frames_per_day > kMaxSimulatedFrames) {
-      throw Error(StrCat("topo: days x --frames-per-day exceeds the limit of ",
-                         kMaxSimulatedFrames, " frames"));
+      throw Error(StrCat("topo: days x --frames-per-day exceeds the limit of ", kMaxSimulatedFrames,
+                         " frames"));
     }
   }
   CheckOutputDirectory(a.out_dir, "--out");
@@ -167,7 +167,20 @@ TopoExperimentResult RunTopoExperiment(const TopoExperimentOptions& experiment) 
   const std::string title =
       StrCat(input, ": train day ", a.train_day, ", test day ", a.test_day, " (", map.size(),
              " places, ", r.references, " reference images)");
-  const std::string table = TopologicalSummaryTable(r.counts, title);
+  std::string table = TopologicalSummaryTable(r.counts, title);
+  if (options.learn_band_thresholds) {
+    // The thresholds Localize used: max(band_threshold, learned on the training day).
+    std::ostringstream os;
+    os << "band thresholds learned on the training day (" << r.calibration.queries
+       << " reference queries; band: threshold, correct/votes):";
+    const char* names[] = {"H", "L", "S", "R", "G", "B"};
+    for (int b = 0; b < ColorHistogram::kBands; ++b) {
+      os << (b ? "," : "") << " " << names[b] << " "
+         << FormatRoundTrip(localizer.effective_options().band_threshold[b]) << " "
+         << r.calibration.correct[b] << "/" << r.calibration.votes[b];
+    }
+    table += os.str() + "\n";
+  }
   WriteFileAtomic(out / "summary.md", table);
   TopoExperimentResult result;
   result.cross = std::move(r);

@@ -25,20 +25,20 @@
 namespace omnicml {
 
 struct TopoExperimentOptions {
-  std::string world;                 // built-in world or world YAML
-  std::string log;                   // a multi-day log instead of simulating
-  int days = 0;                      // simulated days; 0: max(train_day, test_day)
-  int frames_per_day = 300;          // simulated frames per day
-  std::uint64_t seed = 1;            // simulator seed
-  double step_m = 0.2;               // simulated distance between frames, m
-  int train_day = 1;                 // day of the reference images, 1-based
-  int test_day = 2;                  // day localized, 1-based
-  std::string places;                // adjacency-map YAML ("" = from the route)
-  double place_length_m = 3.0;       // without places: one place every this many metres
-  std::string out_dir;               // run directory (required)
-  int bins = 32;                     // histogram bins per band
-  int filter_width = 5;              // low-pass filter width, bins (odd)
-  bool normalized_rgb = false;       // bands 4-6 from r, g, b instead of R, G, B
+  std::string world;            // built-in world or world YAML
+  std::string log;              // a multi-day log instead of simulating
+  int days = 0;                 // simulated days; 0: max(train_day, test_day)
+  int frames_per_day = 300;     // simulated frames per day
+  std::uint64_t seed = 1;       // simulator seed
+  double step_m = 0.2;          // simulated distance between frames, m
+  int train_day = 1;            // day of the reference images, 1-based
+  int test_day = 2;             // day localized, 1-based
+  std::string places;           // adjacency-map YAML ("" = from the route)
+  double place_length_m = 3.0;  // without places: one place every this many metres
+  std::string out_dir;          // run directory (required)
+  int bins = TopologicalHistogramDefaults().bins;  // histogram bins per band
+  int filter_width = 5;                            // low-pass filter width, bins (odd)
+  bool normalized_rgb = TopologicalHistogramDefaults().normalized_rgb;  // bands 4-6 r, g, b
   std::string distance = "jeffrey";  // jeffrey | chi_square | l1 | l2 | intersection
   double band_threshold = 0.05;      // smallest confidence with which a band votes
   double action_threshold = 0.1;     // smallest overall confidence of a confident class

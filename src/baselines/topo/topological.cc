@@ -13,11 +13,12 @@
 #include <utility>
 
 #include <yaml-cpp/yaml.h>
+#include <opencv2/imgproc.hpp>
 
-#include "omnicml/common/options.h"
-#include "omnicml/geometry/planar_geometry.h"
 #include "omnicml/common/common.h"
 #include "omnicml/common/file_io.h"
+#include "omnicml/common/options.h"
+#include "omnicml/geometry/planar_geometry.h"
 #include "omnicml/logs/log_format.h"
 #include "omnicml/unwrap/omni_unwrapper.h"
 
@@ -363,6 +364,16 @@ void TopologicalOptions::Validate() const {
   if (!(action_threshold >= 0.0) || !std::isfinite(action_threshold)) {
     throw Error(StrCat("action_threshold: must be >= 0, got ", action_threshold));
   }
+  if (average_block_px < 1 || average_block_px > 16) {
+    throw Error(StrCat("average_block_px: must be in 1..16, got ", average_block_px));
+  }
+  if (calibration_exclusion_frames < 0) {
+    throw Error(
+        StrCat("calibration_exclusion_frames: must be >= 0, got ", calibration_exclusion_frames));
+  }
+  if (!(calibration_max_wrong >= 0.0 && calibration_max_wrong <= 1.0)) {
+    throw Error(StrCat("calibration_max_wrong: must be in [0, 1], got ", calibration_max_wrong));
+  }
   if (global_search_after_frames < 0) {
     throw Error(
         StrCat("global_search_after_frames: must be >= 0, got ", global_search_after_frames));
@@ -408,9 +419,21 @@ TopologicalLocalizer::TopologicalLocalizer(AdjacencyMap map, const TopologicalOp
     : map_(std::move(map)), options_(options), histogram_((options.Validate(), options.histogram)) {
   if (map_.size() == 0) throw Error("topological localizer: the adjacency map has no place");
   bins_ = options_.histogram.bins;
+  effective_ = options_;
 }
 
 Descriptor TopologicalLocalizer::Describe(const cv::Mat& panorama) const {
+  const int block = options_.average_block_px;
+  if (block > 1 && !panorama.empty() && panorama.cols >= 2 * block && panorama.rows >= 2 * block) {
+    // Block averages (a last partial block of a row or column is dropped).
+    cv::Mat averaged;
+    cv::resize(
+        panorama(cv::Rect(0, 0, panorama.cols / block * block, panorama.rows / block * block)),
+        averaged, cv::Size(panorama.cols / block, panorama.rows / block), 0, 0, cv::INTER_AREA);
+    Descriptor d = histogram_.Compute(averaged);
+    d.panorama_width = panorama.cols;
+    return d;
+  }
   return histogram_.Compute(panorama);
 }
 
@@ -463,6 +486,13 @@ BandVotes TopologicalLocalizer::ClassifyBands(const Descriptor& descriptor,
     throw Error(StrCat("ClassifyBands: expected ", fs, " histogram values, got ",
                        descriptor.features.size()));
   }
+  return ClassifyBandsExcluding(descriptor.features.data(), candidates, -1, -1);
+}
+
+BandVotes TopologicalLocalizer::ClassifyBandsExcluding(const float* features,
+                                                       const std::vector<int>& candidates,
+                                                       int exclude_from, int exclude_to) const {
+  const std::size_t fs = histogram_.FeatureSize();
   std::vector<char> is_candidate(map_.size(), 0);
   for (int c : candidates) {
     if (c >= 0 && c < map_.size()) is_candidate[c] = 1;
@@ -476,10 +506,10 @@ BandVotes TopologicalLocalizer::ClassifyBands(const Descriptor& descriptor,
   for (int b = 0; b < ColorHistogram::kBands; ++b) {
     std::fill(best_per_place.begin(), best_per_place.end(), kInf);
     std::fill(best_ref_per_place.begin(), best_ref_per_place.end(), -1);
-    const float* q = descriptor.features.data() + static_cast<std::size_t>(b) * bins_;
+    const float* q = features + static_cast<std::size_t>(b) * bins_;
     for (int r = 0; r < n; ++r) {
       const int p = reference_place_[r];
-      if (!is_candidate[p]) continue;
+      if (!is_candidate[p] || (r >= exclude_from && r <= exclude_to)) continue;
       const float* ref = references_.data() + r * fs + static_cast<std::size_t>(b) * bins_;
       const double d = histogram_.Distance(q, ref, static_cast<std::size_t>(bins_));
       if (d < best_per_place[p]) {  // strict: ties keep the lower reference index
@@ -516,8 +546,79 @@ BandVotes TopologicalLocalizer::ClassifyBands(const Descriptor& descriptor,
   return votes;
 }
 
+std::array<double, ColorHistogram::kBands> TopologicalLocalizer::CalibrateBandThresholds(
+    BandCalibration* calibration) const {
+  // Every reference image r is a query against the other reference images of its place
+  // and of the neighbouring places, leaving out those taken within
+  // calibration_exclusion_frames of it (references are numbered in the order they were
+  // taken): the band then has to recognise the place from another visit or another part
+  // of it, as on a test day. Queries whose place has no reference left are skipped (no
+  // correct answer exists). Per band, the votes are sorted by confidence, and the
+  // threshold is the smallest confidence t such that, of the votes with C_b >= t, at most
+  // calibration_max_wrong are wrong (1 + 1e-9 when no such t exists: the band never
+  // votes).
+  const int n = NumReferences();
+  const int w = options_.calibration_exclusion_frames;
+  std::array<std::vector<std::pair<double, bool>>, ColorHistogram::kBands> votes;
+  int queries = 0;
+  const std::size_t fs = histogram_.FeatureSize();
+  for (int r = 0; r < n; ++r) {
+    const int p = reference_place_[r];
+    const int from = std::max(0, r - w), to = std::min(n - 1, r + w);
+    bool has_other = false;
+    for (int k = 0; k < n && !has_other; ++k) {
+      has_other = reference_place_[k] == p && (k < from || k > to);
+    }
+    if (!has_other) continue;
+    ++queries;
+    std::vector<int> candidates = map_.places()[p].neighbours;
+    candidates.push_back(p);
+    const BandVotes v = ClassifyBandsExcluding(references_.data() + r * fs, candidates, from, to);
+    for (int b = 0; b < ColorHistogram::kBands; ++b) {
+      if (v[b].place >= 0) votes[b].emplace_back(v[b].confidence, v[b].place == p);
+    }
+  }
+  std::array<double, ColorHistogram::kBands> threshold;
+  for (int b = 0; b < ColorHistogram::kBands; ++b) {
+    auto& vb = votes[b];
+    // Descending confidence; ties broken by correctness so the result does not depend
+    // on the sort's order of equal elements.
+    std::sort(vb.begin(), vb.end(), [](const auto& x, const auto& y) {
+      return x.first != y.first ? x.first > y.first : x.second > y.second;
+    });
+    threshold[b] = 1.0 + 1e-9;
+    std::int64_t wrong = 0;
+    for (std::size_t i = 0; i < vb.size(); ++i) {
+      wrong += !vb[i].second;
+      // Only at the end of a run of equal confidences (a threshold takes all of them).
+      if (i + 1 < vb.size() && vb[i + 1].first == vb[i].first) continue;
+      if (static_cast<double>(wrong) <= options_.calibration_max_wrong * (i + 1)) {
+        threshold[b] = vb[i].first;
+      }
+    }
+    if (calibration != nullptr) {
+      calibration->votes[b] = static_cast<int>(vb.size());
+      std::int64_t correct = 0;
+      for (const auto& e : vb) correct += e.second;
+      calibration->correct[b] = static_cast<int>(correct);
+    }
+  }
+  if (calibration != nullptr) {
+    calibration->queries = queries;
+    calibration->threshold = threshold;
+  }
+  return threshold;
+}
+
+void TopologicalLocalizer::LearnBandThresholds(BandCalibration* calibration) {
+  const auto learned = CalibrateBandThresholds(calibration);
+  for (int b = 0; b < ColorHistogram::kBands; ++b) {
+    effective_.band_threshold[b] = std::max(options_.band_threshold[b], learned[b]);
+  }
+}
+
 PlaceDecision TopologicalLocalizer::Localize(const Descriptor& descriptor) {
-  const PlaceDecision d = Vote(ClassifyBands(descriptor, CandidatePlaces()), options_);
+  const PlaceDecision d = Vote(ClassifyBands(descriptor, CandidatePlaces()), effective_);
   if (d.state == PlaceState::kConfident) {
     believed_place_ = d.place;  // [UN]: the belief follows confident classifications only
     non_confident_run_ = 0;
@@ -596,6 +697,9 @@ CrossSequenceResult RunCrossSequence(FrameSource* source, TopologicalLocalizer* 
   if (train.empty()) {
     throw Error(StrCat("cross-sequence test: session ", options.train_session + 1,
                        " gave no labelled reference image"));
+  }
+  if (localizer->options().learn_band_thresholds) {
+    localizer->LearnBandThresholds(&result.calibration);
   }
   localizer->Reset(options.known_start && !result.frames.empty() ? result.frames[0].true_place
                                                                  : -1);

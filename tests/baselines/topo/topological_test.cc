@@ -8,6 +8,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <random>
 #include <set>
 #include <string>
 
@@ -112,6 +113,15 @@ TEST(TopologicalOptions, ValidateNamesTheField) {
   o = {};
   o.histogram.bins = 1;
   EXPECT_THAT(ErrorOf([&] { o.Validate(); }), HasSubstr("bins"));
+  o = {};
+  o.average_block_px = 0;
+  EXPECT_THAT(ErrorOf([&] { o.Validate(); }), HasSubstr("average_block_px"));
+  o = {};
+  o.calibration_exclusion_frames = -1;
+  EXPECT_THAT(ErrorOf([&] { o.Validate(); }), HasSubstr("calibration_exclusion_frames"));
+  o = {};
+  o.calibration_max_wrong = 1.5;
+  EXPECT_THAT(ErrorOf([&] { o.Validate(); }), HasSubstr("calibration_max_wrong"));
 }
 
 // Three places in a row a - b - c.
@@ -127,7 +137,8 @@ AdjacencyMap LineMap() {
 }
 
 // A colour-histogram descriptor whose every band puts the given weights on bins 2, 12, 22.
-Descriptor Crafted(double w0, double w1, double w2, int bins = 32) {
+Descriptor Crafted(double w0, double w1, double w2,
+                   int bins = TopologicalHistogramDefaults().bins) {
   Descriptor d;
   d.kind = DescriptorKind::kColorHistogram;
   d.features.assign(ColorHistogram::kBands * bins, 0.001f);
@@ -137,6 +148,124 @@ Descriptor Crafted(double w0, double w1, double w2, int bins = 32) {
     d.features[b * bins + 22] += static_cast<float>(w2);
   }
   return d;
+}
+
+// Two neighbouring places, 40 references each taken in one pass (a then b). Bands 0-2
+// tell the places apart (a's mass on bin 2, b's on bin 12, slightly jittered); bands 3-5
+// are drawn independently of the place (pseudo-random mass on bins 2 and 12).
+TopologicalLocalizer TwoPlacesCleanAndNoisyBands(const TopologicalOptions& options = {}) {
+  std::vector<Place> places(2);
+  places[0].name = "a";
+  places[1].name = "b";
+  places[1].center_m = Eigen::Vector2d(2.0, 0.0);
+  places[0].neighbours = {1};
+  TopologicalLocalizer loc{AdjacencyMap(places), options};
+  const int bins = options.histogram.bins;
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  for (int place = 0; place < 2; ++place) {
+    for (int i = 0; i < 40; ++i) {
+      Descriptor d;
+      d.kind = DescriptorKind::kColorHistogram;
+      d.features.assign(ColorHistogram::kBands * bins, 0.001f);
+      for (int b = 0; b < ColorHistogram::kBands; ++b) {
+        const double w = b < 3 ? (place == 0 ? 0.9 : 0.1) + 0.05 * u(rng) : u(rng);
+        d.features[b * bins + 2] += static_cast<float>(w);
+        d.features[b * bins + 12] += static_cast<float>(1.0 - w);
+      }
+      loc.AddReference(place, d);
+    }
+  }
+  return loc;
+}
+
+// The learned thresholds keep the place-blind bands (many wrong votes) from voting and
+// let the place-telling bands vote; deterministic; the localizer then votes with
+// max(configured, learned) and keeps its configured options.
+TEST(TopologicalLocalizer, LearnedBandThresholdsSilenceUninformativeBands) {
+  TopologicalLocalizer loc = TwoPlacesCleanAndNoisyBands();
+  BandCalibration cal;
+  const auto t = loc.CalibrateBandThresholds(&cal);
+  // References 19, 20 (a) and 59, 60 (b) have no reference of their place 21+ away.
+  EXPECT_EQ(cal.queries, 76);
+  for (int b = 0; b < ColorHistogram::kBands; ++b) {
+    EXPECT_EQ(cal.votes[b], 76) << b;
+    EXPECT_GE(t[b], 0.0) << b;
+    EXPECT_LE(t[b], 1.0 + 1e-9) << b;
+    if (b < 3) {
+      EXPECT_EQ(cal.correct[b], 76) << b;
+    } else {
+      EXPECT_LT(cal.correct[b], 68) << b;
+      EXPECT_GT(t[b], 0.9) << b;
+    }
+  }
+  EXPECT_EQ(loc.CalibrateBandThresholds(), t);  // deterministic
+  loc.LearnBandThresholds();
+  for (int b = 0; b < ColorHistogram::kBands; ++b) {
+    EXPECT_EQ(loc.effective_options().band_threshold[b],
+              std::max(loc.options().band_threshold[b], t[b]));
+    EXPECT_EQ(loc.options().band_threshold[b], TopologicalOptions{}.band_threshold[b]);
+  }
+  // An image of a whose place-blind bands lean to b: the clean bands decide.
+  const int bins = loc.options().histogram.bins;
+  Descriptor q;
+  q.kind = DescriptorKind::kColorHistogram;
+  q.features.assign(ColorHistogram::kBands * bins, 0.001f);
+  for (int b = 0; b < ColorHistogram::kBands; ++b) {
+    q.features[b * bins + 2] += b < 3 ? 0.92f : 0.2f;
+    q.features[b * bins + 12] += b < 3 ? 0.08f : 0.8f;
+  }
+  loc.Reset();
+  const PlaceDecision d = loc.Localize(q);
+  EXPECT_EQ(d.state, PlaceState::kConfident);
+  EXPECT_EQ(d.place, 0);
+  EXPECT_EQ(d.voting_bands, 3);
+}
+
+// With the default 4 x 4 block averages, the hue and chromaticity histograms of a dark,
+// noisy copy of a rendered panorama stay much closer to those of the bright original
+// than without (the sensor noise would scatter the dark near-grey pixels).
+TEST(TopologicalLocalizer, BlockAveragesSteadyChromaticityOfDarkNoisyImages) {
+  const World world = LoadBuiltinWorld("institute");
+  Renderer renderer(world);
+  const cv::Mat bright = renderer.RenderPanorama(Pose2(7.5, 7.5, 0.3));
+  cv::Mat dark;
+  bright.convertTo(dark, CV_32FC3, 0.25);
+  cv::Mat noise(dark.size(), CV_32FC3);
+  cv::RNG rng(3);
+  rng.fill(noise, cv::RNG::NORMAL, 0.0, 2.0);
+  dark += noise;
+  dark.convertTo(dark, CV_8UC3);
+  auto chroma_distance = [&](int block) {
+    TopologicalOptions options;
+    options.average_block_px = block;
+    const TopologicalLocalizer loc(LineMap(), options);
+    const int bins = options.histogram.bins;
+    const Descriptor a = loc.Describe(bright), b = loc.Describe(dark);
+    double d = 0.0;
+    for (int band : {0, 3, 4, 5}) {  // H, r, g, b
+      d += ColorHistogram::JeffreyDivergence(a.features.data() + band * bins,
+                                             b.features.data() + band * bins, bins);
+    }
+    return d;
+  };
+  EXPECT_EQ(TopologicalOptions{}.average_block_px, 4);
+  EXPECT_LT(chroma_distance(4), 0.5 * chroma_distance(1));
+}
+
+// A query never matches a reference within calibration_exclusion_frames of itself: with a
+// window wider than a place's pass no query has a reference of its place left.
+TEST(TopologicalLocalizer, CalibrationExcludesNearbyReferences) {
+  TopologicalOptions options;
+  options.calibration_exclusion_frames = 40;
+  BandCalibration cal;
+  TwoPlacesCleanAndNoisyBands(options).CalibrateBandThresholds(&cal);
+  EXPECT_EQ(cal.queries, 0);
+  for (int b = 0; b < ColorHistogram::kBands; ++b) EXPECT_EQ(cal.votes[b], 0);
+  options.calibration_exclusion_frames = 0;
+  TwoPlacesCleanAndNoisyBands(options).CalibrateBandThresholds(&cal);
+  EXPECT_EQ(cal.queries, 80);
+  EXPECT_EQ(cal.correct[0], 80);
 }
 
 // The belief follows confident answers only and stays at the last confident place
@@ -165,7 +294,8 @@ TEST(TopologicalLocalizer, BeliefStaysAtLastConfidentPlace) {
   // Bands 0-2 look like a, bands 3-5 like c -> confused.
   Descriptor mixed = Crafted(1, 0, 0);
   const Descriptor c = Crafted(0, 0, 1);
-  std::copy(c.features.begin() + 3 * 32, c.features.end(), mixed.features.begin() + 3 * 32);
+  const int bins = TopologicalHistogramDefaults().bins;
+  std::copy(c.features.begin() + 3 * bins, c.features.end(), mixed.features.begin() + 3 * bins);
   d = loc.Localize(mixed);
   EXPECT_EQ(d.state, PlaceState::kConfused);
   EXPECT_EQ(loc.believed_place(), 1);
@@ -334,7 +464,8 @@ TEST(TopologicalLocalizer, SimulatedCrossDayMostlyCorrect) {
 
 // Issue 18: institute with the repository's room places (datasets/places/
 // institute_rooms.yaml, the corridor one place as in [UN]), train day 1, test day 2, on
-// several seeds (short laps): confident answers are rarely wrong.
+// several seeds (short laps): confident answers are rarely wrong (issue 18 target:
+// <= 1 %, i.e. at most one of the 90 frames; 0 on each seed with the defaults).
 TEST(TopologicalLocalizer, InstituteRoomsRarelyConfidentWrongOnSeveralSeeds) {
   const AdjacencyMap map =
       LoadAdjacencyMap(std::string(OMNICML_SOURCE_DIR) + "/datasets/places/institute_rooms.yaml");
@@ -354,7 +485,7 @@ TEST(TopologicalLocalizer, InstituteRoomsRarelyConfidentWrongOnSeveralSeeds) {
     const TopologicalCounts c = RunCrossSequence(&source, &loc, cross).counts;
     std::cout << TopologicalSummaryTable(c, StrCat("institute rooms seed ", seed, " day 1 -> 2"));
     ASSERT_EQ(c.frames, 90);
-    EXPECT_LE(c.confident_wrong, 0.05 * c.frames) << "seed " << seed;
+    EXPECT_LE(c.confident_wrong, 1) << "seed " << seed;
     EXPECT_GT(c.confident_correct, 0.4 * c.frames) << "seed " << seed;
   }
 }

@@ -46,9 +46,9 @@
 
 #include "omnicml/descriptors/color_histogram.h"
 #include "omnicml/descriptors/descriptor.h"
-#include "omnicml/unwrap/frame.h"
 #include "omnicml/geometry/pose.h"
 #include "omnicml/sim/simulator.h"
+#include "omnicml/unwrap/frame.h"
 
 namespace omnicml {
 
@@ -113,9 +113,28 @@ AdjacencyMap PlacesFromRoute(const RoutePath& route, double place_length_m);
 enum class PlaceState { kConfident, kUncertain, kConfused };
 std::string ToString(PlaceState state);  // confident|uncertain|confused
 
+// The localizer's histogram defaults (issue 18, docs/experiments.md "[UN] ..."): [UN]'s
+// six bands with the normalised r, g, b (chromaticity: unchanged when a room's lights
+// change its brightness) and 64 bins per band (near-grey walls put most chromaticity
+// values within a few hundredths of 1/3). Chosen among bins {32, 64} on home_store and
+// institute, seeds 1-3, all day pairs, one setting for both worlds.
+inline ColorHistogramOptions TopologicalHistogramDefaults() {
+  ColorHistogramOptions o;
+  o.bins = 64;
+  o.normalized_rgb = true;
+  return o;
+}
+
 struct TopologicalOptions {
   // The six histograms and their distance ([UN]: Jeffrey divergence, low-pass filtered).
-  ColorHistogramOptions histogram;
+  ColorHistogramOptions histogram = TopologicalHistogramDefaults();
+  // Describe averages blocks of this many x this many pixels (cv::INTER_AREA) before the
+  // histograms; 1 = off. Averaging n^2 pixels divides the sensor noise by n, which
+  // otherwise scatters the hue and chromaticity of the dark near-grey pixels of a room
+  // whose lights are off (issue 18: with 4, institute's hue band names another place in
+  // 10 % instead of 59 % of the frames of rooms whose lights changed between the days).
+  // Chosen among {1, 4, 8}. Not in [UN]. 1..16.
+  int average_block_px = 4;
   // Per band (H, L, S, R|r, G|g, B|b), the smallest confidence C_b, in [0, 1], with which
   // the band's vote counts.
   std::array<double, ColorHistogram::kBands> band_threshold = {0.05, 0.05, 0.05, 0.05, 0.05, 0.05};
@@ -124,6 +143,18 @@ struct TopologicalOptions {
   double action_threshold = 0.1;
   // Compare only with the believed place and its neighbours ([UN]); false: all places.
   bool restrict_to_neighbours = true;
+  // Learn per-band thresholds from the reference images (TopologicalLocalizer::
+  // LearnBandThresholds, run by RunCrossSequence after the references are added): each
+  // band's threshold becomes max(band_threshold[b], the learned one). [UN] sets a
+  // threshold per band; this derives it from the training day instead of by hand.
+  bool learn_band_thresholds = false;
+  // Calibration: a reference image is compared with the references taken more than this
+  // many reference images before or after it (another visit or another part of the
+  // place). >= 0.
+  int calibration_exclusion_frames = 20;
+  // Calibration: the largest fraction of wrong votes among those at or above a band's
+  // learned threshold, in [0, 1]. [UN] aims at no confident-wrong classification.
+  double calibration_max_wrong = 0.01;
   // After this many consecutive non-confident frames compare with all places until the
   // next confident one (a recovery [UN] does not have). 0 = never.
   int global_search_after_frames = 0;
@@ -136,8 +167,12 @@ struct TopologicalOptions {
 template <class V>
 void VisitFields(V& v, TopologicalOptions& o) {
   v.Section("histogram", o.histogram);
+  v("average_block_px", o.average_block_px);
   v("band_threshold", o.band_threshold);
   v("action_threshold", o.action_threshold);
+  v("learn_band_thresholds", o.learn_band_thresholds);
+  v("calibration_exclusion_frames", o.calibration_exclusion_frames);
+  v("calibration_max_wrong", o.calibration_max_wrong);
   v("restrict_to_neighbours", o.restrict_to_neighbours);
   v("global_search_after_frames", o.global_search_after_frames);
 }
@@ -147,8 +182,8 @@ void VisitFields(V& v, TopologicalOptions& o) {
 // topo_config.yaml (kTopoRunKeys) are accepted and skipped, so that file loads back.
 // Throws omnicml::Error "<file>:<line>: ..." naming the key.
 inline const std::vector<std::string> kTopoRunKeys = {
-    "world", "log", "days", "frames_per_day", "seed", "step_m", "people", "train_day",
-    "test_day", "places", "reference_stride_frames", "known_start"};
+    "world",     "log",      "days",   "frames_per_day",          "seed",       "step_m", "people",
+    "train_day", "test_day", "places", "reference_stride_frames", "known_start"};
 TopologicalOptions ParseTopologicalOptionsYaml(const std::string& yaml_text,
                                                const std::string& source);
 TopologicalOptions LoadTopologicalOptions(const std::string& path);
@@ -173,6 +208,14 @@ struct PlaceDecision {
   BandVotes bands;
 };
 
+// What LearnBandThresholds measured on the reference images, per band.
+struct BandCalibration {
+  int queries = 0;  // reference images used as queries (their place had references left)
+  std::array<int, ColorHistogram::kBands> votes{};         // queries where the band voted
+  std::array<int, ColorHistogram::kBands> correct{};       // ... for the query's own place
+  std::array<double, ColorHistogram::kBands> threshold{};  // learned (before the max)
+};
+
 // Steps 3-4 of the file comment on given band votes (pure; no state).
 PlaceDecision Vote(const BandVotes& bands, const TopologicalOptions& options);
 
@@ -184,8 +227,9 @@ class TopologicalLocalizer {
   // Throws omnicml::Error on invalid options or an empty map.
   TopologicalLocalizer(AdjacencyMap map, const TopologicalOptions& options = {});
 
-  // The six histograms of a panorama (CV_8UC3 BGR or CV_8UC1). Throws omnicml::Error on a
-  // bad image.
+  // The six histograms of a panorama (CV_8UC3 BGR or CV_8UC1), after averaging
+  // average_block_px blocks (when the image holds at least 2 x 2 blocks). Throws
+  // omnicml::Error on a bad image.
   Descriptor Describe(const cv::Mat& panorama) const;
 
   // Adds a reference image (its Describe() result) to `place`. Throws omnicml::Error on a
@@ -204,6 +248,20 @@ class TopologicalLocalizer {
   // Step 2-3 of the file comment against the reference images of `candidates`.
   BandVotes ClassifyBands(const Descriptor& descriptor, const std::vector<int>& candidates) const;
 
+  // Per-band thresholds learned from the reference images (see TopologicalOptions::
+  // calibration_*): each reference is classified against the references of its place
+  // and its neighbours taken more than calibration_exclusion_frames away from it, and a
+  // band's threshold is the smallest confidence above which at most
+  // calibration_max_wrong of its votes were wrong. Deterministic; does not change the
+  // localizer. `calibration` (optional) receives the counts.
+  std::array<double, ColorHistogram::kBands> CalibrateBandThresholds(
+      BandCalibration* calibration = nullptr) const;
+  // Sets the thresholds Localize uses to max(options().band_threshold, the learned ones).
+  // Call after the last AddReference.
+  void LearnBandThresholds(BandCalibration* calibration = nullptr);
+  // The options Localize votes with (options() with the learned band thresholds).
+  const TopologicalOptions& effective_options() const { return effective_; }
+
   // Classifies one input image against CandidatePlaces() and updates the belief.
   PlaceDecision Localize(const Descriptor& descriptor);
 
@@ -217,6 +275,11 @@ class TopologicalLocalizer {
   int bins_ = 0;
   std::vector<float> references_;     // NumReferences() x (6 * bins), row-major
   std::vector<int> reference_place_;  // place of each reference image
+  // ClassifyBands on a raw feature vector, ignoring references [exclude_from, exclude_to].
+  BandVotes ClassifyBandsExcluding(const float* features, const std::vector<int>& candidates,
+                                   int exclude_from, int exclude_to) const;
+
+  TopologicalOptions effective_;  // options_ with the learned band thresholds
   int believed_place_ = -1;
   int non_confident_run_ = 0;
 };
@@ -255,7 +318,8 @@ struct CrossSequenceOptions {
 struct CrossSequenceResult {
   std::vector<TopologicalFrameResult> frames;
   TopologicalCounts counts;
-  int references = 0;  // reference images taken from the training session
+  int references = 0;           // reference images taken from the training session
+  BandCalibration calibration;  // when options().learn_band_thresholds
   int places_with_references = 0;
 };
 

@@ -3,7 +3,6 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
-#include <optional>
 
 #include <opencv2/imgproc.hpp>
 #if defined(__SSE2__)
@@ -717,16 +716,41 @@ struct Renderer::Impl {
     const Eigen::Vector2d lp = hit.point - 0.05 * dir;
     float shade = light[LightIndex(lp.x(), lp.y())];
     (void)cam;
-    std::optional<ColumnSampler> sampler;
+    if (seg && seg->window < 0) {
+      // Obstacle face: the sampler gives runs of equal colours down a column (texture
+      // cells), so shading and rounding are redone only when its colour changes.
+      ColumnSampler sampler(textures[seg->texture], hit.u);
+      const float s = shade * seg->face_shade;
+      Rgb last_in{};
+      bool have_last = false;
+      std::uint8_t b = 0, g = 0, red = 0;
+      for (int r = first; r <= last; ++r) {
+        if (column_filled[r]) continue;
+        column_filled[r] = 1;
+        const Rgb in = sampler(cam_h + hit.t * row_tan[r]);
+        if (!have_last || in.r != last_in.r || in.g != last_in.g || in.b != last_in.b) {
+          const Rgb c = Scale(in, s);
+          b = Sat(c.b);
+          g = Sat(c.g);
+          red = Sat(c.r);
+          last_in = in;
+          have_last = true;
+        }
+        std::uint8_t* px = pano->ptr<std::uint8_t>(r) + 3 * col;
+        px[0] = b;
+        px[1] = g;
+        px[2] = red;
+      }
+      while (cs->lo <= cs->hi && column_filled[cs->lo]) ++cs->lo;
+      while (cs->hi >= cs->lo && column_filled[cs->hi]) --cs->hi;
+      return;
+    }
     for (int r = first; r <= last; ++r) {
       if (column_filled[r]) continue;
       column_filled[r] = 1;
       const double z = cam_h + hit.t * row_tan[r];
       Rgb c;
-      if (seg && seg->window < 0) {
-        if (!sampler) sampler.emplace(textures[seg->texture], hit.u);
-        c = Scale((*sampler)(z), shade * seg->face_shade);
-      } else if (seg) {
+      if (seg) {
         const WindowSpec& w = world.windows[seg->window];
         const double fu = hit.u / seg->length;
         const double fz = (z - w.bottom_m) / (w.top_m - w.bottom_m);

@@ -121,6 +121,8 @@ void BM_EnginePanoramaPerFrame(benchmark::State& state) {
   state.SetLabel(std::string(kWorlds[state.range(0)]) +
                  (direct ? " direct panorama" : " ring + unwrap"));
 }
-BENCHMARK(BM_EnginePanoramaPerFrame)->ArgsProduct({{0, 1, 2}, {0, 1}})->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_EnginePanoramaPerFrame)
+    ->ArgsProduct({{0, 1, 2}, {0, 1}})
+    ->Unit(benchmark::kMicrosecond);
 
 }  // namespace

@@ -920,7 +920,8 @@ struct Renderer::Impl {
           const double fx = p.x() / planes.cell_m, fy = p.y() / planes.cell_m;
           if (fx >= 0 && fy >= 0 && fx < planes.w && fy < planes.h) {
             const std::uint8_t* src =
-                raster + (static_cast<std::size_t>(fy) * planes.w + static_cast<std::size_t>(fx)) * 3;
+                raster +
+                (static_cast<std::size_t>(fy) * planes.w + static_cast<std::size_t>(fx)) * 3;
             px[0] = src[0];
             px[1] = src[1];
             px[2] = src[2];

@@ -423,8 +423,8 @@ OmniUnwrapper::OmniUnwrapper(const OmniCalibration& calibration, int image_width
   constexpr int kBandRows = 16;
   for (int y0 = 0; y0 < image_height; y0 += kBandRows) {
     const int y1 = std::min(image_height, y0 + kBandRows);
-    int xmin = image_width, xmax = -1;        // painted columns of the band
-    int hole_lo = 0, hole_hi = image_width;   // columns unpainted in every row (in a hole)
+    int xmin = image_width, xmax = -1;       // painted columns of the band
+    int hole_lo = 0, hole_hi = image_width;  // columns unpainted in every row (in a hole)
     bool all_rows_have_hole = true;
     for (int y = y0; y < y1; ++y) {
       const float* ix = inv_map_x_.ptr<float>(y);

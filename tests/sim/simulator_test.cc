@@ -103,7 +103,8 @@ TEST(Simulator, PanoramaOutputMatchesTheUnwrappedRing) {
   pano_options.output = ImageKind::kPanorama;
   SimulatedFrameSource ring_source(ring_options), pano_source(pano_options);
   EXPECT_EQ(pano_source.Session(0).camera.kind, ImageKind::kPanorama);
-  EXPECT_EQ(pano_source.Session(0).camera.image_width, pano_source.world().camera.panorama_width_px);
+  EXPECT_EQ(pano_source.Session(0).camera.image_width,
+            pano_source.world().camera.panorama_width_px);
   Frame ring, pano;
   double worst = 0;
   while (ring_source.Next(&ring)) {

@@ -28,6 +28,20 @@ void AddRunInputFlags(CLI::App* cmd, RunSettings* f, bool with_forgetting) {
                          kMaxFramesPerDay, "; days x frames at most ", kMaxSimulatedFrames))
       ->capture_default_str();
   cmd->add_option("--seed", f->input.seed, "Simulator seed")->capture_default_str();
+  cmd->add_option_function<std::string>(
+      "--sim-image",
+      [f](const std::string& s) {
+        if (s == "raw_ring") {
+          f->input.sim_image = ImageKind::kRawRing;
+        } else if (s == "panorama") {
+          f->input.sim_image = ImageKind::kPanorama;
+        } else {
+          throw CLI::ValidationError("--sim-image", "'" + s + "' (raw_ring | panorama)");
+        }
+      },
+      "Simulated images (with --world): raw_ring (default; the engine unwraps the rendered "
+      "ring) | panorama (the rendered panorama itself, no ring and no unwrap: about 2x "
+      "faster, slightly different pixels)");
   cmd->add_flag("--skip-unreadable-frames", f->input.skip_unreadable_frames,
                 "Logs: skip (and count) frames that cannot be read instead of failing");
   cmd->add_option(

@@ -3,15 +3,21 @@
 #include <algorithm>
 #include <charconv>
 #include <cmath>
+#include <condition_variable>
 #include <cstdint>
+#include <deque>
+#include <exception>
 #include <filesystem>
 #include <fstream>
 #include <functional>
 #include <limits>
+#include <mutex>
 #include <set>
 #include <sstream>
 #include <string>
+#include <thread>
 #include <type_traits>
+#include <utility>
 #include <vector>
 
 #include "omnicml/common/common.h"
@@ -102,7 +108,8 @@ std::string RunInput::Describe() const {
   }
   const int fpd = frames_per_day > 0 ? frames_per_day : SimulatorOptions{}.frames_per_day;
   return StrCat("world ", world, ", days ", first_day + 1, "-", first_day + days, ", ", fpd,
-                " frames/day, seed ", seed);
+                " frames/day, seed ", seed,
+                sim_image == ImageKind::kPanorama ? ", panorama images" : "");
 }
 
 namespace {
@@ -134,7 +141,82 @@ class SkipDaysSource : public FrameSource {
   std::int64_t delivered_ = 0;
 };
 
+// PrefetchFrames: a producer thread runs inner->Next into a bounded queue.
+class PrefetchingSource : public FrameSource {
+ public:
+  PrefetchingSource(std::unique_ptr<FrameSource> inner, int depth)
+      : inner_(std::move(inner)), depth_(static_cast<std::size_t>(depth)) {
+    thread_ = std::thread([this] { Produce(); });
+  }
+  ~PrefetchingSource() override {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      stop_ = true;
+    }
+    space_.notify_all();
+    thread_.join();
+  }
+  int NumSessions() const override { return inner_->NumSessions(); }
+  const SessionInfo& Session(int index) const override { return inner_->Session(index); }
+  bool Next(Frame* frame) override {
+    std::unique_lock<std::mutex> lock(mutex_);
+    ready_.wait(lock, [&] { return !queue_.empty() || done_; });
+    if (queue_.empty()) {
+      if (error_) std::rethrow_exception(std::exchange(error_, nullptr));
+      return false;
+    }
+    *frame = std::move(queue_.front());
+    queue_.pop_front();
+    lock.unlock();
+    space_.notify_one();
+    return true;
+  }
+
+ private:
+  void Produce() {
+    try {
+      while (true) {
+        {
+          std::unique_lock<std::mutex> lock(mutex_);
+          space_.wait(lock, [&] { return queue_.size() < depth_ || stop_; });
+          if (stop_) break;
+        }
+        Frame frame;
+        if (!inner_->Next(&frame)) break;
+        {
+          std::lock_guard<std::mutex> lock(mutex_);
+          queue_.push_back(std::move(frame));
+        }
+        ready_.notify_one();
+      }
+    } catch (...) {
+      std::lock_guard<std::mutex> lock(mutex_);
+      error_ = std::current_exception();
+    }
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      done_ = true;
+    }
+    ready_.notify_all();
+  }
+
+  std::unique_ptr<FrameSource> inner_;
+  const std::size_t depth_;
+  std::mutex mutex_;
+  std::condition_variable ready_;  // a frame was queued, or the producer is done
+  std::condition_variable space_;  // a frame was taken, or stop_
+  std::deque<Frame> queue_;
+  bool done_ = false, stop_ = false;
+  std::exception_ptr error_;
+  std::thread thread_;  // last: started once every member above exists
+};
+
 }  // namespace
+
+std::unique_ptr<FrameSource> PrefetchFrames(std::unique_ptr<FrameSource> inner, int depth) {
+  OMNICML_CHECK(inner != nullptr && depth >= 1) << "PrefetchFrames: depth " << depth;
+  return std::make_unique<PrefetchingSource>(std::move(inner), depth);
+}
 
 std::unique_ptr<FrameSource> OpenFrameSource(const RunInput& input) {
   input.Validate();
@@ -160,9 +242,12 @@ std::unique_ptr<FrameSource> OpenFrameSource(const RunInput& input) {
   options.days = input.first_day + input.days;
   if (input.frames_per_day > 0) options.frames_per_day = input.frames_per_day;
   options.seed = input.seed;
-  auto source = std::make_unique<SimulatedFrameSource>(options);
-  if (input.first_day == 0) return source;
-  return std::make_unique<SkipDaysSource>(std::move(source), input.first_day);
+  options.output = input.sim_image;
+  std::unique_ptr<FrameSource> source = std::make_unique<SimulatedFrameSource>(options);
+  if (input.first_day != 0)
+    source = std::make_unique<SkipDaysSource>(std::move(source), input.first_day);
+  if (input.prefetch_frames) source = PrefetchFrames(std::move(source));
+  return source;
 }
 
 std::optional<std::int64_t> CountFrames(const RunInput& input, const FrameSource& source) {

@@ -3,7 +3,6 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
-#include <optional>
 
 #include <opencv2/imgproc.hpp>
 #if defined(__SSE2__)
@@ -717,16 +716,41 @@ struct Renderer::Impl {
     const Eigen::Vector2d lp = hit.point - 0.05 * dir;
     float shade = light[LightIndex(lp.x(), lp.y())];
     (void)cam;
-    std::optional<ColumnSampler> sampler;
+    if (seg && seg->window < 0) {
+      // Obstacle face: the sampler gives runs of equal colours down a column (texture
+      // cells), so shading and rounding are redone only when its colour changes.
+      ColumnSampler sampler(textures[seg->texture], hit.u);
+      const float s = shade * seg->face_shade;
+      Rgb last_in{};
+      bool have_last = false;
+      std::uint8_t b = 0, g = 0, red = 0;
+      for (int r = first; r <= last; ++r) {
+        if (column_filled[r]) continue;
+        column_filled[r] = 1;
+        const Rgb in = sampler(cam_h + hit.t * row_tan[r]);
+        if (!have_last || in.r != last_in.r || in.g != last_in.g || in.b != last_in.b) {
+          const Rgb c = Scale(in, s);
+          b = Sat(c.b);
+          g = Sat(c.g);
+          red = Sat(c.r);
+          last_in = in;
+          have_last = true;
+        }
+        std::uint8_t* px = pano->ptr<std::uint8_t>(r) + 3 * col;
+        px[0] = b;
+        px[1] = g;
+        px[2] = red;
+      }
+      while (cs->lo <= cs->hi && column_filled[cs->lo]) ++cs->lo;
+      while (cs->hi >= cs->lo && column_filled[cs->hi]) --cs->hi;
+      return;
+    }
     for (int r = first; r <= last; ++r) {
       if (column_filled[r]) continue;
       column_filled[r] = 1;
       const double z = cam_h + hit.t * row_tan[r];
       Rgb c;
-      if (seg && seg->window < 0) {
-        if (!sampler) sampler.emplace(textures[seg->texture], hit.u);
-        c = Scale((*sampler)(z), shade * seg->face_shade);
-      } else if (seg) {
+      if (seg) {
         const WindowSpec& w = world.windows[seg->window];
         const double fu = hit.u / seg->length;
         const double fz = (z - w.bottom_m) / (w.top_m - w.bottom_m);
@@ -763,10 +787,12 @@ struct Renderer::Impl {
     while (cs->hi >= cs->lo && column_filled[cs->hi]) --cs->hi;
   }
 
-  void RenderColumn(int col, double theta, const Eigen::Vector2d& cam,
+  // Draws the surfaces column `col` (ray along dir) sees and marks the rows they leave
+  // open in open_mask (row-major, width x height) for FillPlanes.
+  void RenderColumn(int col, const Eigen::Vector2d& dir, const Eigen::Vector2d& cam,
                     const std::vector<Person>& people, cv::Mat* pano, std::vector<Hit>* cell_hits,
-                    std::vector<Hit>* people_hits, std::uint8_t* filled) const {
-    const Eigen::Vector2d dir(std::cos(theta), std::sin(theta));
+                    std::vector<Hit>* people_hits, std::uint8_t* filled,
+                    std::uint8_t* open_mask) const {
     std::fill(filled, filled + height, 0);
     ColumnState cs{filled, 0, height - 1};
     // People: ray-cylinder hits.
@@ -864,41 +890,60 @@ struct Renderer::Impl {
         tmy += tdy;
       }
     }
-    // Floor and ceiling in the rows no surface filled.
+    // The rows no surface filled get the floor or the ceiling in FillPlanes, row by row.
+    std::uint8_t* open_rows = open_mask + col;
+    for (int r = 0; r < height; ++r) open_rows[static_cast<std::size_t>(r) * width] = !filled[r];
+  }
+
+  // Floor and ceiling in the pixels open_mask marks (row-major, 1 = no surface), rays
+  // along dirs (one per column). Row by row: the points of one row lie on a circle
+  // around the camera, neighbours a fraction of a baked cell apart, so the baked rasters
+  // are read with locality (column by column they were read far apart, one cache miss
+  // per pixel). Same bytes as a column-by-column fill.
+  void FillPlanes(const Eigen::Vector2d& cam, const std::vector<Eigen::Vector2d>& dirs,
+                  const std::uint8_t* open_mask, cv::Mat* pano) const {
     for (int r = 0; r < height; ++r) {
-      if (filled[r]) continue;
+      const std::uint8_t* open = open_mask + static_cast<std::size_t>(r) * width;
+      std::uint8_t* row = pano->ptr<std::uint8_t>(r);
       const double d = row_plane_dist[r];
-      std::uint8_t* px = pano->ptr<std::uint8_t>(r) + 3 * col;
-      if (std::isfinite(d)) {
-        // Floor or ceiling: from the baked rasters when inside the floor plan.
-        const Eigen::Vector2d p = cam + d * dir;
-        const BakedPlanes& planes = row_coarse[r] ? coarse : fine;
-        const double fx = p.x() / planes.cell_m, fy = p.y() / planes.cell_m;
-        if (fx >= 0 && fy >= 0 && fx < planes.w && fy < planes.h) {
-          const std::uint8_t* src =
-              (row_tan[r] < 0 ? planes.floor_bgr.data() : planes.ceiling_bgr.data()) +
-              (static_cast<std::size_t>(fy) * planes.w + static_cast<std::size_t>(fx)) * 3;
-          px[0] = src[0];
-          px[1] = src[1];
-          px[2] = src[2];
-          continue;
+      const bool finite = std::isfinite(d);
+      const BakedPlanes& planes = row_coarse[r] ? coarse : fine;
+      const std::uint8_t* raster =
+          row_tan[r] < 0 ? planes.floor_bgr.data() : planes.ceiling_bgr.data();
+      for (int col = 0; col < width; ++col) {
+        if (!open[col]) continue;
+        std::uint8_t* px = row + 3 * col;
+        const Eigen::Vector2d& dir = dirs[col];
+        if (finite) {
+          // Floor or ceiling: from the baked rasters when inside the floor plan.
+          const Eigen::Vector2d p = cam + d * dir;
+          const double fx = p.x() / planes.cell_m, fy = p.y() / planes.cell_m;
+          if (fx >= 0 && fy >= 0 && fx < planes.w && fy < planes.h) {
+            const std::uint8_t* src =
+                raster +
+                (static_cast<std::size_t>(fy) * planes.w + static_cast<std::size_t>(fx)) * 3;
+            px[0] = src[0];
+            px[1] = src[1];
+            px[2] = src[2];
+            continue;
+          }
         }
-      }
-      Rgb c;
-      if (!std::isfinite(d)) {
-        c = {60, 60, 60};
-      } else {
-        const Eigen::Vector2d p = cam + d * dir;
-        const std::size_t li = LightIndex(p.x(), p.y());
-        if (row_tan[r] < 0) {
-          c = Scale(SampleTexture(floor_tex, p.x(), p.y()), light[li]);
+        Rgb c;
+        if (!finite) {
+          c = {60, 60, 60};
         } else {
-          c = CeilingColor(p.x(), p.y());
+          const Eigen::Vector2d p = cam + d * dir;
+          const std::size_t li = LightIndex(p.x(), p.y());
+          if (row_tan[r] < 0) {
+            c = Scale(SampleTexture(floor_tex, p.x(), p.y()), light[li]);
+          } else {
+            c = CeilingColor(p.x(), p.y());
+          }
         }
+        px[0] = Sat(c.b);
+        px[1] = Sat(c.g);
+        px[2] = Sat(c.r);
       }
-      px[0] = Sat(c.b);
-      px[1] = Sat(c.g);
-      px[2] = Sat(c.r);
     }
   }
 };
@@ -941,11 +986,16 @@ void Renderer::RenderPanorama(const Pose2& map_T_robot, const std::vector<Person
   std::vector<Hit> cell_hits, people_hits;
   cell_hits.reserve(64);
   std::vector<std::uint8_t> filled(m.height);
+  std::vector<std::uint8_t> open_mask(static_cast<std::size_t>(m.width) * m.height);
+  std::vector<Eigen::Vector2d> dirs(m.width);
   for (int c = 0; c < m.width; ++c) {
     const std::int64_t idx = ((h_int + c) % m.width + m.width) % m.width;
     const double theta = kTwoPi * (static_cast<double>(idx) + h_frac) / m.width;
-    m.RenderColumn(c, theta, cam, people, pano, &cell_hits, &people_hits, filled.data());
+    dirs[c] = Eigen::Vector2d(std::cos(theta), std::sin(theta));
+    m.RenderColumn(c, dirs[c], cam, people, pano, &cell_hits, &people_hits, filled.data(),
+                   open_mask.data());
   }
+  m.FillPlanes(cam, dirs, open_mask.data(), pano);
 }
 
 cv::Mat Renderer::RenderRing(const cv::Mat& panorama) const {

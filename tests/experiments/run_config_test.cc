@@ -4,12 +4,14 @@
 
 #include <filesystem>
 #include <fstream>
+#include <memory>
 #include <random>
 #include <string>
 
 #include <gtest/gtest.h>
 
 #include "omnicml/common/common.h"
+#include "omnicml/sim/simulator.h"
 
 namespace omnicml {
 namespace {
@@ -174,6 +176,71 @@ TEST(RunInput, ValidatesTheInput) {
   days.world = "home_store";
   days.days = 0;
   EXPECT_THROW(days.Validate(), Error);
+}
+
+// A source of `n` numbered frames in one session that throws at frame `throw_at` (-1:
+// never).
+class CountingSource : public FrameSource {
+ public:
+  CountingSource(int n, int throw_at) : n_(n), throw_at_(throw_at) { session_.name = "s"; }
+  int NumSessions() const override { return 1; }
+  const SessionInfo& Session(int) const override { return session_; }
+  bool Next(Frame* frame) override {
+    if (next_ == throw_at_) throw Error("bad frame " + std::to_string(next_));
+    if (next_ >= n_) return false;
+    frame->global_index = next_++;
+    return true;
+  }
+
+ private:
+  int n_, throw_at_, next_ = 0;
+  SessionInfo session_;
+};
+
+// Prefetched simulated frames are the simulator's frames, byte for byte and in order
+// (so a run's output does not depend on prefetching), for either image kind.
+TEST(PrefetchFrames, DeliversTheSameFramesInOrder) {
+  for (const ImageKind kind : {ImageKind::kRawRing, ImageKind::kPanorama}) {
+    SimulatorOptions o;
+    o.world = "institute";
+    o.days = 2;
+    o.frames_per_day = 6;
+    o.seed = 3;
+    o.output = kind;
+    SimulatedFrameSource direct(o);
+    const auto prefetched = PrefetchFrames(std::make_unique<SimulatedFrameSource>(o), 2);
+    ASSERT_EQ(prefetched->NumSessions(), direct.NumSessions());
+    Frame a, b;
+    int n = 0;
+    while (direct.Next(&a)) {
+      ASSERT_TRUE(prefetched->Next(&b)) << "frame " << n;
+      EXPECT_EQ(a.global_index, b.global_index);
+      EXPECT_EQ(a.session_index, b.session_index);
+      EXPECT_TRUE(a.odom_T_robot == b.odom_T_robot);
+      ASSERT_EQ(a.image.size(), b.image.size());
+      EXPECT_EQ(cv::norm(a.image, b.image, cv::NORM_INF), 0.0) << "frame " << n;
+      ++n;
+    }
+    EXPECT_FALSE(prefetched->Next(&b));
+    EXPECT_EQ(n, 12);
+  }
+}
+
+// An error of the inner source reaches the consumer at the frame that failed, after the
+// frames before it; a source destroyed before its end stops its thread.
+TEST(PrefetchFrames, RethrowsErrorsInOrderAndStopsEarly) {
+  const auto source = PrefetchFrames(std::make_unique<CountingSource>(10, 3), 4);
+  Frame f;
+  for (int i = 0; i < 3; ++i) {
+    ASSERT_TRUE(source->Next(&f));
+    EXPECT_EQ(f.global_index, i);
+  }
+  EXPECT_NE(ErrorOf([&] { source->Next(&f); }).find("bad frame 3"), std::string::npos);
+  EXPECT_FALSE(source->Next(&f));
+  // Destroyed with frames still queued and the producer waiting for space.
+  auto early = PrefetchFrames(std::make_unique<CountingSource>(1000, -1), 1);
+  ASSERT_TRUE(early->Next(&f));
+  early.reset();
 }
 
 }  // namespace

@@ -231,6 +231,8 @@ py::dict StatsDict(const FrameStats& s) {
   d["num_matches"] = s.num_matches;
   d["best_similarity"] = s.best_similarity;
   d["hypothesis_components"] = s.hypothesis_components;
+  d["gated_matching"] = s.gated_matching;
+  d["matching_candidates"] = s.matching_candidates;
   d["mixture_components"] = s.mixture_components;
   d["updates_applied"] = s.updates_applied;
   d["updates_queued"] = s.updates_queued;

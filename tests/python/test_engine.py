@@ -60,6 +60,9 @@ class EngineTest(unittest.TestCase):
         self.assertEqual(r.estimate.pose.shape, (3,))
         self.assertEqual(r.estimate.covariance.shape, (3, 3))
         self.assertGreater(r.stats["total_us"], 0)
+        # Without the gate every view's distance is computed.
+        self.assertFalse(r.stats["gated_matching"])
+        self.assertEqual(r.stats["matching_candidates"], r.stats["num_views"])
         self.assertEqual(engine.counters["frames"], len(self.frames))
         self.assertEqual(engine.session, 1)
 

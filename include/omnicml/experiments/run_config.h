@@ -94,8 +94,9 @@ struct RunInput {
   // Simulated images (world only; --sim-image): kRawRing renders the panorama, then the
   // catadioptric ring the engine unwraps (exercises the unwrapper); kPanorama hands the
   // engine the rendered panorama with sensor noise, no ring and no unwrap (issue 19:
-  // about 2x faster per frame; the pixels differ by the ring's resampling, the accuracy
-  // not measurably: docs/experiments.md "Simulator speed (issue 19)").
+  // about 2x faster per frame; the pixels differ by the ring's resampling, and mean
+  // errors were 2-5 % higher on institute and home_store, seeds 1-3: docs/experiments.md
+  // "Simulator speed (issue 19)").
   ImageKind sim_image = ImageKind::kRawRing;
   // World only: render the frames on a thread of their own, up to a few frames ahead of
   // the engine (PrefetchFrames); the frames are the same bytes either way.

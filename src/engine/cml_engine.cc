@@ -176,11 +176,7 @@ bool CmlEngine::IsConfidentAnchor(const Estimate& estimate, bool appearance_fix)
   if (appearance_fix || !(options_.anchor_max_sigma_m > 0.0) || !options_.reconstruct_multimodal) {
     return true;
   }
-  const Eigen::Matrix2d c = estimate.mean.covariance.topLeftCorner<2, 2>();
-  // Largest eigenvalue of the symmetric 2x2 block, in closed form (deterministic).
-  const double half_trace = 0.5 * (c(0, 0) + c(1, 1));
-  const double half_diff = 0.5 * (c(0, 0) - c(1, 1));
-  const double largest = half_trace + std::sqrt(half_diff * half_diff + c(0, 1) * c(1, 0));
+  const double largest = LargestEigenvalue2(estimate.mean.covariance.topLeftCorner<2, 2>());
   return largest <= options_.anchor_max_sigma_m * options_.anchor_max_sigma_m;
 }
 
@@ -388,10 +384,7 @@ FrameResult CmlEngine::ProcessFrame(const Frame& frame) {
   const GatedMatchingOptions& gm = options_.gated_matching;
   if (gm.enabled && p_x_u.size() == 1 && t % gm.full_search_every_frames != 0 &&
       model_->NumViews() >= static_cast<std::size_t>(gm.min_views)) {
-    const Eigen::Matrix2d c_xy = p_x_u[0].covariance.topLeftCorner<2, 2>();
-    const double variance = 0.5 * (c_xy(0, 0) + c_xy(1, 1)) +
-                            std::sqrt(0.25 * (c_xy(0, 0) - c_xy(1, 1)) * (c_xy(0, 0) - c_xy(1, 1)) +
-                                      c_xy(0, 1) * c_xy(1, 0)) +
+    const double variance = LargestEigenvalue2(p_x_u[0].covariance.topLeftCorner<2, 2>()) +
                             options_.appearance_sigma_m * options_.appearance_sigma_m;
     const EnvironmentModel::Disc gate{p_x_u[0].mean.x(), p_x_u[0].mean.y(),
                                       gm.gate_sigmas * std::sqrt(variance)};
@@ -491,14 +484,17 @@ FrameResult CmlEngine::ProcessFrame(const Frame& frame) {
       }
     }
   }
-  result.stats.pending_multimodal = static_cast<int>(pending_.size());
+  EndFrame(frame, t_start, &result);
+  return result;
+}
 
+void CmlEngine::EndFrame(const Frame& frame, Clock::time_point t_start, FrameResult* result) {
+  result->stats.pending_multimodal = static_cast<int>(pending_.size());
   session_.prev_odom = frame.odom_T_robot;
   session_.has_prev_odom = true;
-  next_frame_ = t + 1;
+  next_frame_ = result->frame + 1;
   counters_.frames += 1;
-  result.stats.total_us = MicrosSince(t_start);
-  return result;
+  result->stats.total_us = MicrosSince(t_start);
 }
 
 void CmlEngine::ReplaceModel(EnvironmentModel model) {

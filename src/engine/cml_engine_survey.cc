@@ -8,18 +8,9 @@
 #include "omnicml/engine/cml_engine.h"
 
 namespace omnicml {
-namespace {
-
-using Clock = std::chrono::steady_clock;
-
-double MicrosSince(Clock::time_point t0) {
-  return std::chrono::duration<double, std::micro>(Clock::now() - t0).count();
-}
-
-}  // namespace
 
 FrameResult CmlEngine::ProcessSurveyFrame(const Frame& frame, const Gaussian& trusted) {
-  const auto t_start = Clock::now();
+  const auto t_start = std::chrono::steady_clock::now();
   if (!session_.in_session) throw Error("CmlEngine::ProcessSurveyFrame called before BeginSession");
   const auto where = [&] {
     return StrCat("frame ", frame.global_index, " (session ", frame.session_index, ", index ",
@@ -61,13 +52,7 @@ FrameResult CmlEngine::ProcessSurveyFrame(const Frame& frame, const Gaussian& tr
   survey_prior_ = std::make_pair(t, state);  // the node of t gets the trusted pose as prior
   QueueUnimodal(t, y, estimate, &result);
   survey_prior_.reset();
-  result.stats.pending_multimodal = static_cast<int>(pending_.size());
-
-  session_.prev_odom = frame.odom_T_robot;
-  session_.has_prev_odom = true;
-  next_frame_ = t + 1;
-  counters_.frames += 1;
-  result.stats.total_us = MicrosSince(t_start);
+  EndFrame(frame, t_start, &result);
   return result;
 }
 

@@ -185,10 +185,11 @@ RunExperimentResult RunExperiment(const RunExperimentOptions& o) {
   }
   recorder.Commit(*engine, notes);
   if (!world && !result.run_dir.empty()) {
-    // Never leave the file of an earlier simulated run in this run directory.
-    std::error_code ec;
-    std::filesystem::remove(std::filesystem::path(result.run_dir) / "change_detection.csv", ec);
-    std::filesystem::remove(std::filesystem::path(result.run_dir) / "change_cells.csv", ec);
+    // Never leave the files of an earlier simulated run in this run directory.
+    for (const char* name : {"change_detection.csv", "change_cells.csv"}) {
+      std::error_code ec;
+      std::filesystem::remove(std::filesystem::path(result.run_dir) / name, ec);
+    }
   }
   result.change_detection = change_days;
   if (!o.map_out.empty()) WriteFileAtomic(o.map_out, map_bytes);

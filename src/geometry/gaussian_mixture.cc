@@ -21,6 +21,12 @@ double SquaredMahalanobis(const Pose2& a, const Pose2& b, const Eigen::Matrix3d&
   return llt.matrixL().solve(d).squaredNorm();
 }
 
+double LargestEigenvalue2(const Eigen::Matrix2d& m) {
+  const double half_trace = 0.5 * (m(0, 0) + m(1, 1));
+  const double half_diff = 0.5 * (m(0, 0) - m(1, 1));
+  return half_trace + std::sqrt(half_diff * half_diff + m(0, 1) * m(1, 0));
+}
+
 Eigen::Matrix3d RepairCovariance(const Eigen::Matrix3d& c, double min_eigenvalue,
                                  const std::string& what) {
   if (!c.allFinite()) throw Error(StrCat(what, ": has NaN/inf entries"));

@@ -73,13 +73,6 @@ void NoteExpected(ViewFootprint& f, const UpdateContext& context, bool matched, 
   f.last_expected_session = context.session;
 }
 
-// Largest eigenvalue of a symmetric 2x2 matrix.
-double LargestEigenvalue(const Eigen::Matrix2d& m) {
-  const double half_trace = 0.5 * (m(0, 0) + m(1, 1));
-  const double d = 0.5 * (m(0, 0) - m(1, 1));
-  return half_trace + std::sqrt(d * d + m(0, 1) * m(1, 0));
-}
-
 // A footprint estimated from components (maps of version 1, AddView): their xy means
 // weighted by eta.
 ViewFootprint FootprintFromComponents(const std::vector<ViewComponent>& components) {
@@ -709,8 +702,8 @@ UpdateStats EnvironmentModel::Update(const Descriptor& y, const Gaussian& estima
       // footprint's own extent (largest standard deviations compared), else a miss says
       // nothing about the view.
       if (options_.footprint_confidence > 0 &&
-          LargestEigenvalue(c_xy) > options_.footprint_confidence * options_.footprint_confidence *
-                                        LargestEigenvalue(footprint.Covariance())) {
+          LargestEigenvalue2(c_xy) > options_.footprint_confidence * options_.footprint_confidence *
+                                        LargestEigenvalue2(footprint.Covariance())) {
         continue;
       }
       NoteExpected(footprint, context, /*matched=*/false, options_.pass_gap_frames);

@@ -170,6 +170,12 @@ TEST(CmlEngineOptions, ValidateNamesField) {
   expect_named([](CmlEngineOptions& o) { o.hypothesis_weight_scale = 0.0; }, "hypothesis_weight_scale");
   expect_named([](CmlEngineOptions& o) { o.appearance_sigma_m = -1.0; }, "appearance_sigma_m");
   expect_named([](CmlEngineOptions& o) { o.anchor_max_sigma_m = -1.0; }, "anchor_max_sigma_m");
+  expect_named([](CmlEngineOptions& o) { o.gated_matching.gate_sigmas = 0.0; },
+               "gated_matching: gate_sigmas");
+  expect_named([](CmlEngineOptions& o) { o.gated_matching.full_search_every_frames = 0; },
+               "gated_matching: full_search_every_frames");
+  expect_named([](CmlEngineOptions& o) { o.gated_matching.min_views = -1; },
+               "gated_matching: min_views");
   CmlEngineOptions bad_threads;
   bad_threads.threads = 0;
   EXPECT_THROW(CmlEngine{bad_threads}, Error);

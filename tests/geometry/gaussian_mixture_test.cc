@@ -212,5 +212,19 @@ TEST(MixtureWeights, TotalNormalizeStrongest) {
   EXPECT_EQ(zero[0].weight, 0.0);
 }
 
+// The closed form agrees with Eigen's eigen-solver on random symmetric 2x2 matrices.
+TEST(LargestEigenvalue2, MatchesTheEigenSolver) {
+  std::mt19937 rng(12);
+  std::normal_distribution<double> n01(0.0, 1.0);
+  for (int k = 0; k < 200; ++k) {
+    Eigen::Matrix2d m;
+    m << n01(rng), n01(rng), 0.0, n01(rng);
+    m(1, 0) = m(0, 1);
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d> solver(m);
+    EXPECT_NEAR(LargestEigenvalue2(m), solver.eigenvalues().maxCoeff(), 1e-12) << m;
+  }
+  EXPECT_DOUBLE_EQ(LargestEigenvalue2(Eigen::Vector2d(0.04, 0.25).asDiagonal()), 0.25);
+}
+
 }  // namespace
 }  // namespace omnicml

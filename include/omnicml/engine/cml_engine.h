@@ -45,6 +45,7 @@
 #ifndef OMNICML_CML_ENGINE_H_
 #define OMNICML_CML_ENGINE_H_
 
+#include <chrono>
 #include <cstdint>
 #include <memory>
 #include <optional>
@@ -386,6 +387,11 @@ class CmlEngine {
   // `stats`. Never leaves the worker running when it throws.
   Descriptor DescribeBehindBarrier(const Frame& frame, std::int64_t t, FrameStats* stats);
   void QueueUnimodal(std::int64_t frame, const Descriptor& y, const Estimate& estimate, FrameResult* result);
+  // The end of ProcessFrame and ProcessSurveyFrame for `frame` (index result->frame):
+  // pending count, odometry carried to the next frame, frame counters, and
+  // result->stats.total_us from t_start.
+  void EndFrame(const Frame& frame, std::chrono::steady_clock::time_point t_start,
+                FrameResult* result);
   // Multimodal pending frames are dropped; unimodal ones (waiting for a confident anchor)
   // are queued with their filtered estimate. `t` is the frame producing the updates.
   void DropPending(std::int64_t t, FrameStats* stats);

@@ -30,6 +30,11 @@ using Mixture = std::vector<Gaussian>;
 // S must be SPD; throws omnicml::Error if it is not.
 double SquaredMahalanobis(const Pose2& a, const Pose2& b, const Eigen::Matrix3d& s);
 
+// Largest eigenvalue of a symmetric 2x2 matrix (e.g. the xy block of a pose covariance:
+// its square root is the position's largest standard deviation), in closed form, so the
+// result is the same bits on every machine.
+double LargestEigenvalue2(const Eigen::Matrix2d& m);
+
 // Checks that a covariance is finite and SPD. If it is only slightly off (asymmetric by
 // rounding, eigenvalues below min_eigenvalue), returns the repaired matrix: symmetrised,
 // eigenvalues clamped to at least min_eigenvalue. Throws omnicml::Error naming `what`

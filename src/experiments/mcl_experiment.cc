@@ -111,7 +111,8 @@ MclPrepared PrepareMcl(const MclExperimentOptions& a) {
   p.refs = MakeReferences(refs_frames);
   if (p.refs.empty()) throw Error("mcl: no reference frame with ground truth on the training day");
   if (p.test.empty()) throw Error("mcl: no frame on the test day");
-  ComputeVisibilityAreas(p.grid, p.options, &p.refs);
+  p.reference_spacing_m = MedianReferenceSpacing(p.refs);
+  p.visibility_radius_m = ComputeVisibilityAreas(p.grid, p.options, &p.refs);
   p.prepare_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return p;
 }
@@ -236,6 +237,9 @@ std::string ReportHtml(const MclExperimentOptions& a, const MclPrepared& p,
       {"descriptor", a.descriptor},
       {"grid", StrCat(p.grid.width(), " x ", p.grid.height(), " cells of ",
                       F(p.grid.resolution_m(), 3), " m")},
+      {"visibility areas cut at", StrCat(F(p.visibility_radius_m, 3),
+                                         " m (median reference spacing ",
+                                         F(p.reference_spacing_m, 3), " m)")},
       {"position error mean / p95 / max", Fx(eval.overall.position_m.mean, 3) + " / " +
                                               Fx(eval.overall.position_m.p95, 3) + " / " +
                                               Fx(eval.overall.position_m.max, 3) + " m"},
@@ -567,7 +571,13 @@ std::string DescribeMclPrepared(const MclPrepared& p) {
   }
   std::ostringstream os;
   os << "mcl: visibility areas: " << empty << " empty, mean "
-     << F(cells / p.refs.size() * p.grid.resolution_m() * p.grid.resolution_m(), 2) << " m^2\n";
+     << F(cells / p.refs.size() * p.grid.resolution_m() * p.grid.resolution_m(), 2)
+     << " m^2, cut at " << F(p.visibility_radius_m, 3) << " m from the reference"
+     << (p.options.visibility.max_distance_from_reference_m > 0
+             ? std::string(" (max_distance_from_reference_m)")
+             : StrCat(" (", F(p.options.visibility_radius_spacings, 3),
+                      " x median reference spacing ", F(p.reference_spacing_m, 3), " m)"))
+     << "\n";
   os << "mcl: " << p.refs.size() << " references, " << p.test.size() << " queries, grid "
      << p.grid.width() << "x" << p.grid.height() << " prepared in " << F(p.prepare_s, 1) << " s\n";
   return os.str();

@@ -87,6 +87,9 @@ struct MclPrepared {
   MotionNoise world_noise{.a1 = 0.01, .a2 = 0.002, .a3 = 0.005, .a4 = 0.001};
   std::string input;  // one line naming the input
   double prepare_s = 0;
+  // The visibility areas' cut-off distance used (VisibilityRadius), metres; 0: none.
+  double visibility_radius_m = 0;
+  double reference_spacing_m = 0;  // MedianReferenceSpacing of refs, metres
 };
 
 // Validates the options (runs, particles, days and frames within common/limits.h,

@@ -70,6 +70,9 @@ void MclOptions::Validate() const {
   } catch (const Error& e) {
     fail("visibility", e.what());
   }
+  if (!FiniteNonNeg(visibility_radius_spacings)) {
+    fail("visibility_radius_spacings", "must be >= 0");
+  }
   if (!(cluster_cell_m > 0) || !std::isfinite(cluster_cell_m)) fail("cluster_cell_m", "must be > 0");
   if (!(cluster_radius_m > 0) || !std::isfinite(cluster_radius_m)) {
     fail("cluster_radius_m", "must be > 0");
@@ -84,16 +87,50 @@ std::shared_ptr<const DescriptorExtractor> MakeMclHeadingExtractor() {
   return MakeDescriptorExtractor(o);
 }
 
-void ComputeVisibilityAreas(const OccupancyGrid& grid, const MclOptions& options,
-                            std::vector<MclReference>* references) {
+double MedianReferenceSpacing(const std::vector<MclReference>& references) {
+  constexpr double kCoincidentM = 1e-3;
+  std::vector<double> nearest;
+  nearest.reserve(references.size());
+  for (std::size_t i = 0; i < references.size(); ++i) {
+    double best = std::numeric_limits<double>::infinity();
+    for (std::size_t j = 0; j < references.size(); ++j) {
+      if (j == i) continue;
+      const double d =
+          (references[i].map_T_robot.head<2>() - references[j].map_T_robot.head<2>()).norm();
+      if (d >= kCoincidentM) best = std::min(best, d);
+    }
+    if (std::isfinite(best)) nearest.push_back(best);
+  }
+  if (nearest.empty()) return 0.0;
+  const auto mid = nearest.begin() + static_cast<std::ptrdiff_t>(nearest.size() / 2);
+  std::nth_element(nearest.begin(), mid, nearest.end());
+  return *mid;
+}
+
+double VisibilityRadius(const OccupancyGrid& grid, const MclOptions& options,
+                        const std::vector<MclReference>& references) {
+  if (options.visibility.max_distance_from_reference_m > 0) {
+    return options.visibility.max_distance_from_reference_m;
+  }
+  if (options.visibility_radius_spacings <= 0) return 0.0;
+  const double spacing = MedianReferenceSpacing(references);
+  if (spacing <= 0) return 0.0;  // one place only: nothing to scale by
+  return std::max(options.visibility_radius_spacings * spacing, grid.resolution_m());
+}
+
+double ComputeVisibilityAreas(const OccupancyGrid& grid, const MclOptions& options,
+                              std::vector<MclReference>* references) {
+  VisibilityOptions visibility = options.visibility;
+  visibility.max_distance_from_reference_m = VisibilityRadius(grid, options, *references);
   for (MclReference& r : *references) {
     r.axis_rad = WrapAngle(r.map_T_robot.z() + options.axis_offset_rad);
     CellIndex lambda;
-    r.visibility = VisibilityArea(grid, r.map_T_robot.head<2>(), r.axis_rad, options.visibility,
-                                  &lambda);
+    r.visibility =
+        VisibilityArea(grid, r.map_T_robot.head<2>(), r.axis_rad, visibility, &lambda);
     r.lambda.reset();
     if (!r.visibility.empty()) r.lambda = lambda;
   }
+  return visibility.max_distance_from_reference_m;
 }
 
 // ----------------------------------------------------------------------------- filter

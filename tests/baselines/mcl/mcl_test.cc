@@ -97,6 +97,58 @@ TEST(Mcl, LowVarianceResamplingKeepsTheDistribution) {
 
 // ------------------------------------------------------------------ weights (7)-(8)
 
+// The visibility areas' cut-off follows the references' spacing: the median
+// nearest-neighbour distance (coincident references ignored), times
+// visibility_radius_spacings, unless a distance in metres is given; never below a cell.
+TEST(Mcl, VisibilityRadiusFollowsReferenceSpacing) {
+  const OccupancyGrid g = OpenRoom();
+  const auto refs_every = [](double spacing_m) {
+    std::vector<MclReference> refs;
+    for (int i = 0; i < 6; ++i) {
+      MclReference r;
+      r.map_T_robot = MakePose(2.0 + i * spacing_m, 5, 0);
+      refs.push_back(r);
+      if (i == 2) refs.push_back(r);  // a robot standing still: a coincident reference
+    }
+    return refs;
+  };
+  EXPECT_NEAR(MedianReferenceSpacing(refs_every(0.4)), 0.4, 1e-12);
+  EXPECT_NEAR(MedianReferenceSpacing(refs_every(0.8)), 0.8, 1e-12);
+  EXPECT_EQ(MedianReferenceSpacing(std::vector<MclReference>(3)), 0.0);  // all coincident
+
+  MclOptions o;
+  ASSERT_EQ(o.visibility.max_distance_from_reference_m, 0.0);  // derived by default
+  EXPECT_NEAR(VisibilityRadius(g, o, refs_every(0.4)), o.visibility_radius_spacings * 0.4, 1e-12);
+  // Twice the spacing, twice the radius: the same areas in units of the data's scale.
+  EXPECT_NEAR(VisibilityRadius(g, o, refs_every(0.8)),
+              2.0 * VisibilityRadius(g, o, refs_every(0.4)), 1e-12);
+  // Never below the grid's cell size (references 1 cm apart on a 0.1 m grid).
+  EXPECT_EQ(VisibilityRadius(g, o, refs_every(0.01)), g.resolution_m());
+  // An explicit distance overrides; both 0 means no cut-off.
+  o.visibility.max_distance_from_reference_m = 1.5;
+  EXPECT_EQ(VisibilityRadius(g, o, refs_every(0.4)), 1.5);
+  o.visibility.max_distance_from_reference_m = 0.0;
+  o.visibility_radius_spacings = 0.0;
+  EXPECT_EQ(VisibilityRadius(g, o, refs_every(0.4)), 0.0);
+
+  // The areas are cut at the derived radius: every cell within it of its reference.
+  MclOptions d;
+  d.visibility.max_ray_range_m = 20;
+  d.visibility.max_distance_m = 20;
+  std::vector<MclReference> refs = refs_every(0.8);
+  const double radius = ComputeVisibilityAreas(g, d, &refs);
+  EXPECT_NEAR(radius, d.visibility_radius_spacings * 0.8, 1e-12);
+  std::size_t cells = 0;
+  for (const MclReference& r : refs) {
+    for (const int c : r.visibility) {
+      const Eigen::Vector2d centre = g.CellCenter(g.FromLinear(c));
+      EXPECT_LE((centre - r.map_T_robot.head<2>()).norm(), radius + 1e-9);
+      ++cells;
+    }
+  }
+  EXPECT_GT(cells, 0u);
+}
+
 // [W] eqs. (7)-(8): inside visibility areas the weight is the d-gated mean of xi over the
 // covering references (normalisation K_i); outside every area it falls back to the prior.
 TEST(Mcl, LikelihoodNormalisationAndPriorFallback) {
@@ -211,7 +263,11 @@ MirrorRoom MakeMirrorRoom(const MclOptions& o) {
     r.heading_descriptor = i < 2 ? h : other;
     m.refs.push_back(std::move(r));
   }
-  ComputeVisibilityAreas(m.grid, o, &m.refs);
+  // The references are metres apart (the derived radius would be several metres, and the
+  // areas would overlap): cut them at 0.75 m explicitly, as the room is built for.
+  MclOptions areas = o;
+  areas.visibility.max_distance_from_reference_m = 0.75;
+  ComputeVisibilityAreas(m.grid, areas, &m.refs);
   return m;
 }
 

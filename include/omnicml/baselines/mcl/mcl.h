@@ -49,8 +49,9 @@
 //
 // Visibility areas (occupancy_grid.h VisibilityArea): [W]'s camera had one optical axis;
 // an omni view has none. We use the reference's heading plus axis_offset_rad as its
-// axis (configurable), and, for omni views, keep only the part of the area within
-// visibility.max_distance_from_reference_m of the reference position.
+// axis (configurable), and, for omni views, keep only the part of the area within a
+// cut-off distance of the reference position: visibility.max_distance_from_reference_m,
+// or by default visibility_radius_spacings median reference spacings (VisibilityRadius).
 //
 // Determinism: every random draw comes from one std::mt19937_64 seeded with
 // MclOptions::seed; the same inputs give the same particles bit for bit.
@@ -157,10 +158,21 @@ struct MclOptions {
   // issue 18; 0.75 m (about two reference spacings on home_store) bounds the tracking
   // error: home_store seeds 1-5, max position error worst 1.9 m with 2.5 m, 1.2 m with
   // 1.0 m, 0.79 m with 0.75 m (docs/baselines_results.md).
+  // Since this session the cut-off follows the data: with
+  // visibility.max_distance_from_reference_m = 0 (default) it is
+  // visibility_radius_spacings times the references' median nearest-neighbour spacing
+  // (ComputeVisibilityAreas). 1.875 spacings is the 0.75 m above on home_store's
+  // references (0.4 m apart), so that world's measurements hold; on a log with references
+  // 2 cm apart the area shrinks with them instead of covering 40 spacings.
   VisibilityOptions visibility{.max_ray_range_m = 50.0,
                                .max_distance_m = 50.0,
                                .max_view_angle_rad = kPi / 4,
-                               .max_distance_from_reference_m = 0.75};
+                               .max_distance_from_reference_m = 0.0};
+  // The derived cut-off above, in median reference spacings (dimensionless, >= 0). Used
+  // only when visibility.max_distance_from_reference_m is 0 (an explicit distance in
+  // metres overrides it); both 0: no cut-off ([W]'s perspective camera). The derived
+  // distance is never below the grid's cell size.
+  double visibility_radius_spacings = 1.875;
   // Best cluster: particles are binned on a grid of this cell size (metres, > 0); the
   // 3 x 3 window of bins with the largest weight is the cluster seed.
   double cluster_cell_m = 0.5;
@@ -203,6 +215,7 @@ void VisitFields(V& v, MclOptions& o) {
   v("min_likelihood", o.min_likelihood);
   v("axis_offset_rad", o.axis_offset_rad);
   v.Section("visibility", o.visibility);
+  v("visibility_radius_spacings", o.visibility_radius_spacings);
   v("cluster_cell_m", o.cluster_cell_m);
   v("cluster_radius_m", o.cluster_radius_m);
   v("init_sigma_xy_m", o.init_sigma_xy_m);
@@ -238,9 +251,22 @@ struct MclReference {
 // the one ReadMclFrames(..., heading) and MonteCarloLocalizer use.
 std::shared_ptr<const DescriptorExtractor> MakeMclHeadingExtractor();
 
-// Computes axis_rad and sigma_j for each reference (views are modified in place).
-void ComputeVisibilityAreas(const OccupancyGrid& grid, const MclOptions& options,
-                            std::vector<MclReference>* references);
+// The median over references of the distance to the nearest other reference, metres,
+// ignoring coincident positions (< 1 mm apart; a robot standing still); 0 when no two
+// references are apart. O(n^2) in the number of references.
+double MedianReferenceSpacing(const std::vector<MclReference>& references);
+
+// The cut-off distance of the visibility areas (VisibilityOptions
+// max_distance_from_reference_m) these options give for these references: the explicit
+// distance when > 0, else visibility_radius_spacings x MedianReferenceSpacing (at least
+// the grid's cell size), else 0 (none). Metres.
+double VisibilityRadius(const OccupancyGrid& grid, const MclOptions& options,
+                        const std::vector<MclReference>& references);
+
+// Computes axis_rad and sigma_j for each reference (views are modified in place), with
+// the cut-off VisibilityRadius. Returns that cut-off, metres (0: none).
+double ComputeVisibilityAreas(const OccupancyGrid& grid, const MclOptions& options,
+                              std::vector<MclReference>* references);
 
 struct Particle {
   Pose2 pose = Pose2::Zero();  // map_T_robot

@@ -89,21 +89,16 @@ std::shared_ptr<const DescriptorExtractor> MakeMclHeadingExtractor() {
 
 double MedianReferenceSpacing(const std::vector<MclReference>& references) {
   constexpr double kCoincidentM = 1e-3;
-  std::vector<double> nearest;
-  nearest.reserve(references.size());
-  for (std::size_t i = 0; i < references.size(); ++i) {
-    double best = std::numeric_limits<double>::infinity();
-    for (std::size_t j = 0; j < references.size(); ++j) {
-      if (j == i) continue;
-      const double d =
-          (references[i].map_T_robot.head<2>() - references[j].map_T_robot.head<2>()).norm();
-      if (d >= kCoincidentM) best = std::min(best, d);
-    }
-    if (std::isfinite(best)) nearest.push_back(best);
+  std::vector<double> steps;
+  for (std::size_t i = 1; i < references.size(); ++i) {
+    const double d = (references[i].map_T_robot.head<2>() -
+                      references[i - 1].map_T_robot.head<2>())
+                         .norm();
+    if (d >= kCoincidentM) steps.push_back(d);
   }
-  if (nearest.empty()) return 0.0;
-  const auto mid = nearest.begin() + static_cast<std::ptrdiff_t>(nearest.size() / 2);
-  std::nth_element(nearest.begin(), mid, nearest.end());
+  if (steps.empty()) return 0.0;
+  const auto mid = steps.begin() + static_cast<std::ptrdiff_t>(steps.size() / 2);
+  std::nth_element(steps.begin(), mid, steps.end());
   return *mid;
 }
 

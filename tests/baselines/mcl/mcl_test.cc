@@ -97,18 +97,21 @@ TEST(Mcl, LowVarianceResamplingKeepsTheDistribution) {
 
 // ------------------------------------------------------------------ weights (7)-(8)
 
-// The visibility areas' cut-off follows the references' spacing: the median
-// nearest-neighbour distance (coincident references ignored), times
+// The visibility areas' cut-off follows the references' spacing: the median distance
+// between consecutive references (coincident ones ignored; a second lap close to the
+// first does not shrink it), times
 // visibility_radius_spacings, unless a distance in metres is given; never below a cell.
 TEST(Mcl, VisibilityRadiusFollowsReferenceSpacing) {
   const OccupancyGrid g = OpenRoom();
   const auto refs_every = [](double spacing_m) {
     std::vector<MclReference> refs;
-    for (int i = 0; i < 6; ++i) {
-      MclReference r;
-      r.map_T_robot = MakePose(2.0 + i * spacing_m, 5, 0);
-      refs.push_back(r);
-      if (i == 2) refs.push_back(r);  // a robot standing still: a coincident reference
+    for (int lap = 0; lap < 2; ++lap) {  // the route twice, the second lap 2 cm aside
+      for (int i = 0; i < 6; ++i) {
+        MclReference r;
+        r.map_T_robot = MakePose(2.0 + i * spacing_m, 5 + 0.02 * lap, 0);
+        refs.push_back(r);
+        if (i == 2) refs.push_back(r);  // a robot standing still: a coincident reference
+      }
     }
     return refs;
   };

@@ -160,7 +160,7 @@ struct MclOptions {
   // 1.0 m, 0.79 m with 0.75 m (docs/baselines_results.md).
   // Since this session the cut-off follows the data: with
   // visibility.max_distance_from_reference_m = 0 (default) it is
-  // visibility_radius_spacings times the references' median nearest-neighbour spacing
+  // visibility_radius_spacings times the references' median spacing along the route
   // (ComputeVisibilityAreas). 1.875 spacings is the 0.75 m above on home_store's
   // references (0.4 m apart), so that world's measurements hold; on a log with references
   // 2 cm apart the area shrinks with them instead of covering 40 spacings.
@@ -251,9 +251,10 @@ struct MclReference {
 // the one ReadMclFrames(..., heading) and MonteCarloLocalizer use.
 std::shared_ptr<const DescriptorExtractor> MakeMclHeadingExtractor();
 
-// The median over references of the distance to the nearest other reference, metres,
-// ignoring coincident positions (< 1 mm apart; a robot standing still); 0 when no two
-// references are apart. O(n^2) in the number of references.
+// The median distance between consecutive references (in their order, i.e. along the
+// route they were taken on), metres, ignoring steps under 1 mm (a robot standing still);
+// 0 when no two are apart. Consecutive, not nearest-neighbour: on a route driven twice
+// the nearest reference is the other lap's, whose offset says nothing about the sampling.
 double MedianReferenceSpacing(const std::vector<MclReference>& references);
 
 // The cut-off distance of the visibility areas (VisibilityOptions

@@ -290,7 +290,7 @@ void WriteChangeDetectionCsv(std::ostream& os, const std::vector<ChangeDetection
 void WriteChangeCellsCsv(std::ostream& os, const std::vector<ChangeDetectionDay>& days,
                          double cell_m) {
   os << "day,ix,iy,x_m,y_m,health,views,insertions,removals,expected,missed,forgotten,"
-        "distance_to_change_m,geometric_changed,surface_fraction,lit_fraction,visible_changed,"
+        "changed_neighbours,distance_to_change_m,geometric_changed,surface_fraction,lit_fraction,visible_changed,"
         "detected\n";
   for (const ChangeDetectionDay& d : days) {
     for (const ScoredCell& s : d.cells) {
@@ -298,7 +298,8 @@ void WriteChangeCellsCsv(std::ostream& os, const std::vector<ChangeDetectionDay>
       os << d.day << "," << c.ix << "," << c.iy << "," << Number((c.ix + 0.5) * cell_m) << ","
          << Number((c.iy + 0.5) * cell_m) << "," << ToString(c.health) << "," << c.views << ","
          << c.insertions_recent << "," << c.removals_recent << "," << c.expected_recent << ","
-         << c.missed_recent << "," << c.forgotten_recent << "," << Number(s.distance_m) << ","
+         << c.missed_recent << "," << c.forgotten_recent << "," << c.changed_neighbours << ","
+         << Number(s.distance_m) << ","
          << s.geometric_changed << "," << Number(s.surface_fraction) << ","
          << Number(s.lit_fraction) << "," << s.visible_changed << "," << s.detected << "\n";
     }

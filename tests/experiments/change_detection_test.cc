@@ -1,6 +1,7 @@
 // Change detection scored against the simulator's day events (change_detection.h).
 #include "omnicml/experiments/change_detection.h"
 
+#include <array>
 #include <cmath>
 #include <sstream>
 #include <string>
@@ -269,6 +270,58 @@ TEST(MapHealth, ChangedWhereExpectedViewsStopMatching) {
   EXPECT_EQ(q->health, CellHealth::kOk);
   EXPECT_EQ(health.changed, 1);
   EXPECT_EQ(health.ok, 1);
+}
+
+// The neighbour rule (MapHealthOptions::min_changed_neighbours): three places in a row,
+// cells (0,0), (1,0), (2,0); on the second session the outer two look different (new
+// views inserted there) and the middle one looks as before. The middle cell has no
+// evidence of its own; with two neighbours that have some it is changed under the
+// default (2), ok with the rule off (0) or asking for 3.
+TEST(MapHealth, NeighbourEvidenceMarksACellBetweenChangedOnes) {
+  auto fx = testing::MakeFakeExtractor(2);
+  EnvironmentModelOptions o;
+  o.e_max = 1.0;
+  o.top_k = 0;
+  o.forgetting = ForgettingMode::kPassive;
+  EnvironmentModel m(o, fx);
+  auto at = [](double x) {
+    Gaussian g;
+    g.mean = MakePose(x, 0.5, 0.0);
+    g.covariance = Eigen::Vector3d(0.01 * 0.01, 0.01 * 0.01, 0.05 * 0.05).asDiagonal();
+    return g;
+  };
+  std::int64_t frame = 0;
+  auto pass = [&](const std::array<std::array<float, 2>, 3>& looks, int session) {
+    for (int place = 0; place < 3; ++place) {
+      for (int k = 0; k < 3; ++k) {
+        m.Update(fx->Make({looks[place][0], looks[place][1]}), at(1.0 + 2.0 * place),
+                 {frame++, session});
+      }
+      frame += 50;
+    }
+  };
+  pass({{{0.0f, 0.0f}, {0.0f, 20.0f}, {20.0f, 0.0f}}}, 0);
+  pass({{{40.0f, 0.0f}, {0.0f, 20.0f}, {0.0f, 40.0f}}}, 1);
+  m.CheckInvariants();
+  auto middle = [&](int min_neighbours) {
+    MapHealthOptions h;
+    h.min_changed_neighbours = min_neighbours;
+    for (const MapCell& c : ComputeMapHealth(m, 1, h).cells) {
+      if (c.ix == 1 && c.iy == 0) return c;
+    }
+    ADD_FAILURE() << "no middle cell";
+    return MapCell{};
+  };
+  const MapCell by_default = middle(MapHealthOptions{}.min_changed_neighbours);
+  EXPECT_EQ(by_default.insertions_recent, 0);
+  EXPECT_EQ(by_default.missed_recent, 0);
+  EXPECT_EQ(by_default.changed_neighbours, 2);
+  EXPECT_EQ(by_default.health, CellHealth::kChanged);
+  EXPECT_EQ(middle(0).health, CellHealth::kOk);
+  EXPECT_EQ(middle(3).health, CellHealth::kOk);
+  MapHealthOptions bad;
+  bad.min_changed_neighbours = 9;
+  EXPECT_THROW(ComputeMapHealth(m, 1, bad), Error);
 }
 
 }  // namespace

@@ -20,6 +20,7 @@ struct InspectFlags {
   std::string map;
   double cell_m = 2.0;
   int stale_days = 1;
+  int changed_neighbours = MapHealthOptions{}.min_changed_neighbours;
 };
 
 const CommandRegistration kRegistration{
@@ -33,15 +34,23 @@ const CommandRegistration kRegistration{
       cmd->add_option("--stale-days", flags->stale_days,
                       "A cell is stale when not seen in this many last days")
           ->capture_default_str();
+      cmd->add_option("--changed-neighbours", flags->changed_neighbours,
+                      "A cell without evidence of its own is changed when this many of its 8 "
+                      "neighbours have some (0 = off)")
+          ->capture_default_str();
       cmd->callback([flags] {
         if (!(flags->cell_m > 0))
           throw Error(StrCat("--cell must be > 0 (got ", flags->cell_m, ")"));
         if (flags->stale_days < 1)
           throw Error(StrCat("--stale-days must be >= 1 (got ", flags->stale_days, ")"));
+        if (flags->changed_neighbours < 0 || flags->changed_neighbours > 8)
+          throw Error(StrCat("--changed-neighbours must be in 0..8 (got ",
+                             flags->changed_neighbours, ")"));
         const std::unique_ptr<CmlEngine> engine = LoadMapForReading(flags->map);
         MapHealthOptions options;
         options.cell_m = flags->cell_m;
         options.stale_sessions = flags->stale_days;
+        options.min_changed_neighbours = flags->changed_neighbours;
         std::cout << "map file: " << flags->map << "\n" << InspectText(*engine, options);
       });
     }};

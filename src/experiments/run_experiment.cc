@@ -143,8 +143,16 @@ RunExperimentResult RunExperiment(const RunExperimentOptions& o) {
       if (r.session == session && r.has_truth) path.push_back(r.truth.head<2>());
     }
     const int day = f.input.first_day + source_session + 1;
-    change_days.push_back(
-        ScoreChangeDetection(health, ChangesOfDay(*world, day, f.input.seed), path, cd));
+    const WorldDayChanges changes = ChangesOfDay(*world, day, f.input.seed);
+    ChangedSharesFn shares;
+    std::unique_ptr<VisibleChanges> visible;
+    if (day >= 2) {
+      visible = std::make_unique<VisibleChanges>(*world, day, f.input.seed, cd);
+      shares = [&visible](const Eigen::Vector2d& p) {
+        return ChangedShares{visible->SurfaceFraction(p), visible->LitFraction(p)};
+      };
+    }
+    change_days.push_back(ScoreChangeDetection(health, changes, path, shares, cd));
   };
   int last_source_session = -1;
   result.summary = RunEngineOverSource(

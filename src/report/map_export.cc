@@ -751,6 +751,9 @@ MapHealth ComputeMapHealth(const EnvironmentModel& model, int latest_session,
                            const MapHealthOptions& options) {
   if (!(options.cell_m > 0)) throw Error("map health: cell_m must be > 0");
   if (options.stale_sessions < 1) throw Error("map health: stale_sessions must be >= 1");
+  if (options.min_changed_neighbours < 0 || options.min_changed_neighbours > 8) {
+    throw Error("map health: min_changed_neighbours must be in 0..8");
+  }
   MapHealth health;
   health.latest_session = latest_session;
   struct Acc {
@@ -808,20 +811,42 @@ MapHealth ComputeMapHealth(const EnvironmentModel& model, int latest_session,
       it->second.cell.forgotten_recent += 1;
     }
   }
+  // Evidence of its own: every view new, or what says the appearance changed there:
+  // nothing matched (insertion), or views the robot confidently passed through no longer
+  // matched. Removals alone are the map's bookkeeping (passive forgetting (17), merges)
+  // and happen where nothing changed.
+  auto is_new = [&](const Acc& acc) {
+    return acc.cell.views > 0 && acc.all_created_latest && latest_session > health.first_session;
+  };
+  auto own_evidence = [&](const Acc& acc) {
+    const MapCell& c = acc.cell;
+    return is_new(acc) || c.insertions_recent > 0 || c.missed_recent > 0 ||
+           c.forgotten_recent > 0;
+  };
+  for (auto& [key, acc] : cells) {
+    for (int dy = -1; dy <= 1; ++dy) {
+      for (int dx = -1; dx <= 1; ++dx) {
+        if (dx == 0 && dy == 0) continue;
+        const auto it = cells.find({key.first + dy, key.second + dx});
+        if (it != cells.end() && own_evidence(it->second)) acc.cell.changed_neighbours += 1;
+      }
+    }
+  }
   for (auto& [key, acc] : cells) {
     MapCell& cell = acc.cell;
-    if (cell.views > 0 && acc.all_created_latest && latest_session > health.first_session) {
+    if (is_new(acc)) {
       cell.health = CellHealth::kNew;
       ++health.fresh;
-    } else if (cell.insertions_recent > 0 || cell.missed_recent > 0 || cell.forgotten_recent > 0) {
-      // Evidence that the appearance changed: nothing matched (insertion), or views the
-      // robot confidently passed through no longer matched. Removals alone are the map's
-      // bookkeeping (passive forgetting (17), merges) and happen where nothing changed.
+    } else if (own_evidence(acc)) {
       cell.health = CellHealth::kChanged;
       ++health.changed;
     } else if (cell.last_seen_session <= latest_session - options.stale_sessions) {
       cell.health = CellHealth::kStale;
       ++health.stale;
+    } else if (options.min_changed_neighbours > 0 &&
+               cell.changed_neighbours >= options.min_changed_neighbours) {
+      cell.health = CellHealth::kChanged;
+      ++health.changed;
     } else {
       cell.health = CellHealth::kOk;
       ++health.ok;
@@ -924,15 +949,15 @@ std::string InspectText(const CmlEngine& engine, const MapHealthOptions& options
     }
     os << "cells (x_m, y_m = lower-left corner):\n";
     os << "   x_m     y_m  views  components  weight  last_seen  inserted  removed  expected  "
-          "missed  forgotten  health\n";
+          "missed  forgotten  neighbours  health\n";
     for (const MapCell& c : health.cells) {
       char buf[200];
       std::snprintf(buf, sizeof buf,
-                    "%6.1f  %6.1f  %5d  %10d  %6.2f  %9s  %8d  %7d  %8d  %6d  %9d  %s\n",
+                    "%6.1f  %6.1f  %5d  %10d  %6.2f  %9s  %8d  %7d  %8d  %6d  %9d  %10d  %s\n",
                     c.ix * options.cell_m, c.iy * options.cell_m, c.views, c.components,
                     c.total_weight, DescribeSession(c.last_seen_session).c_str(),
                     c.insertions_recent, c.removals_recent, c.expected_recent, c.missed_recent,
-                    c.forgotten_recent, ToString(c.health).c_str());
+                    c.forgotten_recent, c.changed_neighbours, ToString(c.health).c_str());
       os << buf;
     }
   }

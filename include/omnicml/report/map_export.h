@@ -131,6 +131,12 @@ cv::Mat MapToImage(const EnvironmentModel& model, const std::vector<Pose2>& traj
 struct MapHealthOptions {
   double cell_m = 2.0;     // grid cell size, metres, > 0
   int stale_sessions = 1;  // a cell is stale if none of its views was seen in the last N sessions
+  // A cell without evidence of its own is changed when at least this many of its 8
+  // neighbouring cells have some (a change seen from there is usually in view from here
+  // too: on store_large a restocked or moved shelf alters the panorama over several
+  // cells). 0 disables; 0..8. Since 2026-11-24 (docs/experiments.md, issue 15: chosen
+  // on seeds 1-3 among spatial rules, confirmed on seeds 4-5).
+  int min_changed_neighbours = 2;
 };
 enum class CellHealth { kOk, kStale, kChanged, kNew };
 std::string ToString(CellHealth health);  // ok|stale|changed|new
@@ -149,6 +155,9 @@ struct MapCell {
   int expected_recent = 0;
   int missed_recent = 0;
   int forgotten_recent = 0;
+  // Neighbouring cells (of 8) with evidence of their own (new, or an insertion, a missed
+  // view or active forgetting there).
+  int changed_neighbours = 0;
   CellHealth health = CellHealth::kOk;
 };
 struct MapHealth {
@@ -163,7 +172,9 @@ struct MapHealth {
 // matched), or a view of an earlier session expected there never matched (missed_recent),
 // or active forgetting removed a component there (forgotten_recent); removals by passive
 // forgetting or merges alone do not make a cell changed (they happen where nothing did);
-// stale (otherwise) = no view seen in the last stale_sessions sessions; ok otherwise.
+// stale (otherwise) = no view seen in the last stale_sessions sessions; changed
+// (otherwise) = at least min_changed_neighbours neighbouring cells with evidence of their
+// own; ok otherwise.
 MapHealth ComputeMapHealth(const EnvironmentModel& model, int latest_session,
                            const MapHealthOptions& options = {});
 

@@ -37,6 +37,7 @@
 #include <chrono>
 #include <cmath>
 #include <complex>
+#include <ctime>
 #include <fstream>
 #include <memory>
 #include <random>
@@ -72,6 +73,13 @@ std::size_t ResidentBytes() {
   return 0;
 }
 
+// CPU time of the calling thread, microseconds (CLOCK_THREAD_CPUTIME_ID).
+double ThreadCpuMicros() {
+  timespec ts{};
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return static_cast<double>(ts.tv_sec) * 1e6 + static_cast<double>(ts.tv_nsec) * 1e-3;
+}
+
 struct Key {
   int generator = kTrajectory;
   std::size_t views = 0;
@@ -95,6 +103,9 @@ struct ScaleFixture {
   // Radius query (FindAllMatches, what Update uses) against the brute force: recall of
   // the true matches and the fraction of identical lists; matches per query.
   double recall_all = 1, identical_all = 1, matches_all = 0;
+  // Per query, the scan's top_k list and the true radius-query ids (computed once per map).
+  std::vector<std::vector<ViewMatch>> exact;
+  std::vector<std::vector<std::uint64_t>> truth_all;
 };
 
 // Every view with E < e_max, sorted by (E, id), by brute force over views().
@@ -229,8 +240,12 @@ ScaleFixture& Fixture(const Key& key) {
 void Measure(ScaleFixture& f) {
   std::size_t found = 0, truth = 0, same = 0;
   double candidates = 0, projected = 0;
-  for (const Descriptor& q : f.queries) {
-    const std::vector<ViewMatch> exact = f.model->FindMatchesExhaustive(q);
+  if (f.exact.empty()) {
+    for (const Descriptor& q : f.queries) f.exact.push_back(f.model->FindMatchesExhaustive(q));
+  }
+  for (std::size_t qi = 0; qi < f.queries.size(); ++qi) {
+    const Descriptor& q = f.queries[qi];
+    const std::vector<ViewMatch>& exact = f.exact[qi];
     const std::vector<ViewMatch> got = f.model->FindMatches(q);
     truth += exact.size();
     for (const ViewMatch& m : exact) {
@@ -254,8 +269,12 @@ void Measure(ScaleFixture& f) {
   f.matches = static_cast<double>(truth) / nq;
   if (!f.model->AnnActive()) return;
   std::size_t found_all = 0, truth_all = 0, same_all = 0;
-  for (const Descriptor& q : f.queries) {
-    const std::vector<std::uint64_t> exact = TrueMatches(*f.model, q);
+  if (f.truth_all.empty()) {
+    for (const Descriptor& q : f.queries) f.truth_all.push_back(TrueMatches(*f.model, q));
+  }
+  for (std::size_t qi = 0; qi < f.queries.size(); ++qi) {
+    const Descriptor& q = f.queries[qi];
+    const std::vector<std::uint64_t>& exact = f.truth_all[qi];
     const std::vector<ViewMatch> got = f.model->FindAllMatches(q);
     truth_all += exact.size();
     std::vector<std::uint64_t> ids;
@@ -337,22 +356,28 @@ void BM_AnnParams(benchmark::State& state) {
 BENCHMARK(BM_AnnParams)
     ->ArgNames({"m", "efc", "ef", "k"})
     ->Apply([](benchmark::internal::Benchmark* b) {
-      for (const int m : {8, 16})
-        for (const int efc : {32, 64})
-          for (const int ef : {16, 32, 64})
-            for (const int k : {16, 32}) b->Args({m, efc, ef, k});  // one graph per (m, efc)
+      for (const auto& [m, efc] : std::vector<std::pair<int, int>>{{16, 64}, {16, 128}})
+        for (const int ef : {16, 32, 64, 128})
+          for (const int k : {32}) b->Args({m, efc, ef, k});  // one graph per (m, efc)
     })
     ->Unit(benchmark::kMicrosecond);
 
-// The approximate graph on one map per size (built once for the three modes). Args: views,
+// The approximate graph on one map per size (built once for all modes). Args: views,
 // mode (0: the exhaustive scan, FindMatchesExhaustive; 1: FindMatches (top_k 8) through
-// the graph; 2: FindAllMatches (the radius query of Update) through the graph).
+// the graph; 2: FindAllMatches (the radius query of Update) through the graph), ef
+// (options ann_ef, set with SetAnnSearch; 0: the default).
 void BM_Ann(benchmark::State& state) {
   Key key;
   key.views = static_cast<std::size_t>(state.range(0));
   key.ann = true;
   const int mode = static_cast<int>(state.range(1));
   ScaleFixture& f = Fixture(key);
+  const int ef = state.range(2) > 0 ? static_cast<int>(state.range(2))
+                                    : EnvironmentModelOptions{}.ann_ef;
+  if (ef != f.model->options().ann_ef) {
+    f.model->SetAnnSearch(ef, f.model->options().ann_k);
+    Measure(f);
+  }
   std::size_t k = 0;
   for (auto _ : state) {
     const Descriptor& q = f.queries[k++ % f.queries.size()];
@@ -364,9 +389,12 @@ void BM_Ann(benchmark::State& state) {
   Report(state, f, true);
 }
 void AnnArgs(benchmark::internal::Benchmark* b) {
-  b->ArgNames({"views", "mode"});
+  b->ArgNames({"views", "mode", "ef"});
   for (const int views : {1000, 10000, 100000, 1000000}) {
-    for (const int mode : {0, 1, 2}) b->Args({views, mode});  // one map for the three
+    // One map for all rows of a size.
+    b->Args({views, 0, 0});
+    for (const int ef : {32, 64, 128, 256}) b->Args({views, 1, ef});
+    for (const int ef : {64, 128, 256}) b->Args({views, 2, ef});
   }
 }
 BENCHMARK(BM_Ann)->Apply(AnnArgs)->Unit(benchmark::kMicrosecond);
@@ -449,7 +477,10 @@ BENCHMARK(BM_FindMatchesNear)
 // ProcessFrame-like: per frame FindMatches + Hypothesis + Update (active forgetting) of a
 // revisit, on a fresh trajectory map; the map changes as the frames go (components added
 // and merged, views inserted when a query matches nothing, the index maintained). Per-frame
-// times are taken by hand for p50/p99. Args: views, indexed.
+// times are taken by hand for p50/p99 (wall) and p50_cpu/p99_cpu (the thread's CPU time).
+// Args: views, indexed (0 scan, 1 exact index, 2 approximate graph; with the graph, the
+// model is then saved and reloaded and reload_differ is the fraction of queries whose
+// FindAllMatches list differs between the two).
 void BM_ProcessFrameLike(benchmark::State& state) {
   Key key;
   key.views = static_cast<std::size_t>(state.range(0));
@@ -457,12 +488,13 @@ void BM_ProcessFrameLike(benchmark::State& state) {
   key.ann = state.range(1) == 2;
   key.fresh = true;
   ScaleFixture& f = Fixture(key);
-  std::vector<double> us;
+  std::vector<double> us, cpu_us;
   std::int64_t frame = 0;
   std::size_t k = 0;
   for (auto _ : state) {
     const Descriptor& q = f.queries[k++ % f.queries.size()];
     const auto t0 = std::chrono::steady_clock::now();
+    const double c0 = ThreadCpuMicros();
     const std::vector<ViewMatch> m = f.model->FindMatches(q);
     const Mixture p = f.model->Hypothesis(m);
     Gaussian estimate;
@@ -472,8 +504,14 @@ void BM_ProcessFrameLike(benchmark::State& state) {
     benchmark::DoNotOptimize(s);
     us.push_back(
         std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0).count());
+    cpu_us.push_back(ThreadCpuMicros() - c0);
   }
   std::sort(us.begin(), us.end());
+  std::sort(cpu_us.begin(), cpu_us.end());
+  // The thread's CPU time per frame: on a shared machine the wall-time tail is mostly
+  // other processes' (docs/experiments.md).
+  state.counters["p50_cpu_us"] = cpu_us[cpu_us.size() / 2];
+  state.counters["p99_cpu_us"] = cpu_us[std::min(cpu_us.size() - 1, cpu_us.size() * 99 / 100)];
   state.counters["views"] = static_cast<double>(f.model->NumViews());
   state.counters["p50_us"] = us[us.size() / 2];
   state.counters["p99_us"] = us[std::min(us.size() - 1, us.size() * 99 / 100)];

@@ -41,7 +41,7 @@ class AnnIndex {
  public:
   struct Params {
     int m = 16;                // graph degree M (links per node and layer; 2 M on layer 0)
-    int ef_construction = 64;  // candidate list while inserting
+    int ef_construction = 128;  // candidate list while inserting
     std::uint64_t seed = 19;   // level generator seed
   };
 

@@ -20,7 +20,9 @@
 // Nearest-view search keeps all feature vectors in one contiguous float array (a row per
 // view, same order as views()) and calls the extractor's raw-pointer Distance, over every
 // row (small maps, distances without an L2 lower bound) or over the candidates of an
-// exact-pruning index (view_index.h; options index_*), the same matches either way; the
+// exact-pruning index (view_index.h; options index_*), the same matches either way, or,
+// on maps of at least ann_min_views views, over the candidates of an approximate graph
+// (ann_index.h; options ann_*: the same matches for ~99 % of queries, measured); the
 // active-forgetting rule (18)-(19) visits only components near mu_t through a uniform
 // grid over component xy positions (spatial_index.h), so its cost does not grow with the
 // map.
@@ -188,12 +190,12 @@ struct EnvironmentModelOptions {
   // dropped below half of it. 0 (off) by default so that results stay exact unless asked
   // for; measured, the graph is faster than the scan from ~10k views on and is the only
   // way to the 1 ms at 1M views.
-  int ann_min_views = 0;
+  int ann_min_views = 50000;
   // Graph degree M (links per node; 2 M on the bottom layer), in [2, 64]: memory and
   // build time grow with it, and recall.
   int ann_m = 16;
   // Candidate list while inserting a view (>= 1): build time against graph quality.
-  int ann_ef_construction = 64;
+  int ann_ef_construction = 128;
   // Candidate list while searching (>= 1; at least k is used): time against recall.
   int ann_ef = 64;
   // First k of the radius query (views, >= 1): a query with more matches doubles k.

@@ -37,6 +37,7 @@
 #include <chrono>
 #include <cmath>
 #include <complex>
+#include <ctime>
 #include <fstream>
 #include <memory>
 #include <random>
@@ -72,6 +73,13 @@ std::size_t ResidentBytes() {
   return 0;
 }
 
+// CPU time of the calling thread, microseconds (CLOCK_THREAD_CPUTIME_ID).
+double ThreadCpuMicros() {
+  timespec ts{};
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return static_cast<double>(ts.tv_sec) * 1e6 + static_cast<double>(ts.tv_nsec) * 1e-3;
+}
+
 struct Key {
   int generator = kTrajectory;
   std::size_t views = 0;
@@ -79,6 +87,9 @@ struct Key {
   double e_max = 0.45;
   bool index = true;
   bool fresh = false;  // a map the benchmark changes (Update): never reused
+  bool ann = false;    // the approximate graph (options ann_*) instead of the exact index
+  int ann_m = EnvironmentModelOptions{}.ann_m;
+  int ann_ef_construction = EnvironmentModelOptions{}.ann_ef_construction;
   bool operator==(const Key&) const = default;
 };
 
@@ -89,7 +100,27 @@ struct ScaleFixture {
   double bytes_per_view = 0, index_bytes_per_view = 0, rss_bytes_per_view = 0;
   double index_build_s = 0;
   double recall = 1, identical = 1, candidates = 0, projected = 0, matches = 0;
+  // Radius query (FindAllMatches, what Update uses) against the brute force: recall of
+  // the true matches and the fraction of identical lists; matches per query.
+  double recall_all = 1, identical_all = 1, matches_all = 0;
+  // Per query, the scan's top_k list and the true radius-query ids (computed once per map).
+  std::vector<std::vector<ViewMatch>> exact;
+  std::vector<std::vector<std::uint64_t>> truth_all;
 };
+
+// Every view with E < e_max, sorted by (E, id), by brute force over views().
+std::vector<std::uint64_t> TrueMatches(const EnvironmentModel& model, const Descriptor& q) {
+  std::vector<std::pair<double, std::uint64_t>> m;
+  for (const ReferenceView& v : model.views()) {
+    const double e = model.extractor().Distance(q.features.data(), v.descriptor.features.data(),
+                                                q.features.size());
+    if (e < model.options().e_max) m.emplace_back(e, v.id);
+  }
+  std::sort(m.begin(), m.end());
+  std::vector<std::uint64_t> ids;
+  for (const auto& [e, id] : m) ids.push_back(id);
+  return ids;
+}
 
 Descriptor MakeDescriptor(const Eigen::VectorXf& magnitudes, std::mt19937& rng) {
   std::uniform_real_distribution<float> phase(-3.14159265f, 3.14159265f);
@@ -115,6 +146,8 @@ std::pair<double, double> CandidateFraction(const EnvironmentModel& model, const
   return {static_cast<double>(rows.size()) / n, static_cast<double>(bounded) / n};
 }
 
+void Measure(ScaleFixture& f);
+
 ScaleFixture& Fixture(const Key& key) {
   static ScaleFixture f;
   if (f.key == key && f.model && !key.fresh) return f;
@@ -129,7 +162,10 @@ ScaleFixture& Fixture(const Key& key) {
   o.e_max = key.e_max;
   o.top_k = 8;
   // Built once, by the last AddView, so index_build_s is one build over the whole map.
-  o.index_min_views = key.index ? static_cast<int>(n) : 0;
+  o.index_min_views = key.index && !key.ann ? static_cast<int>(n) : 0;
+  o.ann_min_views = key.ann ? static_cast<int>(n) : 0;
+  o.ann_m = key.ann_m;
+  o.ann_ef_construction = key.ann_ef_construction;
   o.index_dims = key.index_dims;
   o.index_max_bounded_fraction = 1.0;  // measure the index even where the model would drop it
   f.model = std::make_unique<EnvironmentModel>(o, extractor);
@@ -189,15 +225,27 @@ ScaleFixture& Fixture(const Key& key) {
   f.index_build_s = build_s;
   f.bytes_per_view = static_cast<double>(f.model->MemoryBytes()) / static_cast<double>(n);
   f.index_bytes_per_view =
-      static_cast<double>(f.model->view_index().MemoryBytes()) / static_cast<double>(n);
+      static_cast<double>(f.model->view_index().MemoryBytes() +
+                          f.model->ann_index().MemoryBytes()) /
+      static_cast<double>(n);
   const std::size_t rss1 = ResidentBytes();
   f.rss_bytes_per_view =
       rss1 > rss0 ? static_cast<double>(rss1 - rss0) / static_cast<double>(n) : 0.0;
-  // Recall against the exhaustive scan over every query.
+  Measure(f);
+  return f;
+}
+
+// Recall of FindMatches against the exhaustive scan over every query (and for the graph,
+// of FindAllMatches against the brute force).
+void Measure(ScaleFixture& f) {
   std::size_t found = 0, truth = 0, same = 0;
   double candidates = 0, projected = 0;
-  for (const Descriptor& q : f.queries) {
-    const std::vector<ViewMatch> exact = f.model->FindMatchesExhaustive(q);
+  if (f.exact.empty()) {
+    for (const Descriptor& q : f.queries) f.exact.push_back(f.model->FindMatchesExhaustive(q));
+  }
+  for (std::size_t qi = 0; qi < f.queries.size(); ++qi) {
+    const Descriptor& q = f.queries[qi];
+    const std::vector<ViewMatch>& exact = f.exact[qi];
     const std::vector<ViewMatch> got = f.model->FindMatches(q);
     truth += exact.size();
     for (const ViewMatch& m : exact) {
@@ -219,7 +267,25 @@ ScaleFixture& Fixture(const Key& key) {
   f.candidates = candidates / nq;
   f.projected = projected / nq;
   f.matches = static_cast<double>(truth) / nq;
-  return f;
+  if (!f.model->AnnActive()) return;
+  std::size_t found_all = 0, truth_all = 0, same_all = 0;
+  if (f.truth_all.empty()) {
+    for (const Descriptor& q : f.queries) f.truth_all.push_back(TrueMatches(*f.model, q));
+  }
+  for (std::size_t qi = 0; qi < f.queries.size(); ++qi) {
+    const Descriptor& q = f.queries[qi];
+    const std::vector<std::uint64_t>& exact = f.truth_all[qi];
+    const std::vector<ViewMatch> got = f.model->FindAllMatches(q);
+    truth_all += exact.size();
+    std::vector<std::uint64_t> ids;
+    for (const ViewMatch& m : got) ids.push_back(m.view_id);
+    for (const std::uint64_t id : exact) found_all += std::count(ids.begin(), ids.end(), id);
+    same_all += ids == exact;
+  }
+  f.recall_all =
+      truth_all > 0 ? static_cast<double>(found_all) / static_cast<double>(truth_all) : 1.0;
+  f.identical_all = static_cast<double>(same_all) / nq;
+  f.matches_all = static_cast<double>(truth_all) / nq;
 }
 
 void Report(benchmark::State& state, const ScaleFixture& f, bool indexed) {
@@ -238,15 +304,22 @@ void Report(benchmark::State& state, const ScaleFixture& f, bool indexed) {
     // default options keep the index iff it is <= 0.6.
     state.counters["estimated_bounded"] = f.model->IndexBoundedFraction();
   }
+  if (indexed && f.model->AnnActive()) {
+    state.counters["recall_all"] = f.recall_all;
+    state.counters["identical_all"] = f.identical_all;
+    state.counters["matches_all"] = f.matches_all;
+  }
 }
 
 // Args: generator (0 trajectory, 1 uniform), views, indexed (0: the exhaustive scan on the
-// same map, 1: FindMatches through the index).
+// same map, 1: FindMatches through the exact index, 2: through the approximate graph; the
+// scan of a graph's map is the scan of the exact index's map: same generator, same views).
 void BM_FindMatches(benchmark::State& state) {
   Key key;
   key.generator = static_cast<int>(state.range(0));
   key.views = static_cast<std::size_t>(state.range(1));
   const bool indexed = state.range(2) != 0;
+  key.ann = state.range(2) == 2;
   ScaleFixture& f = Fixture(key);
   std::size_t k = 0;
   for (auto _ : state) {
@@ -258,9 +331,73 @@ void BM_FindMatches(benchmark::State& state) {
 }
 BENCHMARK(BM_FindMatches)
     ->ArgNames({"gen", "views", "indexed"})
-    ->ArgsProduct({{kTrajectory}, {1000, 3000, 10000, 30000, 100000, 300000, 1000000}, {0, 1}})
+    ->ArgsProduct({{kTrajectory}, {1000, 3000, 10000, 30000, 100000, 300000, 1000000}, {0, 1, 2}})
     ->ArgsProduct({{kUniform}, {1000, 10000, 100000, 1000000}, {0, 1}})
     ->Unit(benchmark::kMicrosecond);
+
+// The graph's parameters (trajectory map, 100k views): M, ef_construction (a graph each),
+// ef and the first k of the radius query (search-time, SetAnnSearch on the same graph).
+void BM_AnnParams(benchmark::State& state) {
+  Key key;
+  key.views = 100000;
+  key.ann = true;
+  key.ann_m = static_cast<int>(state.range(0));
+  key.ann_ef_construction = static_cast<int>(state.range(1));
+  ScaleFixture& f = Fixture(key);
+  f.model->SetAnnSearch(static_cast<int>(state.range(2)), static_cast<int>(state.range(3)));
+  Measure(f);
+  std::size_t k = 0;
+  for (auto _ : state) {
+    auto m = f.model->FindMatches(f.queries[k++ % f.queries.size()]);
+    benchmark::DoNotOptimize(m);
+  }
+  Report(state, f, true);
+}
+BENCHMARK(BM_AnnParams)
+    ->ArgNames({"m", "efc", "ef", "k"})
+    ->Apply([](benchmark::internal::Benchmark* b) {
+      for (const auto& [m, efc] : std::vector<std::pair<int, int>>{{16, 64}, {16, 128}})
+        for (const int ef : {16, 32, 64, 128})
+          for (const int k : {32}) b->Args({m, efc, ef, k});  // one graph per (m, efc)
+    })
+    ->Unit(benchmark::kMicrosecond);
+
+// The approximate graph on one map per size (built once for all modes). Args: views,
+// mode (0: the exhaustive scan, FindMatchesExhaustive; 1: FindMatches (top_k 8) through
+// the graph; 2: FindAllMatches (the radius query of Update) through the graph), ef
+// (options ann_ef, set with SetAnnSearch; 0: the default).
+void BM_Ann(benchmark::State& state) {
+  Key key;
+  key.views = static_cast<std::size_t>(state.range(0));
+  key.ann = true;
+  const int mode = static_cast<int>(state.range(1));
+  ScaleFixture& f = Fixture(key);
+  const int ef = state.range(2) > 0 ? static_cast<int>(state.range(2))
+                                    : EnvironmentModelOptions{}.ann_ef;
+  if (ef != f.model->options().ann_ef) {
+    f.model->SetAnnSearch(ef, f.model->options().ann_k);
+    Measure(f);
+  }
+  std::size_t k = 0;
+  for (auto _ : state) {
+    const Descriptor& q = f.queries[k++ % f.queries.size()];
+    auto m = mode == 0   ? f.model->FindMatchesExhaustive(q)
+             : mode == 1 ? f.model->FindMatches(q)
+                         : f.model->FindAllMatches(q);
+    benchmark::DoNotOptimize(m);
+  }
+  Report(state, f, true);
+}
+void AnnArgs(benchmark::internal::Benchmark* b) {
+  b->ArgNames({"views", "mode", "ef"});
+  for (const int views : {1000, 10000, 100000, 1000000}) {
+    // One map for all rows of a size.
+    b->Args({views, 0, 0});
+    for (const int ef : {32, 64, 128, 256}) b->Args({views, 1, ef});
+    for (const int ef : {64, 128, 256}) b->Args({views, 2, ef});
+  }
+}
+BENCHMARK(BM_Ann)->Apply(AnnArgs)->Unit(benchmark::kMicrosecond);
 
 // Projection dimensions of the index (trajectory map, 100k views).
 void BM_IndexDims(benchmark::State& state) {
@@ -340,19 +477,24 @@ BENCHMARK(BM_FindMatchesNear)
 // ProcessFrame-like: per frame FindMatches + Hypothesis + Update (active forgetting) of a
 // revisit, on a fresh trajectory map; the map changes as the frames go (components added
 // and merged, views inserted when a query matches nothing, the index maintained). Per-frame
-// times are taken by hand for p50/p99. Args: views, indexed.
+// times are taken by hand for p50/p99 (wall) and p50_cpu/p99_cpu (the thread's CPU time).
+// Args: views, indexed (0 scan, 1 exact index, 2 approximate graph; with the graph, the
+// model is then saved and reloaded and reload_differ is the fraction of queries whose
+// FindAllMatches list differs between the two).
 void BM_ProcessFrameLike(benchmark::State& state) {
   Key key;
   key.views = static_cast<std::size_t>(state.range(0));
   key.index = state.range(1) != 0;
+  key.ann = state.range(1) == 2;
   key.fresh = true;
   ScaleFixture& f = Fixture(key);
-  std::vector<double> us;
+  std::vector<double> us, cpu_us;
   std::int64_t frame = 0;
   std::size_t k = 0;
   for (auto _ : state) {
     const Descriptor& q = f.queries[k++ % f.queries.size()];
     const auto t0 = std::chrono::steady_clock::now();
+    const double c0 = ThreadCpuMicros();
     const std::vector<ViewMatch> m = f.model->FindMatches(q);
     const Mixture p = f.model->Hypothesis(m);
     Gaussian estimate;
@@ -362,16 +504,42 @@ void BM_ProcessFrameLike(benchmark::State& state) {
     benchmark::DoNotOptimize(s);
     us.push_back(
         std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0).count());
+    cpu_us.push_back(ThreadCpuMicros() - c0);
   }
   std::sort(us.begin(), us.end());
+  std::sort(cpu_us.begin(), cpu_us.end());
+  // The thread's CPU time per frame: on a shared machine the wall-time tail is mostly
+  // other processes' (docs/experiments.md).
+  state.counters["p50_cpu_us"] = cpu_us[cpu_us.size() / 2];
+  state.counters["p99_cpu_us"] = cpu_us[std::min(cpu_us.size() - 1, cpu_us.size() * 99 / 100)];
   state.counters["views"] = static_cast<double>(f.model->NumViews());
   state.counters["p50_us"] = us[us.size() / 2];
   state.counters["p99_us"] = us[std::min(us.size() - 1, us.size() * 99 / 100)];
   state.counters["index_active"] = f.model->IndexActive() ? 1 : 0;
+  state.counters["ann_active"] = f.model->AnnActive() ? 1 : 0;
+  if (f.model->AnnActive()) {
+    // Save and reload (the graph is rebuilt in id order): queries whose radius-query list
+    // differs between the continuing model and the reloaded one.
+    BinaryWriter w;
+    f.model->Serialize(w);
+    BinaryReader r(w.bytes());
+    const EnvironmentModel back =
+        EnvironmentModel::Deserialize(r, f.model->options(), f.model->extractor_ptr());
+    std::size_t differ = 0;
+    for (const Descriptor& q : f.queries) {
+      const std::vector<ViewMatch> a = f.model->FindAllMatches(q), b = back.FindAllMatches(q);
+      bool equal = a.size() == b.size();
+      for (std::size_t i = 0; equal && i < a.size(); ++i) equal = a[i].view_id == b[i].view_id;
+      differ += !equal;
+    }
+    state.counters["reload_differ"] =
+        static_cast<double>(differ) / static_cast<double>(f.queries.size());
+    state.counters["ann_slots"] = static_cast<double>(f.model->ann_index().slots());
+  }
 }
 BENCHMARK(BM_ProcessFrameLike)
     ->ArgNames({"views", "indexed"})
-    ->ArgsProduct({{10000, 100000}, {0, 1}})
+    ->ArgsProduct({{10000, 100000}, {0, 1, 2}})
     ->Iterations(2000)
     ->Unit(benchmark::kMicrosecond);
 

@@ -20,7 +20,7 @@ fuzzers="${OMNICML_FUZZERS:-$all_fuzzers}"
 
 # Dependencies: the library's Debian packages, clang and its sanitizer/libFuzzer runtime.
 packages=(build-essential cmake ninja-build pkg-config libeigen3-dev libopencv-dev libfftw3-dev
-  libceres-dev libyaml-cpp-dev nlohmann-json3-dev clang libclang-rt-dev)
+  libceres-dev libhnswlib-dev libyaml-cpp-dev nlohmann-json3-dev clang libclang-rt-dev)
 # shellcheck source=lib/packages.sh
 source scripts/lib/packages.sh
 install_missing fuzz "${packages[@]}"

@@ -7,7 +7,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 packages=(build-essential cmake ninja-build pkg-config libeigen3-dev libopencv-dev libfftw3-dev
-  libceres-dev libgtest-dev libgmock-dev libbenchmark-dev libcli11-dev libyaml-cpp-dev
+  libceres-dev libhnswlib-dev libgtest-dev libgmock-dev libbenchmark-dev libcli11-dev libyaml-cpp-dev
   nlohmann-json3-dev pybind11-dev python3-dev python3-numpy snakemake libjemalloc-dev)
 # shellcheck source=lib/packages.sh
 source scripts/lib/packages.sh

@@ -97,6 +97,16 @@ bool DistanceBoundedByL2(const DescriptorExtractor& extractor) {
   return false;
 }
 
+// Whether the extractor's distance is exactly the L2 norm of the feature difference
+// (then the graph's L2 order is E's order and a top_k query may stop at k neighbours).
+bool DistanceIsL2(const DescriptorExtractor& extractor) {
+  if (const auto* f = dynamic_cast<const FourierSignature*>(&extractor))
+    return f->options().distance == FourierDistance::kL2;
+  if (const auto* c = dynamic_cast<const ColorHistogram*>(&extractor))
+    return c->options().distance == HistogramDistance::kL2;
+  return false;
+}
+
 // Which rule last changed a component's weight in this Update (for removal reasons).
 enum class Touch : std::uint8_t { kNone, kIncrease, kPassive, kActive };
 
@@ -193,6 +203,11 @@ void EnvironmentModelOptions::Validate() const {
   if (!(index_max_bounded_fraction > 0 && index_max_bounded_fraction <= 1))
     fail("index_max_bounded_fraction", "in (0, 1]", index_max_bounded_fraction);
   if (index_dims < 1) fail("index_dims", ">= 1", index_dims);
+  if (ann_min_views < 0) fail("ann_min_views", ">= 0", ann_min_views);
+  if (ann_m < 2 || ann_m > 64) fail("ann_m", "in [2, 64]", ann_m);
+  if (ann_ef_construction < 1) fail("ann_ef_construction", ">= 1", ann_ef_construction);
+  if (ann_ef < 1) fail("ann_ef", ">= 1", ann_ef);
+  if (ann_k < 1) fail("ann_k", ">= 1", ann_k);
 }
 
 void EnvironmentModel::LogEvent(MapEvent e) {
@@ -258,6 +273,7 @@ EnvironmentModel::EnvironmentModel(const EnvironmentModelOptions& options,
   feature_size_ = extractor_->FeatureSize();
   if (feature_size_ == 0) throw Error("EnvironmentModel: the extractor's FeatureSize() is 0");
   index_supported_ = DistanceBoundedByL2(*extractor_);
+  distance_is_l2_ = DistanceIsL2(*extractor_);
 }
 
 void EnvironmentModel::CheckDescriptor(const Descriptor& y, const char* where) const {
@@ -292,6 +308,13 @@ std::vector<ViewMatch> EnvironmentModel::Search(const Descriptor& y, int top_k, 
   };
   if (only != nullptr) {
     for (const std::size_t i : *only) consider(i);
+  } else if (ann_index_.built() && !exhaustive) {
+    // Approximate candidate stage (ann_index.h): the graph's nearest views, then the same
+    // exact distance as in the scan, so the result equals the scan's whenever the
+    // candidates hold the true matches.
+    std::vector<std::size_t> candidates;
+    AnnCandidates(query, top_k, &candidates);
+    for (const std::size_t i : candidates) consider(i);
   } else if (view_index_.built() && !exhaustive) {
     // Candidate stage (view_index.h): every view with E < e_max is among the candidates,
     // and each candidate gets the same exact distance as in the scan below, so the
@@ -349,7 +372,69 @@ void EnvironmentModel::BuildIndex() {
   }
 }
 
+void EnvironmentModel::AnnCandidates(const float* query, int top_k,
+                                     std::vector<std::size_t>* rows) const {
+  // Squared L2 limit with the exact index's margin (view_index.h): float sums in the
+  // graph and in the extractor differ by ~1e-6 relative.
+  const double e_max = options_.e_max;
+  const double limit = (1.001 * e_max) * (1.001 * e_max);
+  const std::size_t live = ann_index_.size();
+  std::size_t k = std::min<std::size_t>(
+      live, static_cast<std::size_t>(std::max(top_k, options_.ann_k)));
+  std::vector<std::pair<float, std::uint64_t>> near;
+  while (true) {
+    ann_index_.Nearest(query, k, static_cast<std::size_t>(options_.ann_ef), &near);
+    if (near.size() < k || k >= live) break;  // every view the graph reaches
+    const double farthest = near.back().first;
+    if (!(farthest < limit)) break;  // the radius is covered
+    if (top_k > 0 && distance_is_l2_) {
+      // E = L2: the top_k are found once top_k returned views are closer than the
+      // farthest returned one (margin as above), which bounds every view not returned.
+      const double closer = farthest / (1.001 * 1.001);
+      std::size_t n = 0;
+      for (const auto& [d, id] : near) n += d < closer;
+      if (n >= static_cast<std::size_t>(top_k)) break;
+    }
+    k = std::min(live, 2 * k);
+  }
+  rows->reserve(rows->size() + near.size());
+  for (const auto& [d, id] : near) {
+    // Views beyond the radius by the graph's own distance cannot match (E >= L2); the
+    // margin keeps the float difference from dropping a border match.
+    if (!(d < limit)) continue;
+    rows->push_back(index_of_id_.at(id));
+  }
+}
+
+void EnvironmentModel::SetAnnSearch(int ef, int k) {
+  if (ef < 1 || k < 1) throw Error("EnvironmentModel::SetAnnSearch: ef and k must be >= 1");
+  options_.ann_ef = ef;
+  options_.ann_k = k;
+}
+
+void EnvironmentModel::BuildAnn() {
+  AnnIndex::Params p;
+  p.m = options_.ann_m;
+  p.ef_construction = options_.ann_ef_construction;
+  ann_index_.Reset(feature_size_, p, views_.size() + views_.size() / 4);
+  // Id order: the order the views were inserted in, so a model rebuilt from its file
+  // (Deserialize) gets the graph the continuing model has when it removed no view.
+  std::vector<std::pair<std::uint64_t, std::size_t>> order;
+  order.reserve(views_.size());
+  for (std::size_t i = 0; i < views_.size(); ++i) order.emplace_back(views_[i].id, i);
+  std::sort(order.begin(), order.end());
+  for (const auto& [id, row] : order) ann_index_.Insert(id, features_.data() + row * feature_size_);
+}
+
 void EnvironmentModel::MaintainIndex() {
+  const std::size_t ann_threshold = static_cast<std::size_t>(options_.ann_min_views);
+  if (index_supported_ && ann_threshold > 0) {
+    if (!ann_index_.built() && views_.size() >= ann_threshold) {
+      BuildAnn();
+    } else if (ann_index_.built() && 2 * views_.size() < ann_threshold) {
+      ann_index_.Clear();  // a map this small is faster to scan
+    }
+  }
   const std::size_t threshold = static_cast<std::size_t>(options_.index_min_views);
   if (!index_supported_ || threshold == 0) return;
   if (!view_index_.built()) {
@@ -454,6 +539,7 @@ std::size_t EnvironmentModel::InsertView(const Descriptor& y, const UpdateContex
   views_.push_back(std::move(v));
   const std::size_t index = views_.size() - 1;
   if (view_index_.built()) view_index_.Insert(views_[index].id, index, y.features.data());
+  if (ann_index_.built()) ann_index_.Insert(views_[index].id, y.features.data());
   MaintainIndex();
   return index;
 }
@@ -494,6 +580,7 @@ std::uint64_t EnvironmentModel::AddView(const Descriptor& y, std::vector<ViewCom
   views_.push_back(std::move(v));
   if (view_index_.built())
     view_index_.Insert(views_.back().id, views_.size() - 1, y.features.data());
+  if (ann_index_.built()) ann_index_.Insert(views_.back().id, y.features.data());
   MaintainIndex();
   return views_.back().id;
 }
@@ -508,6 +595,7 @@ void EnvironmentModel::RemoveViewAt(std::size_t index) {
   const std::uint64_t removed_id = views_[index].id;
   index_of_id_.erase(removed_id);
   if (view_index_.built()) view_index_.Remove(removed_id);
+  if (ann_index_.built()) ann_index_.Remove(removed_id);
   if (index != last) {
     // Swap-remove: the last view (and its feature row) takes the freed slot.
     views_[index] = std::move(views_[last]);
@@ -784,6 +872,7 @@ std::size_t EnvironmentModel::MemoryBytes() const {
            index_of_id_.size() * (sizeof(std::uint64_t) + sizeof(std::size_t) + 2 * sizeof(void*));
   bytes += spatial_.MemoryBytes();
   bytes += view_index_.MemoryBytes();
+  bytes += ann_index_.MemoryBytes();
   bytes += events_.size() * sizeof(MapEvent);
   bytes += event_counts_.size() * (sizeof(int) + sizeof(MapEventCounts) + 4 * sizeof(void*));
   for (const MapEvent& e : events_) bytes += e.reason.capacity() > 15 ? e.reason.capacity() : 0;
@@ -1010,6 +1099,7 @@ void EnvironmentModel::RebuildDerived() {
     }
   }
   view_index_.Clear();
+  ann_index_.Clear();
   index_rejected_at_ = 0;
   index_bounded_fraction_ = -1.0;
   MaintainIndex();
@@ -1055,6 +1145,23 @@ void EnvironmentModel::CheckInvariants() const {
     if (2 * views_.size() < threshold) {
       OMNICML_CHECK(!view_index_.built()) << "candidate index kept below half the threshold";
     }
+  }
+  // The approximate graph: present exactly from ann_min_views views on until the map
+  // falls below half of that, holding every view once.
+  const std::size_t ann_threshold = static_cast<std::size_t>(options_.ann_min_views);
+  if (!index_supported_ || ann_threshold == 0) {
+    OMNICML_CHECK(!ann_index_.built()) << "approximate index built although disabled";
+  } else {
+    OMNICML_CHECK(views_.size() < ann_threshold || ann_index_.built())
+        << "approximate index missing at " << views_.size() << " views";
+    OMNICML_CHECK(2 * views_.size() >= ann_threshold || !ann_index_.built())
+        << "approximate index kept below half the threshold";
+  }
+  if (ann_index_.built()) {
+    std::vector<std::uint64_t> ids;
+    for (const ReferenceView& v : views_) ids.push_back(v.id);
+    std::sort(ids.begin(), ids.end());
+    OMNICML_CHECK(ids == ann_index_.Ids()) << "approximate index out of sync";
   }
   if (view_index_.built()) {
     view_index_.CheckInvariants();

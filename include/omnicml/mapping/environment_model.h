@@ -20,7 +20,9 @@
 // Nearest-view search keeps all feature vectors in one contiguous float array (a row per
 // view, same order as views()) and calls the extractor's raw-pointer Distance, over every
 // row (small maps, distances without an L2 lower bound) or over the candidates of an
-// exact-pruning index (view_index.h; options index_*), the same matches either way; the
+// exact-pruning index (view_index.h; options index_*), the same matches either way, or,
+// on maps of at least ann_min_views views, over the candidates of an approximate graph
+// (ann_index.h; options ann_*: the same matches for ~99 % of queries, measured); the
 // active-forgetting rule (18)-(19) visits only components near mu_t through a uniform
 // grid over component xy positions (spatial_index.h), so its cost does not grow with the
 // map.
@@ -51,6 +53,7 @@
 #include "omnicml/descriptors/descriptor.h"
 #include "omnicml/geometry/gaussian_mixture.h"
 #include "omnicml/geometry/pose.h"
+#include "omnicml/mapping/ann_index.h"
 #include "omnicml/mapping/spatial_index.h"
 #include "omnicml/mapping/view_index.h"
 
@@ -175,6 +178,30 @@ struct EnvironmentModelOptions {
   // lives in the leading 8 of them); at most min(feature length, 64), larger values are
   // clamped. >= 1. 32 keeps ~1 % of the views as candidates at e_max 0.45 (measured).
   int index_dims = 32;
+  // Approximate retrieval (docs/design.md "Place retrieval at scale", ann_index.h): on
+  // maps of at least ann_min_views views (views, >= 0; 0 never) with a distance the
+  // candidate index supports, FindMatches, FindAllMatches and Update's search go through
+  // an HNSW graph (hnswlib) instead: its k nearest views by L2 (k doubled from
+  // max(top_k, ann_k) until the farthest is beyond e_max), then the extractor's exact
+  // distance, order and top_k for those only. Not exact: a true match the graph search
+  // misses is not returned (never a false one). Measured on synthetic trajectory maps
+  // (docs/experiments.md "Approximate retrieval"): FindMatches' top-8 lists hold 0.999
+  // of the true matches at 100k views; the radius query of Update 0.95. Takes precedence
+  // over the exact index while active. Built over every view (in id order) when the map
+  // reaches ann_min_views (one build over the whole map inside that AddView/Update:
+  // 58 s wall at 100k views on the loaded 2-core development machine), dropped below half
+  // of it; not saved (Deserialize rebuilds it). 50k: below it the scan costs <= 0.5 ms
+  // and stays exact; at 100k the graph takes ProcessFrame's p99 from 6.3 to 0.7 ms CPU.
+  int ann_min_views = 50000;
+  // Graph degree M (links per node; 2 M on the bottom layer), in [2, 64]: memory and
+  // build time grow with it, and recall.
+  int ann_m = 16;
+  // Candidate list while inserting a view (>= 1): build time against graph quality.
+  int ann_ef_construction = 128;
+  // Candidate list while searching (>= 1; at least k is used): time against recall.
+  int ann_ef = 64;
+  // First k of the radius query (views, >= 1): a query with more matches doubles k.
+  int ann_k = 32;
 
   // Throws omnicml::Error naming the first invalid field.
   void Validate() const;
@@ -206,6 +233,11 @@ void VisitFields(V& v, EnvironmentModelOptions& o) {
   v("index_min_views", o.index_min_views);
   v("index_max_bounded_fraction", o.index_max_bounded_fraction);
   v("index_dims", o.index_dims);
+  v("ann_min_views", o.ann_min_views);
+  v("ann_m", o.ann_m);
+  v("ann_ef_construction", o.ann_ef_construction);
+  v("ann_ef", o.ann_ef);
+  v("ann_k", o.ann_k);
 }
 
 // One Gaussian of a view's mixture X_i.
@@ -379,6 +411,9 @@ class EnvironmentModel {
   // index_max_bounded_fraction) at its last evaluation; -1 before any.
   double IndexBoundedFraction() const { return index_bounded_fraction_; }
   const ViewIndex& view_index() const { return view_index_; }
+  // Whether searches currently go through the approximate graph (options ann_*).
+  bool AnnActive() const { return ann_index_.built(); }
+  const AnnIndex& ann_index() const { return ann_index_; }
 
   // p(x|y) (docs/design.md "Environment model"): for each match, each component j of the
   // view gives mean (x, y, wrap(phi_ij + relative heading)), covariance C_ij (heading
@@ -444,6 +479,9 @@ class EnvironmentModel {
   const std::shared_ptr<const DescriptorExtractor>& extractor_ptr() const { return extractor_; }
   // Switches the weight rules (e.g. build on day 1 in kActive, then freeze with kStatic).
   void SetForgettingMode(ForgettingMode mode) { options_.forgetting = mode; }
+  // Sets options ann_ef and ann_k (search-time parameters; the graph is unchanged), for
+  // tuning them on one map. Throws omnicml::Error unless both are >= 1.
+  void SetAnnSearch(int ef, int k);
 
   // Appends the model's state to `out`: views (descriptors, components, counters) in
   // storage order, next ids, the event counts and the event ring. Options are NOT written (the caller stores
@@ -467,6 +505,11 @@ class EnvironmentModel {
   void MaintainIndex();
   // Builds the index over every view and keeps it iff it pays (index_max_bounded_fraction).
   void BuildIndex();
+  // Builds the approximate graph over every view, in id order.
+  void BuildAnn();
+  // The radius query (top_k 0) or top_k query through the graph: appends to *rows the
+  // rows of the views it returns (the candidates for the exact distance).
+  void AnnCandidates(const float* query, int top_k, std::vector<std::size_t>* rows) const;
   std::size_t InsertView(const Descriptor& y, const UpdateContext& context, const Pose2& where);
   void RemoveViewAt(std::size_t index);
   // Counts e, appends it to the ring and drops the oldest events beyond max_events.
@@ -484,6 +527,8 @@ class EnvironmentModel {
   ViewIndex view_index_;  // derived (never serialised); rebuilt on load
   double index_bounded_fraction_ = -1.0;
   std::size_t index_rejected_at_ = 0;  // views when the index was last dropped as unprofitable
+  AnnIndex ann_index_;  // derived (never serialised); rebuilt on load (in id order)
+  bool distance_is_l2_ = false;  // E is exactly the L2 norm of the feature difference
   std::size_t num_components_ = 0;
   std::uint64_t next_view_id_ = 1;
   std::uint64_t next_component_id_ = 1;

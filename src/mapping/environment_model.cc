@@ -633,6 +633,33 @@ UpdateStats EnvironmentModel::Update(const Descriptor& y, const Gaussian& estima
   const Pose2 mu_t = MakePose(estimate.mean.x(), estimate.mean.y(), estimate.mean.z());
 
   std::vector<ViewMatch> matches = Search(y, 0);
+  if (ann_index_.built()) {
+    // The graph can miss a match (recall < 1). The views with a component within d_for
+    // of mu_t are the ones rule (18) would weaken as "expected here but not matching",
+    // so they get the exact distance whatever the graph returned: near the robot the
+    // Update is the exact scan's; only far-away (aliased) matches may be missed.
+    std::vector<std::size_t> rows;
+    for (const SpatialEntry& e : spatial_.QueryRadius(mu_t.x(), mu_t.y(), options_.d_for_m)) {
+      rows.push_back(index_of_id_.at(e.view_id));
+    }
+    std::sort(rows.begin(), rows.end());
+    rows.erase(std::unique(rows.begin(), rows.end()), rows.end());
+    std::vector<std::size_t> found;
+    for (const ViewMatch& m : matches) found.push_back(m.view_index);
+    std::sort(found.begin(), found.end());
+    std::erase_if(rows, [&](std::size_t r) {
+      return std::binary_search(found.begin(), found.end(), r);
+    });
+    if (!rows.empty()) {
+      const std::vector<ViewMatch> extra = Search(y, 0, /*exhaustive=*/false, &rows);
+      if (!extra.empty()) {
+        matches.insert(matches.end(), extra.begin(), extra.end());
+        std::sort(matches.begin(), matches.end(), [](const ViewMatch& a, const ViewMatch& b) {
+          return a.distance != b.distance ? a.distance < b.distance : a.view_id < b.view_id;
+        });
+      }
+    }
+  }
   stats.matching_views = static_cast<int>(matches.size());
 
   // Phase 1 ([G 2.3]): insertion iff E(y_t, y_i) >= E_max for every view i.

@@ -329,6 +329,48 @@ TEST(EnvironmentModelAnn, UpdatesRemovalsAndReload) {
   EXPECT_GE(static_cast<double>(loaded_exact) / n, 0.99);
 }
 
+// Update with the graph: whatever the graph search misses, the views with a component
+// within d_for of mu_t get the exact distance, so rules (16)-(18) at the robot's place
+// act as with the exhaustive scan. A deliberately poor search (ef 1, k 1) must not let
+// rule (18) weaken a local view that matches.
+TEST(EnvironmentModelAnn, UpdateNearTheRobotIsExact) {
+  EnvironmentModelOptions with_graph = AnnOptions(300);
+  with_graph.forget_min_missed_passes = 0;  // (18) acts on the first miss
+  with_graph.ann_ef = 1;
+  with_graph.ann_k = 1;
+  EnvironmentModelOptions scan = with_graph;
+  scan.ann_min_views = 0;
+  const Map g = BuildMap(with_graph, 31, 600, 0);
+  const Map e = BuildMap(scan, 31, 600, 0);
+  ASSERT_TRUE(g.model->AnnActive());
+  ASSERT_FALSE(e.model->AnnActive());
+  RouteSource src(32);
+  std::mt19937 rng(33);
+  int graph_missed = 0;
+  for (int t = 0; t < 60; ++t) {
+    // Near view i (component at x = 0.1 i), estimated at its place.
+    const std::size_t i = 20 + rng() % 560;
+    const Descriptor y = MakeFourier(src.Near(g.model->views()[i].descriptor.features, 0.02), rng);
+    const Gaussian at = Estimate(0.1 * static_cast<double>(i), 0.0);
+    graph_missed += Key(g.model->FindAllMatches(y)) != AllTrue(*g.model, y);
+    EnvironmentModel a = *g.model, b = *e.model;
+    a.Update(y, at, {t, 0});
+    b.Update(y, at, {t, 0});
+    for (const ReferenceView& v : b.views()) {
+      for (const ViewComponent& c : v.components) {
+        // Strictly inside d_for (QueryRadius's boundary), with a margin for rounding.
+        if ((c.mean.head<2>() - at.mean.head<2>()).norm() > scan.d_for_m - 1e-6) continue;
+        const auto other = a.FindView(v.id);
+        ASSERT_TRUE(other.has_value()) << "view " << v.id << " removed only with the graph";
+        for (const ViewComponent& d : a.views()[*other].components) {
+          if (d.id == c.id) EXPECT_EQ(d.weight, c.weight) << "view " << v.id << ", t " << t;
+        }
+      }
+    }
+  }
+  EXPECT_GT(graph_missed, 0) << "the poor search should miss matches, or this tests nothing";
+}
+
 // The graph follows the options: built at ann_min_views, never with 0; invalid values
 // name the field.
 TEST(EnvironmentModelAnn, Options) {

@@ -52,7 +52,10 @@ namespace omnicml {
 //    pose_graph; after the model, the graph's nodes, closures, recent frame odometry and
 //    its state (pose_graph.h Write). Files of version 6 are rejected with both versions
 //    named (re-run to rebuild them).
-inline constexpr std::uint32_t kEngineFormatVersion = 8;
+// 8: option section gated_matching (pose-gated matching, issue 19).
+// 9: options model.ann_min_views, ann_m, ann_ef_construction, ann_ef, ann_k (approximate
+//    retrieval, issue 19; the graph is rebuilt on load, not stored).
+inline constexpr std::uint32_t kEngineFormatVersion = 9;
 // The 8 magic bytes (including the terminating NUL).
 inline constexpr char kEngineMagic[8] = {'O', 'M', 'N', 'I', 'C', 'M', 'L', '\0'};
 

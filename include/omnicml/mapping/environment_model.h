@@ -186,7 +186,10 @@ struct EnvironmentModelOptions {
   // distance, order and top_k for those only. Not exact: a true match the graph search
   // misses is not returned (never a false one). Measured on synthetic trajectory maps
   // (docs/experiments.md "Approximate retrieval"): FindMatches' top-8 lists hold 0.999
-  // of the true matches at 100k views; the radius query of Update 0.95. Takes precedence
+  // of the true matches at 100k views; the radius query of Update 0.95, but Update also
+  // gives every view with a component within d_for_m of mu_t the exact distance, so the
+  // rules at the robot's place ((16)-(18)) see exactly the scan's matches; only distant
+  // (aliased) matches can be missed. Takes precedence
   // over the exact index while active. Built over every view (in id order) when the map
   // reaches ann_min_views (one build over the whole map inside that AddView/Update:
   // 58 s wall at 100k views on the loaded 2-core development machine), dropped below half

@@ -71,8 +71,9 @@ void ColorHistogramOptions::Validate() const {
                        "), got ", filter_width));
   }
   if (!(relative_luminance_range_stops > 0 && relative_luminance_range_stops <= 16)) {
-    throw Error(StrCat("ColorHistogramOptions.relative_luminance_range_stops must be in (0, 16], got ",
-                       relative_luminance_range_stops));
+    throw Error(
+        StrCat("ColorHistogramOptions.relative_luminance_range_stops must be in (0, 16], got ",
+               relative_luminance_range_stops));
   }
   switch (distance) {
     case HistogramDistance::kJeffrey:
@@ -92,9 +93,10 @@ ColorHistogram::ColorHistogram(const ColorHistogramOptions& options) : options_(
 double EstimateNoiseSigma(const cv::Mat& image) {
   if (image.empty() || image.depth() != CV_8U || image.rows < 3 || image.cols < 3 ||
       (image.channels() != 1 && image.channels() != 3)) {
-    throw Error(StrCat("EstimateNoiseSigma: expected an 8-bit grey or BGR image of at least 3 x 3 "
-                       "pixels, got ", image.cols, " x ", image.rows, " with ", image.channels(),
-                       " channels"));
+    throw Error(
+        StrCat("EstimateNoiseSigma: expected an 8-bit grey or BGR image of at least 3 x 3 "
+               "pixels, got ",
+               image.cols, " x ", image.rows, " with ", image.channels(), " channels"));
   }
   const int ch = image.channels();
   // Immerkaer (1996) eq. (3): sigma = sqrt(pi/2) / (6 (W-2)(H-2)) sum |I * N|, per channel,
@@ -149,7 +151,8 @@ Descriptor ColorHistogram::Compute(const cv::Mat& panorama, double noise_sigma) 
   bool any_reliable = !masking;
   for (int y = 0; y < bgr.rows && !any_reliable; ++y) {
     const std::uint8_t* p = bgr.ptr<std::uint8_t>(y);
-    for (int x = 0; x < bgr.cols && !any_reliable; ++x, p += 3) any_reliable = reliable(p[0], p[1], p[2]);
+    for (int x = 0; x < bgr.cols && !any_reliable; ++x, p += 3)
+      any_reliable = reliable(p[0], p[1], p[2]);
   }
   const bool mask = masking && any_reliable;
   // Relative luminance: bin of log2(L / median L) over [-range, range] per L value.

@@ -111,7 +111,8 @@ cv::Mat RandomImage(std::mt19937& rng, int rows, int cols, int lo, int hi) {
   std::uniform_int_distribution<int> u(lo, hi);
   cv::Mat m(rows, cols, CV_8UC3);
   for (int y = 0; y < rows; ++y) {
-    for (int x = 0; x < cols * 3; ++x) m.ptr<std::uint8_t>(y)[x] = static_cast<std::uint8_t>(u(rng));
+    for (int x = 0; x < cols * 3; ++x)
+      m.ptr<std::uint8_t>(y)[x] = static_cast<std::uint8_t>(u(rng));
   }
   return m;
 }

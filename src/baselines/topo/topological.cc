@@ -444,9 +444,8 @@ PlaceDecision Vote(const BandVotes& bands, const TopologicalOptions& options) {
   // A light-independent dissenter is outvoted only when it is less sure than the
   // agreeing bands on average.
   const bool dissent_tolerated =
-      dissenters == 0 ||
-      (dissenters <= options.max_dissenting_bands && best > ruling_dissenters &&
-       (ruling_dissenters == 0 || ruling_dissent_max < agreeing_sum / agreeing));
+      dissenters == 0 || (dissenters <= options.max_dissenting_bands && best > ruling_dissenters &&
+                          (ruling_dissenters == 0 || ruling_dissent_max < agreeing_sum / agreeing));
   if (place < 0) {
     d.state = PlaceState::kUncertain;
   } else if (tie || !dissent_tolerated) {
@@ -457,8 +456,8 @@ PlaceDecision Vote(const BandVotes& bands, const TopologicalOptions& options) {
     d.place = place;
     d.confidence = agreeing_sum - ruling_dissent_sum;
     // [UN] action threshold on the overall confidence.
-    d.state = d.confidence >= options.action_threshold ? PlaceState::kConfident
-                                                       : PlaceState::kUncertain;
+    d.state =
+        d.confidence >= options.action_threshold ? PlaceState::kConfident : PlaceState::kUncertain;
   }
   return d;
 }

@@ -17,6 +17,10 @@
 //      different places -> kConfused; they all name place p -> the overall confidence is
 //      the sum of their C_b, and the image is classified as p (kConfident) only if it
 //      reaches the action threshold (0.1 in [UN]); below it the result is kUncertain.
+//      Default since issue 18 (TopologicalOptions::max_dissenting_bands,
+//      light_dependent_bands): one band may dissent when it is less sure than the
+//      agreeing bands on average (its C_b is subtracted), and L's dissent is always
+//      outvoted; UlrichNourbakhshOptions() restores unanimity and [UN]'s bands.
 //   5. The belief moves to p on kConfident and otherwise stays at the last confident
 //      place.
 // [UN] does not spell out how the band confidences combine before the action threshold;
@@ -117,7 +121,9 @@ std::string ToString(PlaceState state);  // confident|uncertain|confused
 // six bands with the normalised r, g, b (chromaticity: unchanged when a room's lights
 // change its brightness) and 64 bins per band (near-grey walls put most chromaticity
 // values within a few hundredths of 1/3). Chosen among bins {32, 64} on home_store and
-// institute, seeds 1-3, all day pairs, one setting for both worlds.
+// institute, seeds 1-3, all day pairs, one setting for both worlds. HSV saturation and
+// relative luminance instead of HLS S and L (issue 18, "Topological under illumination
+// change"): S is then unchanged by a light, L by a light over the whole image.
 inline ColorHistogramOptions TopologicalHistogramDefaults() {
   ColorHistogramOptions o;
   o.bins = 64;

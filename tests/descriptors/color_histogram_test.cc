@@ -2,6 +2,7 @@
 // invariance to rotation of the panorama, thread-safety.
 #include "omnicml/descriptors/color_histogram.h"
 
+#include <cmath>
 #include <numeric>
 #include <random>
 #include <thread>
@@ -103,6 +104,121 @@ TEST(ColorHistogram, NormalisedRgbIgnoresBrightness) {
                                              b.features.data() + 3 * bins, 3 * bins);
   };
   EXPECT_LT(rgb_distance(normalized), 0.3 * rgb_distance(plain));
+}
+
+// A random BGR image with every channel in [lo, hi].
+cv::Mat RandomImage(std::mt19937& rng, int rows, int cols, int lo, int hi) {
+  std::uniform_int_distribution<int> u(lo, hi);
+  cv::Mat m(rows, cols, CV_8UC3);
+  for (int y = 0; y < rows; ++y) {
+    for (int x = 0; x < cols * 3; ++x)
+      m.ptr<std::uint8_t>(y)[x] = static_cast<std::uint8_t>(u(rng));
+  }
+  return m;
+}
+
+double BandDistance(const Descriptor& a, const Descriptor& b, int band, int bins) {
+  return ColorHistogram::JeffreyDivergence(a.features.data() + band * bins,
+                                           b.features.data() + band * bins, bins);
+}
+
+// A light doubling every pixel (exactly, within the reliable range: no channel reaches
+// 255) leaves the hue, HSV saturation and r, g, b histograms bit-identical and the
+// relative luminance nearly so; HLS L and S, [UN]'s bands, change.
+TEST(ColorHistogram, InvariantBandsUnchangedByALightInTheReliableRange) {
+  ColorHistogramOptions invariant;
+  invariant.normalized_rgb = true;
+  invariant.hsv_saturation = true;
+  invariant.relative_luminance = true;
+  invariant.reliable_chromaticity = true;
+  ColorHistogramOptions published = invariant;
+  published.hsv_saturation = published.relative_luminance = published.reliable_chromaticity = false;
+  const ColorHistogram inv(invariant), un(published);
+  const int bins = invariant.bins;
+  std::mt19937 rng(7);
+  for (int trial = 0; trial < 5; ++trial) {
+    const cv::Mat dim = RandomImage(rng, 40, 90, 40, 120);
+    cv::Mat lit;
+    dim.convertTo(lit, CV_8UC3, 2.0);  // exact: every value <= 240
+    const Descriptor a = inv.Compute(dim, 1.0), b = inv.Compute(lit, 2.0);
+    for (int band : {0, 2, 3, 4, 5}) {
+      for (int i = 0; i < bins; ++i) {
+        EXPECT_EQ(a.features[band * bins + i], b.features[band * bins + i])
+            << "trial " << trial << " band " << band << " bin " << i;
+      }
+    }
+    const Descriptor ua = un.Compute(dim), ub = un.Compute(lit);
+    EXPECT_LT(BandDistance(a, b, 1, bins), 0.02) << "relative luminance, trial " << trial;
+    EXPECT_GT(BandDistance(ua, ub, 1, bins), 0.5) << "HLS L, trial " << trial;
+    EXPECT_GT(BandDistance(ua, ub, 2, bins), 0.1) << "HLS S, trial " << trial;
+  }
+}
+
+// reliable_chromaticity leaves pixels out of H, S, r, g, b when their sum R + G + B is
+// below ReliableIntensitySum(sigma) or a channel is clipped at 255: appending rows of
+// such pixels to an image changes only its L band; without the option it changes all.
+TEST(ColorHistogram, ReliableChromaticityIgnoresDarkAndClippedPixels) {
+  ColorHistogramOptions options;
+  options.normalized_rgb = true;
+  options.hsv_saturation = true;
+  options.reliable_chromaticity = true;
+  const ColorHistogram ch(options);
+  ColorHistogramOptions all_pixels = options;
+  all_pixels.reliable_chromaticity = false;
+  const ColorHistogram plain(all_pixels);
+  const int bins = options.bins;
+  const double sigma = 1.5;
+  const double min_sum = ch.ReliableIntensitySum(sigma);
+  EXPECT_NEAR(min_sum, 2.0 * std::sqrt(2.0 / 3.0) * bins * sigma, 1e-9);
+  std::mt19937 rng(11);
+  std::uniform_int_distribution<int> dark(0, static_cast<int>(min_sum / 3.0) - 1);
+  for (int trial = 0; trial < 5; ++trial) {
+    const cv::Mat image = RandomImage(rng, 30, 60, 60, 200);
+    cv::Mat unreliable = RandomImage(rng, 10, 60, 60, 200);
+    for (int y = 0; y < unreliable.rows; ++y) {
+      for (int x = 0; x < unreliable.cols; ++x) {
+        auto& px = unreliable.at<cv::Vec3b>(y, x);
+        if ((x + y) % 2 == 0) {
+          px = cv::Vec3b(dark(rng), dark(rng), dark(rng));  // sum < min_sum
+        } else {
+          px[(x + y) % 3] = 255;  // one clipped channel
+        }
+      }
+    }
+    cv::Mat extended;
+    cv::vconcat(image, unreliable, extended);
+    const Descriptor before = ch.Compute(image, sigma), after = ch.Compute(extended, sigma);
+    const Descriptor plain_before = plain.Compute(image), plain_after = plain.Compute(extended);
+    for (int band : {0, 2, 3, 4, 5}) {
+      EXPECT_EQ(BandDistance(before, after, band, bins), 0.0) << "band " << band;
+      EXPECT_GT(BandDistance(plain_before, plain_after, band, bins), 0.0) << "band " << band;
+    }
+    EXPECT_GT(BandDistance(before, after, 1, bins), 0.0);  // L counts every pixel
+  }
+  // An image with no reliable pixel falls back to all pixels (finite, normalised bands).
+  const Descriptor black = ch.Compute(cv::Mat(10, 10, CV_8UC3, cv::Scalar::all(2)), sigma);
+  for (float v : black.features) EXPECT_TRUE(std::isfinite(v));
+}
+
+// Immerkaer's estimator recovers the standard deviation of Gaussian noise added to a
+// flat image and to a smooth ramp (structure up to second order cancels).
+TEST(ColorHistogram, EstimateNoiseSigmaRecoversAddedNoise) {
+  std::mt19937 rng(5);
+  for (double sigma : {1.0, 2.0, 4.0}) {
+    std::normal_distribution<double> noise(0.0, sigma);
+    cv::Mat flat(120, 360, CV_8UC3), ramp(120, 360, CV_8UC3);
+    for (int y = 0; y < 120; ++y) {
+      for (int x = 0; x < 360 * 3; ++x) {
+        flat.ptr<std::uint8_t>(y)[x] = cv::saturate_cast<std::uint8_t>(100 + noise(rng));
+        ramp.ptr<std::uint8_t>(y)[x] =
+            cv::saturate_cast<std::uint8_t>(40 + 0.3 * (x / 3) + 0.5 * y + noise(rng));
+      }
+    }
+    EXPECT_NEAR(EstimateNoiseSigma(flat), sigma, 0.1 * sigma + 0.1) << sigma;
+    EXPECT_NEAR(EstimateNoiseSigma(ramp), sigma, 0.1 * sigma + 0.15) << sigma;
+  }
+  EXPECT_NEAR(EstimateNoiseSigma(cv::Mat(20, 20, CV_8UC1, cv::Scalar(9))), 0.0, 1e-12);
+  EXPECT_THROW(EstimateNoiseSigma(cv::Mat(2, 20, CV_8UC3, cv::Scalar::all(0))), Error);
 }
 
 // Compute from two threads gives bit-identical results; bad input is an Error.

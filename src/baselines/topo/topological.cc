@@ -364,6 +364,9 @@ void TopologicalOptions::Validate() const {
   if (!(action_threshold >= 0.0) || !std::isfinite(action_threshold)) {
     throw Error(StrCat("action_threshold: must be >= 0, got ", action_threshold));
   }
+  if (max_dissenting_bands < 0 || max_dissenting_bands > ColorHistogram::kBands - 1) {
+    throw Error(StrCat("max_dissenting_bands: must be in 0..5, got ", max_dissenting_bands));
+  }
   if (average_block_px < 1 || average_block_px > 16) {
     throw Error(StrCat("average_block_px: must be in 1..16, got ", average_block_px));
   }
@@ -380,34 +383,81 @@ void TopologicalOptions::Validate() const {
   }
 }
 
+TopologicalOptions UlrichNourbakhshOptions() {
+  TopologicalOptions o;
+  o.histogram.hsv_saturation = false;
+  o.histogram.relative_luminance = false;
+  o.histogram.reliable_chromaticity = false;
+  o.max_dissenting_bands = 0;
+  return o;
+}
+
 PlaceDecision Vote(const BandVotes& bands, const TopologicalOptions& options) {
   PlaceDecision d;
   d.bands = bands;
-  int place = -1;
-  bool disagree = false;
-  double sum = 0.0;
-  for (int b = 0; b < ColorHistogram::kBands; ++b) {
-    const BandVote& v = bands[b];
-    // [UN]: a band's vote counts only with a confidence above its threshold.
-    if (v.place < 0 || v.confidence < options.band_threshold[b]) continue;
-    ++d.voting_bands;
-    sum += v.confidence;
-    if (place < 0) {
-      place = v.place;
-    } else if (v.place != place) {
-      disagree = true;
+  constexpr int kBands = ColorHistogram::kBands;
+  // [UN]: a band's vote counts only with a confidence above its threshold.
+  auto takes_part = [&](int b) {
+    return bands[b].place >= 0 && bands[b].confidence >= options.band_threshold[b];
+  };
+  // The ruling bands: the light-independent ones that take part, or the light-dependent
+  // ones when no other band takes part.
+  bool any_independent = false;
+  for (int b = 0; b < kBands; ++b) {
+    any_independent |= takes_part(b) && !options.light_dependent_bands[b];
+  }
+  auto ruling = [&](int b) {
+    return takes_part(b) && (!any_independent || !options.light_dependent_bands[b]);
+  };
+  // The place named by the most ruling bands (a tie: confused).
+  int place = -1, best = 0;
+  bool tie = false;
+  for (int b = 0; b < kBands; ++b) {
+    if (!ruling(b)) continue;
+    int n = 0;
+    for (int c = 0; c < kBands; ++c) n += ruling(c) && bands[c].place == bands[b].place;
+    if (n > best) {
+      best = n;
+      place = bands[b].place;
+      tie = false;
+    } else if (n == best && bands[b].place != place) {
+      tie = true;
     }
   }
-  if (d.voting_bands == 0) {
+  double agreeing_sum = 0.0, ruling_dissent_sum = 0.0, ruling_dissent_max = 0.0;
+  int agreeing = 0, ruling_dissenters = 0, dissenters = 0;
+  for (int b = 0; b < kBands; ++b) {
+    if (!takes_part(b)) continue;
+    if (bands[b].place == place) {
+      ++agreeing;
+      agreeing_sum += bands[b].confidence;
+    } else {
+      ++dissenters;
+      if (ruling(b)) {
+        ++ruling_dissenters;
+        ruling_dissent_sum += bands[b].confidence;
+        ruling_dissent_max = std::max(ruling_dissent_max, bands[b].confidence);
+      }
+    }
+  }
+  d.voting_bands = agreeing + dissenters;
+  // A light-independent dissenter is outvoted only when it is less sure than the
+  // agreeing bands on average.
+  const bool dissent_tolerated =
+      dissenters == 0 || (dissenters <= options.max_dissenting_bands && best > ruling_dissenters &&
+                          (ruling_dissenters == 0 || ruling_dissent_max < agreeing_sum / agreeing));
+  if (place < 0) {
     d.state = PlaceState::kUncertain;
-  } else if (disagree) {
-    // [UN] unanimous voting: confident bands that disagree leave the robot confused.
+  } else if (tie || !dissent_tolerated) {
+    // [UN] unanimous voting (max_dissenting_bands 0): confident bands that disagree
+    // leave the robot confused.
     d.state = PlaceState::kConfused;
   } else {
     d.place = place;
-    d.confidence = sum;
+    d.confidence = agreeing_sum - ruling_dissent_sum;
     // [UN] action threshold on the overall confidence.
-    d.state = sum >= options.action_threshold ? PlaceState::kConfident : PlaceState::kUncertain;
+    d.state =
+        d.confidence >= options.action_threshold ? PlaceState::kConfident : PlaceState::kUncertain;
   }
   return d;
 }
@@ -424,17 +474,24 @@ TopologicalLocalizer::TopologicalLocalizer(AdjacencyMap map, const TopologicalOp
 
 Descriptor TopologicalLocalizer::Describe(const cv::Mat& panorama) const {
   const int block = options_.average_block_px;
+  // reliable_chromaticity: the sensor noise is estimated on the image as taken; averaging
+  // block x block pixels divides its standard deviation by block.
+  const bool estimate_noise = options_.histogram.reliable_chromaticity && !panorama.empty() &&
+                              panorama.depth() == CV_8U &&
+                              (panorama.channels() == 1 || panorama.channels() == 3) &&
+                              panorama.rows >= 3 && panorama.cols >= 3;
+  const double sigma = estimate_noise ? EstimateNoiseSigma(panorama) : 0.0;
   if (block > 1 && !panorama.empty() && panorama.cols >= 2 * block && panorama.rows >= 2 * block) {
     // Block averages (a last partial block of a row or column is dropped).
     cv::Mat averaged;
     cv::resize(
         panorama(cv::Rect(0, 0, panorama.cols / block * block, panorama.rows / block * block)),
         averaged, cv::Size(panorama.cols / block, panorama.rows / block), 0, 0, cv::INTER_AREA);
-    Descriptor d = histogram_.Compute(averaged);
+    Descriptor d = histogram_.Compute(averaged, sigma / block);
     d.panorama_width = panorama.cols;
     return d;
   }
-  return histogram_.Compute(panorama);
+  return histogram_.Compute(panorama, sigma);
 }
 
 void TopologicalLocalizer::AddReference(int place, const Descriptor& descriptor) {

@@ -59,7 +59,7 @@ TEST(TopologicalVote, UnanimousConfidentBandsGiveConfident) {
 
 // Confident bands that disagree leave the robot confused.
 TEST(TopologicalVote, DisagreeingConfidentBandsGiveConfused) {
-  const TopologicalOptions options;
+  const TopologicalOptions options = UlrichNourbakhshOptions();
   BandVotes v = UniformVotes(1, 0.3);
   v[4].place = 2;
   v[4].confidence = 0.2;
@@ -101,6 +101,90 @@ TEST(TopologicalVote, ActionThreshold) {
   options.action_threshold = 0.1;
   options.band_threshold[2] = 0.5;
   EXPECT_EQ(Vote(v, options).state, PlaceState::kUncertain);
+}
+
+// A light-dependent band (L by default) that disagrees is outvoted whatever its
+// confidence but uses up a tolerated dissent; under [UN]'s unanimity
+// (max_dissenting_bands 0) it makes the frame confused like any band.
+TEST(TopologicalVote, LightDependentBandOutvotedButCountsAsDissent) {
+  TopologicalOptions options;
+  ASSERT_EQ(options.max_dissenting_bands, 1);
+  ASSERT_TRUE(options.light_dependent_bands[1]);
+  BandVotes v = UniformVotes(1, 0.3);
+  v[1].place = 2;  // L names another place, surer than the others
+  v[1].confidence = 0.9;
+  PlaceDecision d = Vote(v, options);
+  EXPECT_EQ(d.state, PlaceState::kConfident);
+  EXPECT_EQ(d.place, 1);
+  EXPECT_EQ(d.voting_bands, 6);
+  EXPECT_NEAR(d.confidence, 1.5, 1e-12);  // L's confidence is not subtracted
+  EXPECT_EQ(Vote(v, UlrichNourbakhshOptions()).state, PlaceState::kConfused);
+  // L and one more band dissent: two dissenters, one tolerated.
+  v[4].place = 0;
+  v[4].confidence = 0.1;
+  EXPECT_EQ(Vote(v, options).state, PlaceState::kConfused);
+  // Agreeing, L adds its confidence.
+  v = UniformVotes(1, 0.3);
+  d = Vote(v, options);
+  EXPECT_NEAR(d.confidence, 1.8, 1e-12);
+  // Only L takes part: it decides.
+  v = UniformVotes(1, 0.0);
+  v[1].confidence = 0.3;
+  d = Vote(v, options);
+  EXPECT_EQ(d.state, PlaceState::kConfident);
+  EXPECT_EQ(d.place, 1);
+  // Not light-dependent: a surer dissenting L is not outvoted.
+  options.light_dependent_bands.fill(false);
+  v = UniformVotes(1, 0.3);
+  v[1].place = 2;
+  v[1].confidence = 0.9;
+  EXPECT_EQ(Vote(v, options).state, PlaceState::kConfused);
+}
+
+// max_dissenting_bands: up to k light-independent bands, each less sure than the
+// agreeing bands on average, may name other places; the majority place wins with the dissenters'
+// confidence subtracted; more dissenters, a surer dissenter or a tie is confused.
+TEST(TopologicalVote, ToleratedDissentLowersConfidence) {
+  TopologicalOptions options;
+  options.light_dependent_bands.fill(false);
+  options.max_dissenting_bands = 1;
+  BandVotes v = UniformVotes(0, 0.3);
+  v[5].place = 2;
+  v[5].confidence = 0.2;
+  PlaceDecision d = Vote(v, options);
+  EXPECT_EQ(d.state, PlaceState::kConfident);
+  EXPECT_EQ(d.place, 0);
+  EXPECT_EQ(d.voting_bands, 6);
+  EXPECT_NEAR(d.confidence, 5 * 0.3 - 0.2, 1e-12);
+  v[4].place = 2;  // two dissenters
+  v[4].confidence = 0.2;
+  EXPECT_EQ(Vote(v, options).state, PlaceState::kConfused);
+  options.max_dissenting_bands = 2;
+  EXPECT_EQ(Vote(v, options).state, PlaceState::kConfident);
+  // One band each for two places: a tie, confused whatever the tolerance.
+  v = UniformVotes(0, 0.0);
+  v[0].confidence = v[1].confidence = 0.5;
+  v[1].place = 3;
+  options.max_dissenting_bands = 5;
+  EXPECT_EQ(Vote(v, options).state, PlaceState::kConfused);
+  EXPECT_EQ(Vote(v, options).place, -1);
+  // Dissent eats the confidence: below the action threshold the frame is uncertain.
+  v = UniformVotes(0, 0.0);
+  v[0].confidence = v[1].confidence = 0.06;
+  v[2].confidence = 0.05;
+  v[2].place = 1;
+  options.max_dissenting_bands = 1;
+  d = Vote(v, options);
+  EXPECT_EQ(d.state, PlaceState::kUncertain);
+  EXPECT_EQ(d.place, 0);
+  EXPECT_NEAR(d.confidence, 0.07, 1e-12);
+  // A dissenter at least as sure as the agreeing bands on average is not outvoted.
+  v[2].confidence = 0.06;
+  EXPECT_EQ(Vote(v, options).state, PlaceState::kConfused);
+  v = UniformVotes(0, 0.3);
+  v[5].place = 2;
+  v[5].confidence = 0.31;
+  EXPECT_EQ(Vote(v, options).state, PlaceState::kConfused);
 }
 
 TEST(TopologicalOptions, ValidateNamesTheField) {
@@ -487,6 +571,50 @@ TEST(TopologicalLocalizer, InstituteRoomsRarelyConfidentWrongOnSeveralSeeds) {
     ASSERT_EQ(c.frames, 90);
     EXPECT_LE(c.confident_wrong, 1) << "seed " << seed;
     EXPECT_GT(c.confident_correct, 0.4 * c.frames) << "seed " << seed;
+  }
+}
+
+// The localizer's decision on a synthetic pair of places under a light change: place A
+// is a bright panorama, place B another, dark one; the query is A with its light dimmed
+// to 30 % (plus sensor noise). [UN]'s HLS L (and S) then name the dark place B, so
+// [UN]'s bands and vote (UlrichNourbakhshOptions) are not confidently right; with the
+// defaults (HSV S, relative luminance, L light-dependent) the query is A, confidently.
+TEST(TopologicalLocalizer, DimmedPlaceRecognisedDespiteLuminance) {
+  std::vector<Place> places(2);
+  places[0].name = "A";
+  places[1].name = "B";
+  places[1].center_m = Eigen::Vector2d(5.0, 0.0);
+  places[0].neighbours = {1};
+  const AdjacencyMap map(places);
+  auto scaled = [](const cv::Mat& image, double factor, std::uint64_t noise_seed) {
+    cv::Mat f;
+    image.convertTo(f, CV_32FC3, factor);
+    cv::Mat noise(f.size(), CV_32FC3);
+    cv::RNG rng(noise_seed);
+    rng.fill(noise, cv::RNG::NORMAL, 0.0, 2.0);
+    f += noise;
+    cv::Mat out;
+    f.convertTo(out, CV_8UC3);
+    return out;
+  };
+  for (std::uint32_t seed = 1; seed <= 4; ++seed) {
+    const cv::Mat a = MakeSyntheticPanorama(720, 120, seed);
+    const cv::Mat b = scaled(MakeSyntheticPanorama(720, 120, seed + 100), 0.3, 7 * seed);
+    const cv::Mat query = scaled(RollColumns(a, 200), 0.3, 7 * seed + 1);
+    auto decide = [&](const TopologicalOptions& options) {
+      TopologicalLocalizer loc(map, options);
+      loc.AddReference(0, loc.Describe(scaled(a, 1.0, 7 * seed + 2)));
+      loc.AddReference(1, loc.Describe(b));
+      loc.Reset(0);
+      return loc.Localize(loc.Describe(query));
+    };
+    const PlaceDecision with_defaults = decide(TopologicalOptions{});
+    EXPECT_EQ(with_defaults.state, PlaceState::kConfident) << "seed " << seed;
+    EXPECT_EQ(with_defaults.place, 0) << "seed " << seed;
+    const PlaceDecision published = decide(UlrichNourbakhshOptions());
+    EXPECT_EQ(published.bands[1].place, 1) << "seed " << seed;  // HLS L: the dark place
+    EXPECT_FALSE(published.state == PlaceState::kConfident && published.place == 0)
+        << "seed " << seed;
   }
 }
 

@@ -17,6 +17,10 @@
 //      different places -> kConfused; they all name place p -> the overall confidence is
 //      the sum of their C_b, and the image is classified as p (kConfident) only if it
 //      reaches the action threshold (0.1 in [UN]); below it the result is kUncertain.
+//      Default since issue 18 (TopologicalOptions::max_dissenting_bands,
+//      light_dependent_bands): one band may dissent when it is less sure than the
+//      agreeing bands on average (its C_b is subtracted), and L's dissent is always
+//      outvoted; UlrichNourbakhshOptions() restores unanimity and [UN]'s bands.
 //   5. The belief moves to p on kConfident and otherwise stays at the last confident
 //      place.
 // [UN] does not spell out how the band confidences combine before the action threshold;
@@ -117,11 +121,15 @@ std::string ToString(PlaceState state);  // confident|uncertain|confused
 // six bands with the normalised r, g, b (chromaticity: unchanged when a room's lights
 // change its brightness) and 64 bins per band (near-grey walls put most chromaticity
 // values within a few hundredths of 1/3). Chosen among bins {32, 64} on home_store and
-// institute, seeds 1-3, all day pairs, one setting for both worlds.
+// institute, seeds 1-3, all day pairs, one setting for both worlds. HSV saturation and
+// relative luminance instead of HLS S and L (issue 18, "Topological under illumination
+// change"): S is then unchanged by a light, L by a light over the whole image.
 inline ColorHistogramOptions TopologicalHistogramDefaults() {
   ColorHistogramOptions o;
   o.bins = 64;
   o.normalized_rgb = true;
+  o.hsv_saturation = true;
+  o.relative_luminance = true;
   return o;
 }
 
@@ -138,6 +146,24 @@ struct TopologicalOptions {
   // Per band (H, L, S, R|r, G|g, B|b), the smallest confidence C_b, in [0, 1], with which
   // the band's vote counts.
   std::array<double, ColorHistogram::kBands> band_threshold = {0.05, 0.05, 0.05, 0.05, 0.05, 0.05};
+  // How many taking-part bands may name another place than the majority without making
+  // the frame confused (0 = [UN]'s unanimity). The place is the one named by the most
+  // light-independent bands (a tie is confused; the light-dependent bands rule only when
+  // no other band takes part). The dissent is tolerated when there are at most k
+  // dissenters in all, fewer light-independent dissenters than agreeing bands, and each
+  // light-independent dissenter is less sure (C_b) than the agreeing bands on average;
+  // the overall confidence is then the agreeing bands' C_b (light-dependent ones
+  // included) minus the light-independent dissenters'. One band's histogram can be
+  // changed by what changes between days (a light, a restocked shelf, a curtain) while
+  // the others still agree (issue 18). 0..5.
+  int max_dissenting_bands = 1;
+  // Per band (H, L, S, r, g, b): whether its histogram changes with the light (issue 18:
+  // L, even relative to the image's median, since a light switches only part of a
+  // panorama). Such a band's dissent counts towards max_dissenting_bands but is
+  // outvoted whatever its confidence (it is not compared with the agreeing bands nor
+  // subtracted). No effect with max_dissenting_bands 0.
+  std::array<bool, ColorHistogram::kBands> light_dependent_bands = {false, true,  false,
+                                                                    false, false, false};
   // The smallest overall confidence (sum of the agreeing bands' C_b) for a confident
   // classification. [UN]: 0.1. >= 0.
   double action_threshold = 0.1;
@@ -163,12 +189,20 @@ struct TopologicalOptions {
   void Validate() const;
 };
 
+// [UN]'s bands and vote as published, on the defaults before issue 18's illumination
+// work (the "before" rows of docs/experiments.md): HLS L and S, unanimity; 64 bins,
+// normalised r, g, b and 4 x 4 block averages as the defaults. As YAML (--config):
+// histogram: {hsv_saturation: false, relative_luminance: false}, max_dissenting_bands: 0.
+TopologicalOptions UlrichNourbakhshOptions();
+
 // The options schema (common/options.h): YAML keys, dump, binary codec.
 template <class V>
 void VisitFields(V& v, TopologicalOptions& o) {
   v.Section("histogram", o.histogram);
   v("average_block_px", o.average_block_px);
   v("band_threshold", o.band_threshold);
+  v("max_dissenting_bands", o.max_dissenting_bands);
+  v("light_dependent_bands", o.light_dependent_bands);
   v("action_threshold", o.action_threshold);
   v("learn_band_thresholds", o.learn_band_thresholds);
   v("calibration_exclusion_frames", o.calibration_exclusion_frames);
@@ -204,7 +238,7 @@ struct PlaceDecision {
   PlaceState state = PlaceState::kUncertain;
   int place = -1;           // the unanimous place (also when kUncertain by the action threshold)
   double confidence = 0.0;  // sum of C_b of the bands that took part (0 if kConfused)
-  int voting_bands = 0;     // bands with C_b >= their threshold
+  int voting_bands = 0;     // bands with C_b >= their threshold that count (advisory: agreeing)
   BandVotes bands;
 };
 

@@ -18,9 +18,14 @@
 
 #include "omnicml/descriptors/fourier_signature.h"
 #include "omnicml/mapping/environment_model.h"
+#include "testing/model_helpers.h"
 
 namespace omnicml {
 namespace {
+
+using testing::Bytes;
+using testing::Estimate;
+using testing::MakeFourier;
 
 constexpr int kBands = 4, kCoefficients = 16;  // 64 features, the default signature's size
 constexpr std::size_t kD = kBands * kCoefficients;
@@ -82,17 +87,6 @@ std::shared_ptr<const FourierSignature> Fourier() {
   return std::make_shared<FourierSignature>(f);
 }
 
-Descriptor MakeFourier(const std::vector<float>& magnitudes, std::mt19937& rng) {
-  std::uniform_real_distribution<float> phase(-3.1f, 3.1f);
-  Descriptor d;
-  d.kind = DescriptorKind::kFourier;
-  d.features = magnitudes;
-  for (float& v : d.features) v = std::max(v, 0.0f);
-  for (float v : d.features) d.coefficients.push_back(std::polar(v, phase(rng)));
-  d.panorama_width = 64;
-  return d;
-}
-
 ViewComponent Component(double x, double y) {
   ViewComponent c;
   c.weight = 0.5;
@@ -100,19 +94,6 @@ ViewComponent Component(double x, double y) {
   c.mean = MakePose(x, y, 0.0);
   c.covariance = Eigen::Vector3d(0.04, 0.04, 0.04).asDiagonal();
   return c;
-}
-
-Gaussian Estimate(double x, double y) {
-  Gaussian g;
-  g.mean = MakePose(x, y, 0.0);
-  g.covariance = Eigen::Vector3d(0.04, 0.04, 0.04).asDiagonal();
-  return g;
-}
-
-std::vector<std::uint8_t> Bytes(const EnvironmentModel& m) {
-  BinaryWriter w;
-  m.Serialize(w);
-  return w.Release();
 }
 
 // (view id, distance) of a match list: what "the same result" compares.

@@ -11,6 +11,7 @@
 #include <Eigen/LU>
 
 #include "testing/fake_descriptor.h"
+#include "testing/model_helpers.h"
 
 #include <opencv2/imgproc.hpp>
 
@@ -18,6 +19,8 @@
 
 namespace omnicml {
 namespace {
+
+using testing::Bytes;
 
 using testing::FakeDescriptorExtractor;
 using testing::MakeFakeExtractor;
@@ -42,12 +45,6 @@ const ReferenceView& ViewById(const EnvironmentModel& m, std::uint64_t id) {
   const auto index = m.FindView(id);
   OMNICML_CHECK(index.has_value()) << "no view " << id;
   return m.views()[*index];
-}
-
-std::vector<std::uint8_t> Bytes(const EnvironmentModel& m) {
-  BinaryWriter w;
-  m.Serialize(w);
-  return w.Release();
 }
 
 // Squared Mahalanobis distance, written out independently of the library.

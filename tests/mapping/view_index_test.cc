@@ -22,9 +22,14 @@
 #include "omnicml/descriptors/fourier_signature.h"
 #include "omnicml/mapping/environment_model.h"
 #include "testing/fake_descriptor.h"
+#include "testing/model_helpers.h"
 
 namespace omnicml {
 namespace {
+
+using testing::Bytes;
+using testing::Estimate;
+using testing::MakeFourier;
 
 // Anisotropic Gaussian vectors (standard deviation falling with the axis, as Fourier
 // magnitudes do), rotated so no axis is special.
@@ -224,31 +229,6 @@ std::shared_ptr<const FourierSignature> Fourier(FourierDistance distance) {
   f.coefficients = kCoefficients;
   f.distance = distance;
   return std::make_shared<FourierSignature>(f);
-}
-
-// A Fourier descriptor with the given magnitudes and random phases.
-Descriptor MakeFourier(const std::vector<float>& magnitudes, std::mt19937& rng) {
-  std::uniform_real_distribution<float> phase(-3.1f, 3.1f);
-  Descriptor d;
-  d.kind = DescriptorKind::kFourier;
-  d.features = magnitudes;
-  for (float& v : d.features) v = std::max(v, 0.0f);
-  for (float v : d.features) d.coefficients.push_back(std::polar(v, phase(rng)));
-  d.panorama_width = 64;
-  return d;
-}
-
-Gaussian Estimate(double x, double y) {
-  Gaussian g;
-  g.mean = MakePose(x, y, 0.0);
-  g.covariance = Eigen::Vector3d(0.04, 0.04, 0.04).asDiagonal();
-  return g;
-}
-
-std::vector<std::uint8_t> Bytes(const EnvironmentModel& m) {
-  BinaryWriter w;
-  m.Serialize(w);
-  return w.Release();
 }
 
 void ExpectSameMatches(const std::vector<ViewMatch>& a, const std::vector<ViewMatch>& b) {

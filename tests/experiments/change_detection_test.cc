@@ -217,6 +217,14 @@ TEST(ChangeDetection, VisibleTruthFollowsLineOfSightAndSize) {
   EXPECT_THROW(VisibleChanges(w, 1, 1, o), Error);
 }
 
+// A confident estimate at (x, 0.5): 1 cm, 0.05 rad.
+Gaussian At(double x) {
+  Gaussian g;
+  g.mean = MakePose(x, 0.5, 0.0);
+  g.covariance = Eigen::Vector3d(0.01 * 0.01, 0.01 * 0.01, 0.05 * 0.05).asDiagonal();
+  return g;
+}
+
 // The health rule (ComputeMapHealth): a place whose look changed for good is "changed"
 // even when no view is inserted there (a view it expected stopped matching while another
 // still matches), a place that looks as before is "ok", and the cell counts say why.
@@ -228,19 +236,13 @@ TEST(MapHealth, ChangedWhereExpectedViewsStopMatching) {
   o.d_for_m = 1.0;
   o.forgetting = ForgettingMode::kActive;
   EnvironmentModel m(o, fx);
-  auto at = [](double x) {
-    Gaussian g;
-    g.mean = MakePose(x, 0.5, 0.0);
-    g.covariance = Eigen::Vector3d(0.01 * 0.01, 0.01 * 0.01, 0.05 * 0.05).asDiagonal();
-    return g;
-  };
   std::int64_t frame = 0;
   // A pass: 3 Updates at place P (x = 1, cell (0,0) of 2 m) with look `p`, then 3 at
   // place Q (x = 9, cell (4,0)) with look 0.
   auto pass = [&](float p, int session) {
-    for (int k = 0; k < 3; ++k) m.Update(fx->Make({p, 0.0f}), at(1.0), {frame++, session});
+    for (int k = 0; k < 3; ++k) m.Update(fx->Make({p, 0.0f}), At(1.0), {frame++, session});
     frame += 50;
-    for (int k = 0; k < 3; ++k) m.Update(fx->Make({0.0f, 20.0f}), at(9.0), {frame++, session});
+    for (int k = 0; k < 3; ++k) m.Update(fx->Make({0.0f, 20.0f}), At(9.0), {frame++, session});
     frame += 50;
   };
   // Session 0: P shows two looks on alternate passes (a lamp on and off), so P holds
@@ -284,17 +286,11 @@ TEST(MapHealth, NeighbourEvidenceMarksACellBetweenChangedOnes) {
   o.top_k = 0;
   o.forgetting = ForgettingMode::kPassive;
   EnvironmentModel m(o, fx);
-  auto at = [](double x) {
-    Gaussian g;
-    g.mean = MakePose(x, 0.5, 0.0);
-    g.covariance = Eigen::Vector3d(0.01 * 0.01, 0.01 * 0.01, 0.05 * 0.05).asDiagonal();
-    return g;
-  };
   std::int64_t frame = 0;
   auto pass = [&](const std::array<std::array<float, 2>, 3>& looks, int session) {
     for (int place = 0; place < 3; ++place) {
       for (int k = 0; k < 3; ++k) {
-        m.Update(fx->Make({looks[place][0], looks[place][1]}), at(1.0 + 2.0 * place),
+        m.Update(fx->Make({looks[place][0], looks[place][1]}), At(1.0 + 2.0 * place),
                  {frame++, session});
       }
       frame += 50;

@@ -335,16 +335,17 @@ BENCHMARK(BM_FindMatches)
     ->ArgsProduct({{kUniform}, {1000, 10000, 100000, 1000000}, {0, 1}})
     ->Unit(benchmark::kMicrosecond);
 
-// The graph's parameters (trajectory map, 100k views): M, ef_construction (a graph each),
-// ef and the first k of the radius query (search-time, SetAnnSearch on the same graph).
+// The graph's parameters (trajectory map, 100k views; and 1M views with M 32): views, M,
+// ef_construction (a graph each), ef and the first k of the radius query (search-time,
+// SetAnnSearch on the same graph).
 void BM_AnnParams(benchmark::State& state) {
   Key key;
-  key.views = 100000;
+  key.views = static_cast<std::size_t>(state.range(0));
   key.ann = true;
-  key.ann_m = static_cast<int>(state.range(0));
-  key.ann_ef_construction = static_cast<int>(state.range(1));
+  key.ann_m = static_cast<int>(state.range(1));
+  key.ann_ef_construction = static_cast<int>(state.range(2));
   ScaleFixture& f = Fixture(key);
-  f.model->SetAnnSearch(static_cast<int>(state.range(2)), static_cast<int>(state.range(3)));
+  f.model->SetAnnSearch(static_cast<int>(state.range(3)), static_cast<int>(state.range(4)));
   Measure(f);
   std::size_t k = 0;
   for (auto _ : state) {
@@ -354,11 +355,12 @@ void BM_AnnParams(benchmark::State& state) {
   Report(state, f, true);
 }
 BENCHMARK(BM_AnnParams)
-    ->ArgNames({"m", "efc", "ef", "k"})
+    ->ArgNames({"views", "m", "efc", "ef", "k"})
     ->Apply([](benchmark::internal::Benchmark* b) {
       for (const auto& [m, efc] : std::vector<std::pair<int, int>>{{16, 64}, {16, 128}})
         for (const int ef : {16, 32, 64, 128})
-          for (const int k : {32}) b->Args({m, efc, ef, k});  // one graph per (m, efc)
+          for (const int k : {32}) b->Args({100000, m, efc, ef, k});  // a graph per (m, efc)
+      for (const int ef : {64, 128, 256}) b->Args({1000000, 32, 128, ef, 32});
     })
     ->Unit(benchmark::kMicrosecond);
 

@@ -308,7 +308,7 @@ std::vector<ViewMatch> EnvironmentModel::Search(const Descriptor& y, int top_k, 
   };
   if (only != nullptr) {
     for (const std::size_t i : *only) consider(i);
-  } else if (ann_index_.built() && !exhaustive) {
+  } else if (AnnActive() && !exhaustive) {
     // Approximate candidate stage (ann_index.h): the graph's nearest views, then the same
     // exact distance as in the scan, so the result equals the scan's whenever the
     // candidates hold the true matches.
@@ -428,12 +428,11 @@ void EnvironmentModel::BuildAnn() {
 
 void EnvironmentModel::MaintainIndex() {
   const std::size_t ann_threshold = static_cast<std::size_t>(options_.ann_min_views);
-  if (index_supported_ && ann_threshold > 0) {
-    if (!ann_index_.built() && views_.size() >= ann_threshold) {
-      BuildAnn();
-    } else if (ann_index_.built() && 2 * views_.size() < ann_threshold) {
-      ann_index_.Clear();  // a map this small is faster to scan
-    }
+  // The graph is kept from the first view on (one insertion per new view, spread over
+  // the run) and searched from ann_min_views views on (AnnActive), so no Update ever
+  // stalls on a whole-map build when the map crosses the threshold.
+  if (index_supported_ && ann_threshold > 0 && !ann_index_.built() && !views_.empty()) {
+    BuildAnn();
   }
   const std::size_t threshold = static_cast<std::size_t>(options_.index_min_views);
   if (!index_supported_ || threshold == 0) return;
@@ -633,7 +632,7 @@ UpdateStats EnvironmentModel::Update(const Descriptor& y, const Gaussian& estima
   const Pose2 mu_t = MakePose(estimate.mean.x(), estimate.mean.y(), estimate.mean.z());
 
   std::vector<ViewMatch> matches = Search(y, 0);
-  if (ann_index_.built()) {
+  if (AnnActive()) {
     // The graph can miss a match (recall < 1). The views with a component within d_for
     // of mu_t are the ones rule (18) would weaken as "expected here but not matching",
     // so they get the exact distance whatever the graph returned: near the robot the
@@ -1173,16 +1172,14 @@ void EnvironmentModel::CheckInvariants() const {
       OMNICML_CHECK(!view_index_.built()) << "candidate index kept below half the threshold";
     }
   }
-  // The approximate graph: present exactly from ann_min_views views on until the map
-  // falls below half of that, holding every view once.
+  // The approximate graph: kept from the first view on whenever enabled, holding every
+  // view once; searched only from ann_min_views views on.
   const std::size_t ann_threshold = static_cast<std::size_t>(options_.ann_min_views);
   if (!index_supported_ || ann_threshold == 0) {
     OMNICML_CHECK(!ann_index_.built()) << "approximate index built although disabled";
   } else {
-    OMNICML_CHECK(views_.size() < ann_threshold || ann_index_.built())
+    OMNICML_CHECK(views_.empty() || ann_index_.built())
         << "approximate index missing at " << views_.size() << " views";
-    OMNICML_CHECK(2 * views_.size() >= ann_threshold || !ann_index_.built())
-        << "approximate index kept below half the threshold";
   }
   if (ann_index_.built()) {
     std::vector<std::uint64_t> ids;

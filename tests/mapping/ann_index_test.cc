@@ -352,7 +352,8 @@ TEST(EnvironmentModelAnn, UpdateNearTheRobotIsExact) {
   EXPECT_GT(graph_missed, 0) << "the poor search should miss matches, or this tests nothing";
 }
 
-// The graph follows the options: built at ann_min_views, never with 0; invalid values
+// The graph follows the options: searched from ann_min_views views on (kept from the
+// first view), never with 0; invalid values
 // name the field.
 TEST(EnvironmentModelAnn, Options) {
   EnvironmentModelOptions o = AnnOptions(40);
@@ -360,6 +361,10 @@ TEST(EnvironmentModelAnn, Options) {
   RouteSource src(21);
   for (int i = 0; i < 39; ++i) m.AddView(MakeFourier(src.Next(), src.rng()), {Component(i, 0)}, {});
   EXPECT_FALSE(m.AnnActive());
+  // Kept (one insertion per view) though not searched: crossing the threshold is no build.
+  EXPECT_TRUE(m.ann_index().built());
+  EXPECT_EQ(m.ann_index().size(), 39u);
+  m.CheckInvariants();
   m.AddView(MakeFourier(src.Next(), src.rng()), {Component(40, 0)}, {});
   EXPECT_TRUE(m.AnnActive());
   m.CheckInvariants();

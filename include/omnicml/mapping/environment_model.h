@@ -190,10 +190,12 @@ struct EnvironmentModelOptions {
   // gives every view with a component within d_for_m of mu_t the exact distance, so the
   // rules at the robot's place ((16)-(18)) see exactly the scan's matches; only distant
   // (aliased) matches can be missed. Takes precedence
-  // over the exact index while active. Built over every view (in id order) when the map
-  // reaches ann_min_views (one build over the whole map inside that AddView/Update:
-  // 58 s wall at 100k views on the loaded 2-core development machine), dropped below half
-  // of it; not saved (Deserialize rebuilds it). 50k: below it the scan costs <= 0.5 ms
+  // over the exact index while active. The graph is kept from the first view on, one
+  // insertion per new view (so no Update stalls on a whole-map build when the map
+  // crosses ann_min_views: that build took 58 s wall at 100k views on the 2-core
+  // development machine), and searched from ann_min_views views on; it is not saved
+  // (Deserialize rebuilds it over the views in id order, the same graph when no view was
+  // removed). 50k: below it the scan costs <= 0.5 ms
   // and stays exact; at 100k the graph takes ProcessFrame's p99 from 6.3 to 0.7 ms CPU.
   int ann_min_views = 50000;
   // Graph degree M (links per node; 2 M on the bottom layer), in [2, 64]: memory and
@@ -414,8 +416,12 @@ class EnvironmentModel {
   // index_max_bounded_fraction) at its last evaluation; -1 before any.
   double IndexBoundedFraction() const { return index_bounded_fraction_; }
   const ViewIndex& view_index() const { return view_index_; }
-  // Whether searches currently go through the approximate graph (options ann_*).
-  bool AnnActive() const { return ann_index_.built(); }
+  // Whether searches currently go through the approximate graph (options ann_*): the
+  // graph is kept from the first view on and used from ann_min_views views on.
+  bool AnnActive() const {
+    return ann_index_.built() &&
+           views_.size() >= static_cast<std::size_t>(options_.ann_min_views);
+  }
   const AnnIndex& ann_index() const { return ann_index_; }
 
   // p(x|y) (docs/design.md "Environment model"): for each match, each component j of the

@@ -4,7 +4,8 @@
 # `omnicml compare --jobs 3 --threads 2` on a short home_store run. Fails on any report.
 #   scripts/tsan.sh
 # Environment: OMNICML_TSAN_BUILD_DIR (default build-tsan), OMNICML_JOBS (default 2),
-#   OMNICML_TSAN_FRAMES (frames per day of the compare run, default 80).
+#   OMNICML_TSAN_FRAMES (frames per day of the compare run, default 80),
+#   OMNICML_TSAN_SUPPRESSIONS (default scripts/tsan.supp: hnswlib's lock order only).
 # gcc 12's TSan runtime dies at start-up on some kernels; clang 14's runs here. If the
 # runtime refuses the memory layout ("unexpected memory mapping"), the runs are retried
 # under `setarch -R` (no address-space randomisation).
@@ -28,7 +29,8 @@ cmake -S . -B "$build_dir" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_CX
 cmake --build "$build_dir" --target engine_test omnicml_cli -j "$jobs"
 echo "tsan: build took $(($(date +%s) - t0)) s"
 
-export TSAN_OPTIONS="${TSAN_OPTIONS:-halt_on_error=1:second_deadlock_stack=1:exitcode=66}${OMNICML_TSAN_SUPPRESSIONS:+:suppressions=$OMNICML_TSAN_SUPPRESSIONS}"
+suppressions="${OMNICML_TSAN_SUPPRESSIONS:-$PWD/scripts/tsan.supp}"
+export TSAN_OPTIONS="${TSAN_OPTIONS:-halt_on_error=1:second_deadlock_stack=1:exitcode=66}:suppressions=$suppressions"
 # Runs "$@", again under setarch -R when the TSan runtime rejects the address layout.
 run() {
   local log="$build_dir/tsan_$1.log"

@@ -107,6 +107,12 @@ bool DistanceIsL2(const DescriptorExtractor& extractor) {
   return false;
 }
 
+// The order of match lists: (distance, id) is a total order, so a list does not depend
+// on the order its matches were found in.
+bool MatchBefore(const ViewMatch& a, const ViewMatch& b) {
+  return a.distance != b.distance ? a.distance < b.distance : a.view_id < b.view_id;
+}
+
 // Which rule last changed a component's weight in this Update (for removal reasons).
 enum class Touch : std::uint8_t { kNone, kIncrease, kPassive, kActive };
 
@@ -326,11 +332,7 @@ std::vector<ViewMatch> EnvironmentModel::Search(const Descriptor& y, int top_k, 
     // The hot loop: one contiguous row per view, the extractor's raw-pointer distance.
     for (std::size_t i = 0; i < views_.size(); ++i) consider(i);
   }
-  // (distance, id) is a total order on the matches, so the result does not depend on
-  // the order they were found in.
-  std::sort(out.begin(), out.end(), [](const ViewMatch& a, const ViewMatch& b) {
-    return a.distance != b.distance ? a.distance < b.distance : a.view_id < b.view_id;
-  });
+  std::sort(out.begin(), out.end(), MatchBefore);
   if (top_k > 0 && out.size() > static_cast<std::size_t>(top_k))
     out.resize(static_cast<std::size_t>(top_k));
   for (ViewMatch& m : out) {
@@ -479,16 +481,21 @@ std::vector<ViewMatch> EnvironmentModel::FindMatchesNear(const Descriptor& y,
                                                          const std::vector<Disc>& discs,
                                                          std::size_t* candidates) const {
   CheckDescriptor(y, "FindMatchesNear");
-  std::vector<std::size_t> only;
-  for (const Disc& d : discs) {
-    for (const SpatialEntry& e : spatial_.QueryRadius(d.x_m, d.y_m, d.radius_m)) {
-      only.push_back(index_of_id_.at(e.view_id));
-    }
-  }
-  std::sort(only.begin(), only.end());
-  only.erase(std::unique(only.begin(), only.end()), only.end());
+  const std::vector<std::size_t> only = RowsNear(discs);
   if (candidates != nullptr) *candidates = only.size();
   return Search(y, options_.top_k, /*exhaustive=*/false, &only);
+}
+
+std::vector<std::size_t> EnvironmentModel::RowsNear(const std::vector<Disc>& discs) const {
+  std::vector<std::size_t> rows;
+  for (const Disc& d : discs) {
+    for (const SpatialEntry& e : spatial_.QueryRadius(d.x_m, d.y_m, d.radius_m)) {
+      rows.push_back(index_of_id_.at(e.view_id));
+    }
+  }
+  std::sort(rows.begin(), rows.end());
+  rows.erase(std::unique(rows.begin(), rows.end()), rows.end());
+  return rows;
 }
 
 Mixture EnvironmentModel::Hypothesis(const Descriptor& y) const {
@@ -637,12 +644,7 @@ UpdateStats EnvironmentModel::Update(const Descriptor& y, const Gaussian& estima
     // of mu_t are the ones rule (18) would weaken as "expected here but not matching",
     // so they get the exact distance whatever the graph returned: near the robot the
     // Update is the exact scan's; only far-away (aliased) matches may be missed.
-    std::vector<std::size_t> rows;
-    for (const SpatialEntry& e : spatial_.QueryRadius(mu_t.x(), mu_t.y(), options_.d_for_m)) {
-      rows.push_back(index_of_id_.at(e.view_id));
-    }
-    std::sort(rows.begin(), rows.end());
-    rows.erase(std::unique(rows.begin(), rows.end()), rows.end());
+    std::vector<std::size_t> rows = RowsNear({{mu_t.x(), mu_t.y(), options_.d_for_m}});
     std::vector<std::size_t> found;
     for (const ViewMatch& m : matches) found.push_back(m.view_index);
     std::sort(found.begin(), found.end());
@@ -650,13 +652,11 @@ UpdateStats EnvironmentModel::Update(const Descriptor& y, const Gaussian& estima
       return std::binary_search(found.begin(), found.end(), r);
     });
     if (!rows.empty()) {
+      // Both lists are in MatchBefore order: merge them.
       const std::vector<ViewMatch> extra = Search(y, 0, /*exhaustive=*/false, &rows);
-      if (!extra.empty()) {
-        matches.insert(matches.end(), extra.begin(), extra.end());
-        std::sort(matches.begin(), matches.end(), [](const ViewMatch& a, const ViewMatch& b) {
-          return a.distance != b.distance ? a.distance < b.distance : a.view_id < b.view_id;
-        });
-      }
+      const auto middle = static_cast<std::ptrdiff_t>(matches.size());
+      matches.insert(matches.end(), extra.begin(), extra.end());
+      std::inplace_merge(matches.begin(), matches.begin() + middle, matches.end(), MatchBefore);
     }
   }
   stats.matching_views = static_cast<int>(matches.size());

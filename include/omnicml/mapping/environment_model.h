@@ -512,6 +512,9 @@ class EnvironmentModel {
   // `only` (optional): compare these view indices (sorted, unique) instead of every view.
   std::vector<ViewMatch> Search(const Descriptor& y, int top_k, bool exhaustive = false,
                                 const std::vector<std::size_t>* only = nullptr) const;
+  // Rows (sorted, unique) of the views with a component strictly inside one of `discs`
+  // (spatial index).
+  std::vector<std::size_t> RowsNear(const std::vector<Disc>& discs) const;
   // Builds, maintains or drops the candidate index after the views changed.
   void MaintainIndex();
   // Builds the index over every view and keeps it iff it pays (index_max_bounded_fraction).

@@ -6,6 +6,7 @@
 #include <utility>
 
 #include <Eigen/Cholesky>
+#include <Eigen/LU>
 
 #include "omnicml/descriptors/color_histogram.h"
 #include "omnicml/descriptors/fourier_signature.h"
@@ -39,17 +40,25 @@ Eigen::Matrix3d EffectiveCovariance(const Eigen::Matrix3d& c,
   return out;
 }
 
-// [G] eqs. (13)-(14): merges `other` into `keep` by MomentMatch with weights eta_n and
-// eta_m (so the shares are eta_n / (eta_n + eta_m) and eta_m / (eta_n + eta_m)); the
-// heading mean is anchored at `keep`'s (the wrapped difference, not the circular mean).
-// eta and w are summed (w clamped to 1 to stay a weight).
-void MergeInto(ViewComponent& keep, const ViewComponent& other) {
-  const Gaussian pair[2] = {Gaussian{keep.mean, keep.covariance, keep.eta},
-                            Gaussian{other.mean, other.covariance, other.eta}};
+// [G] eqs. (13)-(14): merges `other` into `keep` by MomentMatch; the heading mean is
+// anchored at `keep`'s (the wrapped difference, not the circular mean). The pair's
+// weights are eta_n and eta_m ([G]; shares eta_n / (eta_n + eta_m)), or with
+// `precision_weighted` eta / sqrt(det C_xy), the share times the xy precision
+// (EnvironmentModelOptions::merge_precision_weighted). eta and w are summed (w clamped
+// to 1 to stay a weight).
+void MergeInto(ViewComponent& keep, const ViewComponent& other, bool precision_weighted) {
+  double weight_keep = keep.eta, weight_other = other.eta;
+  if (precision_weighted) {
+    // Covariances are SPD (checked on insertion and load), so the determinants are > 0.
+    weight_keep /= std::sqrt(keep.covariance.topLeftCorner<2, 2>().determinant());
+    weight_other /= std::sqrt(other.covariance.topLeftCorner<2, 2>().determinant());
+  }
+  const Gaussian pair[2] = {Gaussian{keep.mean, keep.covariance, weight_keep},
+                            Gaussian{other.mean, other.covariance, weight_other}};
   const Gaussian merged = MomentMatch(pair, HeadingMean::kAnchored);
   keep.covariance = merged.covariance;
   keep.mean = merged.mean;
-  keep.eta = merged.weight;
+  keep.eta += other.eta;
   keep.weight = std::min(1.0, keep.weight + other.weight);
 }
 
@@ -730,7 +739,7 @@ UpdateStats EnvironmentModel::Update(const Descriptor& y, const Gaussian& estima
     ++stats.components_merged;
     {
       const Pose2 old = comps[k].mean;
-      MergeInto(comps[k], added);
+      MergeInto(comps[k], added, options_.merge_precision_weighted);
       spatial_.Move(view.id, comps[k].id, old.x(), old.y(), comps[k].mean.x(), comps[k].mean.y());
       if (options_.log_component_events) {
         LogEvent(MapEvent{MapEventType::kComponentMerged, context.frame, context.session,
@@ -744,7 +753,7 @@ UpdateStats EnvironmentModel::Update(const Descriptor& y, const Gaussian& estima
       const std::size_t keep = std::min(j, k), drop = std::max(j, k);
       const Pose2 old = comps[keep].mean;
       const ViewComponent dropped = comps[drop];
-      MergeInto(comps[keep], dropped);
+      MergeInto(comps[keep], dropped, options_.merge_precision_weighted);
       spatial_.Remove(view.id, dropped.id, dropped.mean.x(), dropped.mean.y());
       spatial_.Move(view.id, comps[keep].id, old.x(), old.y(), comps[keep].mean.x(),
                     comps[keep].mean.y());

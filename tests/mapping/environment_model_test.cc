@@ -326,12 +326,17 @@ TEST(EnvironmentModel, ActiveForgettingEq18And19) {
 }
 
 // (12)-(14): a new component within delta merges; eta is summed, the mean and covariance
-// are the eta-weighted moments of the pair (across the +-pi seam), w is summed and then
-// raised by (16).
-TEST(EnvironmentModel, MergeKeepsEtaMeanAndCovariance) {
+// are the weighted moments of the pair (across the +-pi seam), w is summed and then
+// raised by (16). The weights are [G]'s eta shares, or eta times the xy precision
+// 1 / sqrt(det C_xy) with merge_precision_weighted.
+class MergeWeights : public ::testing::TestWithParam<bool> {};
+
+TEST_P(MergeWeights, MergeKeepsEtaMeanAndCovariance) {
+  const bool precision_weighted = GetParam();
   auto fx = MakeFakeExtractor(2);
   EnvironmentModelOptions o = TestOptions();
   o.merge_delta = 1.0;
+  o.merge_precision_weighted = precision_weighted;
   EnvironmentModel m(o, fx);
   const Descriptor y = fx->Make({0, 0});
   m.Update(y, Est(0, 0, kPi - 0.05, 0.5, 0.5, 0.2), {0, 0});
@@ -351,7 +356,12 @@ TEST(EnvironmentModel, MergeKeepsEtaMeanAndCovariance) {
     // The new component has eta = 1 (single match); the pair's weights are eta-shares.
     const double eta_new = 1.0;
     EXPECT_NEAR(after.eta, before.eta + eta_new, kTol);
-    const double a = before.eta / (before.eta + eta_new), b = eta_new / (before.eta + eta_new);
+    const auto precision = [&](const Eigen::Matrix3d& c) {
+      return precision_weighted ? 1.0 / std::sqrt(c.topLeftCorner<2, 2>().determinant()) : 1.0;
+    };
+    const double wa = before.eta * precision(before.covariance);
+    const double wb = eta_new * precision(g.covariance);
+    const double a = wa / (wa + wb), b = wb / (wa + wb);
     Eigen::Vector3d other = g.mean;
     other.z() = before.mean.z() + std::remainder(g.mean.z() - before.mean.z(), kTwoPi);  // unwrap
     Eigen::Vector3d mean = a * before.mean + b * other;
@@ -367,6 +377,40 @@ TEST(EnvironmentModel, MergeKeepsEtaMeanAndCovariance) {
     // w summed (w + 0) then (16) with S = 1 since mu_t is close to the merged mean.
     EXPECT_NEAR(after.weight, o.beta + (1 - o.beta) * before.weight, kTol);
   }
+}
+
+INSTANTIATE_TEST_SUITE_P(EnvironmentModel, MergeWeights, ::testing::Values(false, true),
+                         [](const ::testing::TestParamInfo<bool>& info) {
+                           return info.param ? "PrecisionWeighted" : "EtaShares";
+                         });
+
+// With merge_precision_weighted, a component known to centimetres (a survey pose) moves
+// a few centimetres when the view keeps matching at biased, uncertain estimates (0.065 m
+// after 40 of them 0.2 m off), while [G]'s eta shares drag it most of the way to their
+// mean (0.19 m).
+TEST(EnvironmentModel, PreciseComponentIsNotDraggedByUncertainMatches) {
+  auto fx = MakeFakeExtractor(2);
+  const Descriptor y = fx->Make({0, 0});
+  double moved[2];
+  for (const bool precision_weighted : {false, true}) {
+    EnvironmentModelOptions o = TestOptions();
+    o.merge_delta = 9.0;  // every estimate below merges (squared Mahalanobis < 9)
+    o.merge_precision_weighted = precision_weighted;
+    EnvironmentModel m(o, fx);
+    m.Update(y, Est(0, 0, 0, 0.02, 0.02, 0.01), {0, 0});  // the survey pose
+    std::mt19937 rng(7);
+    std::normal_distribution<double> noise(0.0, 0.1);
+    for (std::int64_t t = 1; t <= 40; ++t) {
+      // Estimates 0.2 m off in x on average, sigma 0.25 m: uncertain and biased.
+      m.Update(y, Est(0.2 + noise(rng), noise(rng), 0, 0.25, 0.25, 0.05), {t, 0});
+    }
+    ASSERT_EQ(m.views()[0].components.size(), 1u);
+    moved[precision_weighted] = m.views()[0].components[0].mean.head<2>().norm();
+    m.CheckInvariants();
+  }
+  EXPECT_GT(moved[0], 0.15);  // eta shares: about the estimates' mean
+  EXPECT_LT(moved[1], 0.1);  // precision weights: the precise component holds
+  EXPECT_LT(moved[1], 0.4 * moved[0]) << moved[0] << " " << moved[1];
 }
 
 // A component created below w_min survives the Update that created it and is removed

@@ -94,6 +94,11 @@ void RunRecorder::Record(const Frame& frame, const FrameResult& result) {
     r.estimate = result.estimate->strongest.mean;
     r.mean_estimate = result.estimate->mean.mean;
     r.unimodal = result.estimate->unimodal;
+    const Eigen::Matrix3d& c = result.estimate->strongest.covariance;
+    r.cov_xx_m2 = c(0, 0);
+    r.cov_xy_m2 = c(0, 1);
+    r.cov_yy_m2 = c(1, 1);
+    r.var_phi_rad2 = c(2, 2);
   }
   if (frame.map_T_robot_truth) {
     r.has_truth = true;
@@ -113,6 +118,7 @@ void RunRecorder::Record(const Frame& frame, const FrameResult& result) {
   if (r.has_estimate && r.has_truth) {
     r.position_error_m = (r.estimate.head<2>() - r.truth.head<2>()).norm();
     r.heading_error_rad = std::abs(WrapAngle(r.estimate.z() - r.truth.z()));
+    r.nees_xy = PositionNees(r);
   }
   const FrameStats& s = result.stats;
   r.views = static_cast<int>(s.num_views);

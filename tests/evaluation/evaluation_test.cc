@@ -7,6 +7,7 @@
 #include <random>
 #include <sstream>
 
+#include <Eigen/Geometry>
 #include <gtest/gtest.h>
 
 #include "omnicml/common/common.h"
@@ -357,6 +358,111 @@ TEST(FramesCsv, RoundTripsTheLaterColumns) {
   ReadSkippedFrames(dir / "absent.csv", &with_days);
   EXPECT_TRUE(with_days.skipped_frames.empty());
   fs::remove_all(dir);
+}
+
+// The position NEES is e^T C^-1 e; it is written and read back with the covariance, is
+// left empty (NaN) without a covariance or a positive-definite one, and a file from
+// before these columns reads with NaN.
+TEST(FramesCsv, CovarianceAndNeesRoundTrip) {
+  FrameRecord r = MakeRecord(0, 1, MakePose(1.3, 2.4, 0.1), MakePose(1.0, 2.0, 0.0));
+  r.cov_xx_m2 = 0.01;
+  r.cov_xy_m2 = 0.006;
+  r.cov_yy_m2 = 0.04;
+  r.var_phi_rad2 = 0.003;
+  std::vector<FrameRecord> records = {r};
+  RecomputeErrors(&records);
+  Eigen::Matrix2d c;
+  c << 0.01, 0.006, 0.006, 0.04;
+  const Eigen::Vector2d e(0.3, 0.4);
+  EXPECT_NEAR(records[0].nees_xy, e.dot(c.inverse() * e), 1e-9);
+  // Without the cross term: 0.09 / 0.01 + 0.16 / 0.04 = 13.
+  FrameRecord diagonal = records[0];
+  diagonal.cov_xy_m2 = 0.0;
+  EXPECT_NEAR(PositionNees(diagonal), 13.0, 1e-9);
+  FrameRecord singular = records[0];
+  singular.cov_xy_m2 = 0.02;  // det = 0.0004 - 0.0004 = 0
+  EXPECT_TRUE(std::isnan(PositionNees(singular)));
+  FrameRecord unknown = MakeRecord(0, 2, MakePose(1, 2, 0), MakePose(1, 2, 0));
+  EXPECT_TRUE(std::isnan(PositionNees(unknown)));
+
+  const fs::path dir = TempDir("nees");
+  {
+    std::ofstream os(dir / "frames.csv");
+    WriteFramesCsvHeader(os, {"total"});
+    records[0].stage_times_us = {10.0};
+    unknown.stage_times_us = {10.0};
+    WriteFramesCsvRow(os, records[0]);
+    WriteFramesCsvRow(os, unknown);
+  }
+  const FramesTable table = ReadFramesCsv(dir / "frames.csv");
+  ASSERT_EQ(table.records.size(), 2u);
+  EXPECT_EQ(table.records[0].cov_xx_m2, 0.01);
+  EXPECT_EQ(table.records[0].cov_xy_m2, 0.006);
+  EXPECT_EQ(table.records[0].cov_yy_m2, 0.04);
+  EXPECT_EQ(table.records[0].var_phi_rad2, 0.003);
+  EXPECT_EQ(table.records[0].nees_xy, records[0].nees_xy);
+  EXPECT_TRUE(std::isnan(table.records[1].cov_xx_m2));
+  EXPECT_TRUE(std::isnan(table.records[1].nees_xy));
+  const EvaluationResult result = Evaluate(table, Alignment::kNone);
+  EXPECT_EQ(result.overall.nees_xy.count, 1);
+  EXPECT_NEAR(result.overall.nees_xy.mean, records[0].nees_xy, 1e-9);
+  EXPECT_NE(FormatEvaluation(result, false).find("position NEES"), std::string::npos);
+  {
+    // Written before the covariance columns: the header stops at odom_phi_rad.
+    std::ifstream in(dir / "frames.csv");
+    std::string header, row;
+    std::getline(in, header);
+    std::getline(in, row);
+    const std::size_t cut = header.find(",cov_xx_m2");
+    ASSERT_NE(cut, std::string::npos);
+    std::size_t cells = 0;
+    for (char ch : header.substr(0, cut)) cells += ch == ',';
+    std::size_t pos = 0;
+    for (std::size_t k = 0; k <= cells; ++k) pos = row.find(',', pos) + 1;
+    std::ofstream os(dir / "old.csv");
+    os << header.substr(0, cut) << "\n" << row.substr(0, pos - 1) << "\n";
+  }
+  const FramesTable old = ReadFramesCsv(dir / "old.csv");
+  ASSERT_EQ(old.records.size(), 1u);
+  EXPECT_TRUE(std::isnan(old.records[0].cov_xx_m2));
+  EXPECT_TRUE(std::isnan(old.records[0].nees_xy));
+  EXPECT_EQ(old.records[0].estimate, records[0].estimate);
+  fs::remove_all(dir);
+}
+
+// Aligning turns the covariance with the estimate: a trajectory moved by a rigid T with
+// covariances turned by T's rotation gets, aligned back, the covariance it had in the
+// truth's frame, and the NEES is taken with it.
+TEST(Align, Se2TurnsTheCovarianceWithTheEstimate) {
+  const Pose2 t_est_truth = MakePose(2.0, -1.0, 1.1);  // estimate frame = T * truth frame
+  FramesTable table;
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> u(-4, 4);
+  const Eigen::Matrix2d c_truth = (Eigen::Matrix2d() << 0.09, 0.02, 0.02, 0.01).finished();
+  const Eigen::Matrix2d rot = Eigen::Rotation2Dd(t_est_truth.z()).toRotationMatrix();
+  const Eigen::Matrix2d c_est = rot * c_truth * rot.transpose();
+  for (int i = 0; i < 50; ++i) {
+    const Pose2 truth = MakePose(u(rng), u(rng), u(rng));
+    // An error of 0.2 m along x of the truth frame, then everything moved by T.
+    Pose2 off = truth;
+    off.x() += 0.2;
+    FrameRecord r = MakeRecord(0, i, Compose(t_est_truth, off), truth);
+    r.cov_xx_m2 = c_est(0, 0);
+    r.cov_xy_m2 = c_est(0, 1);
+    r.cov_yy_m2 = c_est(1, 1);
+    table.records.push_back(r);
+  }
+  const EvaluationResult se2 = Evaluate(table, Alignment::kSe2);
+  std::vector<FrameRecord> aligned = table.records;
+  Align(&aligned, Alignment::kSe2);
+  for (std::size_t i = 0; i < aligned.size(); ++i) {
+    Eigen::Matrix2d c;
+    c << aligned[i].cov_xx_m2, aligned[i].cov_xy_m2, aligned[i].cov_xy_m2, aligned[i].cov_yy_m2;
+    EXPECT_TRUE(c.isApprox(c_truth, 1e-6)) << c;
+    const Eigen::Vector2d e = aligned[i].estimate.head<2>() - aligned[i].truth.head<2>();
+    EXPECT_NEAR(aligned[i].nees_xy, e.dot(c_truth.inverse() * e), 1e-6);
+  }
+  EXPECT_EQ(se2.overall.nees_xy.count, 50);
 }
 
 }  // namespace

@@ -70,6 +70,18 @@ struct FrameRecord {
   int hypotheses = 0;                  // components of p(x|y)
   int mixture_components = 0;          // components of p(x_t)
   std::vector<double> stage_times_us;  // parallel to the stage names of the file
+  // Covariance of the strongest component (the estimate's own uncertainty) in the map
+  // frame: xy block (m^2) and heading variance (rad^2); NaN when unknown (no estimate,
+  // or a frames.csv written before these columns existed).
+  double cov_xx_m2 = kNaN;
+  double cov_xy_m2 = kNaN;
+  double cov_yy_m2 = kNaN;
+  double var_phi_rad2 = kNaN;
+  // Normalised estimation error squared of the position, e^T C_xy^-1 e with e = estimate
+  // - truth: chi-square with 2 degrees of freedom (mean 2, median 1.386) for an estimate
+  // whose covariance is consistent with its error; below: under-confident, above:
+  // over-confident. NaN without estimate, truth or covariance (RecomputeErrors).
+  double nees_xy = kNaN;
 };
 
 // Writes the header (with one time_<name>_us column per stage) and rows.
@@ -132,7 +144,11 @@ void WriteTum(std::ostream& os, const std::vector<FrameRecord>& records, TumCont
 // Whether records hold any line for `content` (ground truth / odometry known somewhere).
 bool HasTumContent(const std::vector<FrameRecord>& records, TumContent content);
 
-// Recomputes position and heading errors of records with estimate and truth.
+// FrameRecord::nees_xy of one record from its estimate, truth and covariance (NaN when
+// one is missing or the xy covariance is not positive definite).
+double PositionNees(const FrameRecord& record);
+
+// Recomputes position and heading errors and the NEES of records with estimate and truth.
 void RecomputeErrors(std::vector<FrameRecord>* records);
 
 // How the estimated trajectory is aligned to ground truth before errors are taken.
@@ -144,7 +160,8 @@ enum class Alignment {
 std::string ToString(Alignment alignment);            // none|start|se2
 Alignment AlignmentFromString(const std::string& s);  // throws omnicml::Error
 
-// Applies the alignment to the estimates (strongest and mean) and recomputes errors.
+// Applies the alignment to the estimates (strongest and mean; the covariance's xy block is
+// rotated with them) and recomputes errors.
 // Returns the transform used for kSe2 (identity otherwise) as (tx, ty, theta), applied
 // as Compose(T, estimate). kSe2 needs at least two records with estimate and truth at
 // distinct positions, otherwise throws omnicml::Error.
@@ -180,6 +197,8 @@ struct DayEvaluation {
   ErrorStats heading_rad;
   ErrorStats odometry_m;
   // position_m / heading_rad: over localized frames with ground truth (count = those).
+  // nees_xy: over those of them with a covariance (FrameRecord::nees_xy).
+  ErrorStats nees_xy;
   int views_at_end = 0;
   int map_components_at_end = 0;
   double mean_frame_time_us = kNaN;  // of the time_total_us column when present
@@ -233,8 +252,9 @@ std::string FormatTextTable(const std::vector<std::string>& header,
 
 // Text table: one line per day (frames, localized frames, coverage %, skipped frames,
 // mean/median/p95/max position error over the localized frames, heading error,
-// odometry-only mean, change of the mean from the previous day), then the run,
-// then (with_histogram) the position histogram as counts per bin and day.
+// odometry-only mean, change of the mean from the previous day), then the run, the
+// run's position NEES (consistency of the estimates' covariances) when the frames carry
+// covariances, then (with_histogram) the position histogram as counts per bin and day.
 std::string FormatEvaluation(const EvaluationResult& result, bool with_histogram = true);
 
 // Inline SVG of the position-error histogram, one series per day (steps when there are

@@ -144,6 +144,11 @@ py::dict FramesDict(const std::vector<FrameRecord>& r) {
   d["hypotheses"] = Column<std::int32_t>(r, [](const FrameRecord& x) { return x.hypotheses; });
   d["mixture_components"] =
       Column<std::int32_t>(r, [](const FrameRecord& x) { return x.mixture_components; });
+  d["cov_xx_m2"] = Column<double>(r, [](const FrameRecord& x) { return x.cov_xx_m2; });
+  d["cov_xy_m2"] = Column<double>(r, [](const FrameRecord& x) { return x.cov_xy_m2; });
+  d["cov_yy_m2"] = Column<double>(r, [](const FrameRecord& x) { return x.cov_yy_m2; });
+  d["var_phi_rad2"] = Column<double>(r, [](const FrameRecord& x) { return x.var_phi_rad2; });
+  d["nees_xy"] = Column<double>(r, [](const FrameRecord& x) { return x.nees_xy; });
   return d;
 }
 
@@ -193,7 +198,8 @@ void BindExperiments(py::module_& m) {
       "A finished run: frames (dict of per-frame numpy arrays from its frames.csv: session, "
       "frame, global_frame, stamp_s, has_estimate, estimate (N, 3), mean_estimate, unimodal, "
       "has_truth, truth (N, 3), position_error_m, heading_error_rad, odometry_error_m, views, "
-      "map_components, hypotheses, mixture_components), days (per-day statistics dicts), "
+      "map_components, hypotheses, mixture_components, cov_xx_m2, cov_xy_m2, cov_yy_m2, "
+      "var_phi_rad2, nees_xy (NaN where unknown)), days (per-day statistics dicts), "
       "overall (the same over all days), the map size after finish, wall time, run_dir (\"\" "
       "when temporary) and, for run(), the engine as saved at the end (before finish(): "
       "resumable, as `omnicml run --map-out`); None for compare().")

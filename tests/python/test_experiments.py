@@ -27,6 +27,13 @@ class ExperimentsTest(unittest.TestCase):
             self.assertTrue(np.all(np.isfinite(err)))
             self.assertAlmostEqual(r.mean_error_m, float(err.mean()), places=9)
             self.assertLess(r.mean_error_m, 1.0)
+            # The estimate's covariance and the NEES e^T C^-1 e (every frame localized).
+            e_xy = r.frames["estimate"][:, :2] - r.frames["truth"][:, :2]
+            a, b, d = r.frames["cov_xx_m2"], r.frames["cov_xy_m2"], r.frames["cov_yy_m2"]
+            det = a * d - b * b
+            self.assertTrue(np.all(det > 0))
+            nees = (d * e_xy[:, 0] ** 2 - 2 * b * e_xy[:, 0] * e_xy[:, 1] + a * e_xy[:, 1] ** 2) / det
+            np.testing.assert_allclose(r.frames["nees_xy"], nees, rtol=1e-9, atol=1e-12)
             self.assertEqual(len(r.days), 2)
             self.assertEqual(r.days[1]["frames"], 80)
             self.assertEqual(r.days[1]["views_at_end"], r.frames["views"][-1])

@@ -55,8 +55,15 @@ struct PoseGraphOptions {
   // Keep and optimise the graph; false: the engine behaves exactly as without it.
   bool enabled = false;
   // A match with a view created at least this many frames before the current frame is a
-  // loop closure (nearer matches are the odometry's business). Frames, >= 1.
-  int min_loop_frames = 300;
+  // loop closure (nearer matches are the odometry's business). Frames, >= 1. It must be
+  // shorter than the shortest loop, or the first lap's closure never enters the graph:
+  // the earlier default 300 exceeded home_store's lap (285 frames) and institute's (180),
+  // and the graph then bent the reconstructed first lap back towards raw odometry. A view
+  // matches within decimetres of its place, i.e. for a few frames after its creation, so
+  // 50 (10 m at the simulator's 0.2 m a frame) only excludes the current pass; 20, 50,
+  // 100 and 200 give identical home_store runs (docs/experiments.md "Global pose graph
+  // with the first lap's closure").
+  int min_loop_frames = 50;
   // At most one closure factor per this many frames (a revisit matches at every frame).
   // Frames, >= 1.
   int closure_every_frames = 10;

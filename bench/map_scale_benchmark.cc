@@ -313,6 +313,19 @@ void Report(benchmark::State& state, const ScaleFixture& f, bool indexed) {
   }
 }
 
+// The timed loop of the retrieval benchmarks: the fixture's queries in turn, through
+// FindMatches (indexed: the exact index or the graph, as the model chooses) or the
+// exhaustive scan; then the fixture's counters.
+void TimeQueries(benchmark::State& state, ScaleFixture& f, bool indexed) {
+  std::size_t k = 0;
+  for (auto _ : state) {
+    const Descriptor& q = f.queries[k++ % f.queries.size()];
+    auto m = indexed ? f.model->FindMatches(q) : f.model->FindMatchesExhaustive(q);
+    benchmark::DoNotOptimize(m);
+  }
+  Report(state, f, indexed);
+}
+
 // Args: generator (0 trajectory, 1 uniform), views, indexed (0: the exhaustive scan on the
 // same map, 1: FindMatches through the exact index, 2: through the approximate graph; the
 // scan of a graph's map is the scan of the exact index's map: same generator, same views).
@@ -323,13 +336,7 @@ void BM_FindMatches(benchmark::State& state) {
   const bool indexed = state.range(2) != 0;
   key.ann = state.range(2) == 2;
   ScaleFixture& f = Fixture(key);
-  std::size_t k = 0;
-  for (auto _ : state) {
-    const Descriptor& q = f.queries[k++ % f.queries.size()];
-    auto m = indexed ? f.model->FindMatches(q) : f.model->FindMatchesExhaustive(q);
-    benchmark::DoNotOptimize(m);
-  }
-  Report(state, f, indexed);
+  TimeQueries(state, f, indexed);
 }
 BENCHMARK(BM_FindMatches)
     ->ArgNames({"gen", "views", "indexed"})
@@ -349,12 +356,7 @@ void BM_AnnParams(benchmark::State& state) {
   ScaleFixture& f = Fixture(key);
   f.model->SetAnnSearch(static_cast<int>(state.range(3)), static_cast<int>(state.range(4)));
   Measure(f);
-  std::size_t k = 0;
-  for (auto _ : state) {
-    auto m = f.model->FindMatches(f.queries[k++ % f.queries.size()]);
-    benchmark::DoNotOptimize(m);
-  }
-  Report(state, f, true);
+  TimeQueries(state, f, /*indexed=*/true);
 }
 BENCHMARK(BM_AnnParams)
     ->ArgNames({"views", "m", "efc", "ef", "k"})
@@ -409,12 +411,7 @@ void BM_IndexDims(benchmark::State& state) {
   key.views = 100000;
   key.index_dims = static_cast<int>(state.range(0));
   ScaleFixture& f = Fixture(key);
-  std::size_t k = 0;
-  for (auto _ : state) {
-    auto m = f.model->FindMatches(f.queries[k++ % f.queries.size()]);
-    benchmark::DoNotOptimize(m);
-  }
-  Report(state, f, true);
+  TimeQueries(state, f, /*indexed=*/true);
 }
 BENCHMARK(BM_IndexDims)
     ->ArgName("dims")
@@ -433,13 +430,7 @@ void BM_Radius(benchmark::State& state) {
   key.views = static_cast<std::size_t>(state.range(1));
   const bool indexed = state.range(2) != 0;
   ScaleFixture& f = Fixture(key);
-  std::size_t k = 0;
-  for (auto _ : state) {
-    const Descriptor& q = f.queries[k++ % f.queries.size()];
-    auto m = indexed ? f.model->FindMatches(q) : f.model->FindMatchesExhaustive(q);
-    benchmark::DoNotOptimize(m);
-  }
-  Report(state, f, indexed);
+  TimeQueries(state, f, indexed);
 }
 BENCHMARK(BM_Radius)
     ->ArgNames({"e_max_x100", "views", "indexed"})

@@ -307,17 +307,20 @@ double PositionNees(const FrameRecord& r) {
   return (d * e.x() * e.x() - 2 * b * e.x() * e.y() + a * e.y() * e.y()) / det;
 }
 
-void RecomputeErrors(std::vector<FrameRecord>* records) {
-  for (FrameRecord& r : *records) {
-    if (r.has_estimate && r.has_truth) {
-      r.position_error_m = (r.estimate.head<2>() - r.truth.head<2>()).norm();
-      r.heading_error_rad = std::abs(WrapAngle(r.estimate.z() - r.truth.z()));
-    } else {
-      r.position_error_m = kNaN;
-      r.heading_error_rad = kNaN;
-    }
-    r.nees_xy = PositionNees(r);
+void ComputeErrors(FrameRecord* record) {
+  FrameRecord& r = *record;
+  if (r.has_estimate && r.has_truth) {
+    r.position_error_m = (r.estimate.head<2>() - r.truth.head<2>()).norm();
+    r.heading_error_rad = std::abs(WrapAngle(r.estimate.z() - r.truth.z()));
+  } else {
+    r.position_error_m = kNaN;
+    r.heading_error_rad = kNaN;
   }
+  r.nees_xy = PositionNees(r);
+}
+
+void RecomputeErrors(std::vector<FrameRecord>* records) {
+  for (FrameRecord& r : *records) ComputeErrors(&r);
 }
 
 std::string ToString(Alignment alignment) {

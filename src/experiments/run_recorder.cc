@@ -115,11 +115,7 @@ void RunRecorder::Record(const Frame& frame, const FrameResult& result) {
   } else if (anchor_session_ != result.session) {
     have_anchor_ = false;
   }
-  if (r.has_estimate && r.has_truth) {
-    r.position_error_m = (r.estimate.head<2>() - r.truth.head<2>()).norm();
-    r.heading_error_rad = std::abs(WrapAngle(r.estimate.z() - r.truth.z()));
-    r.nees_xy = PositionNees(r);
-  }
+  ComputeErrors(&r);
   const FrameStats& s = result.stats;
   r.views = static_cast<int>(s.num_views);
   r.map_components = static_cast<int>(s.num_map_components);

@@ -148,7 +148,10 @@ bool HasTumContent(const std::vector<FrameRecord>& records, TumContent content);
 // one is missing or the xy covariance is not positive definite).
 double PositionNees(const FrameRecord& record);
 
-// Recomputes position and heading errors and the NEES of records with estimate and truth.
+// Sets the position and heading errors and the NEES of one record from its estimate,
+// truth and covariance (NaN where one is missing).
+void ComputeErrors(FrameRecord* record);
+// ComputeErrors on every record.
 void RecomputeErrors(std::vector<FrameRecord>* records);
 
 // How the estimated trajectory is aligned to ground truth before errors are taken.

@@ -1,5 +1,6 @@
 // The global pose graph (engine/pose_graph.h): a drifted loop closes towards the truth,
 // a false closure under the robust loss leaves the map in place (and wrecks it without),
+// two days over one path meet half-way (the graph cannot tell which day drifted),
 // views move rigidly with their node, and in the engine: determinism with 1 and 2
 // threads and save/load round trips.
 #include "omnicml/engine/pose_graph.h"
@@ -116,6 +117,62 @@ TEST(PoseGraph, FalseClosureDoesNotWreckTheMapUnderTheRobustLoss) {
   };
   EXPECT_LT(worst_move(1.0), 0.3);
   EXPECT_GT(worst_move(1e6), 3.0);  // the same closure under least squares
+}
+
+// Two sessions over one straight path, each from the same known start, with the same
+// modelled odometry noise: day 1's odometry exact, day 2's with a heading bias. Day-2
+// anchors close on the day-1 nodes at the same true place (each view says the robot is
+// where the view was made). The graph cannot tell which day drifted, so the least-squares
+// optimum puts the path between the two chains: day 1's nodes move towards day 2's
+// by about half the disagreement and day 2's come back by about the other half
+// (docs/design.md "Global pose graph", why some seeds lose).
+TEST(PoseGraph, TwoDaysOverOnePathMeetHalfWay) {
+  constexpr int kDayNodes = 100;
+  PoseGraphOptions o = LoopOptions();
+  o.closure_every_frames = 10;
+  PoseGraph graph(o, MotionNoise{}, 1e-6, 1e-6, 1000);
+  const auto truth = [](int i) { return MakePose(0.2 * i, 0.0, 0.0); };
+  Gaussian start;
+  start.mean = truth(0);
+  start.covariance = Eigen::Vector3d(1e-4, 1e-4, 1e-6).asDiagonal();
+  std::vector<Pose2> day2_dead_reckoned;
+  for (int day = 0; day < 2; ++day) {
+    const std::int64_t first = day * kDayNodes;
+    graph.BeginSession(false, first, start);
+    Pose2 odom = truth(0);
+    for (int i = 0; i < kDayNodes; ++i) {
+      OdometryIncrement u;
+      if (i > 0) {
+        u = ComputeIncrement(truth(i - 1), truth(i));
+        if (day == 1) u.rot2_rad += 0.002;
+        odom = ApplyIncrement(odom, u);
+      }
+      graph.AddFrameOdometry(first + i, u);
+      graph.AddNode(first + i, odom, std::nullopt);
+      if (day == 1) day2_dead_reckoned.push_back(odom);
+    }
+  }
+  const int last = kDayNodes - 1;
+  const double disagreement = (day2_dead_reckoned[last].head<2>() - truth(last).head<2>()).norm();
+  ASSERT_GT(disagreement, 1.0);  // the drift is real
+  for (int i = 10; i < kDayNodes; i += 10) {
+    const PoseGraphNode* day1 = graph.FindNode(i);
+    ASSERT_NE(day1, nullptr);
+    ASSERT_TRUE(graph.AddClosure(i, kDayNodes + i, day1->pose, Eigen::Vector3d(1e-4, 1e-4, 1e-6).asDiagonal()));
+  }
+  ASSERT_TRUE(graph.ShouldOptimize(2 * kDayNodes - 1));
+  graph.Optimize(2 * kDayNodes - 1);
+  const double day1_moved = (graph.FindNode(90)->pose.head<2>() - truth(90).head<2>()).norm();
+  const double day2_moved =
+      (graph.FindNode(kDayNodes + 90)->pose.head<2>() - day2_dead_reckoned[90].head<2>()).norm();
+  const double day2_disagreement = (day2_dead_reckoned[90].head<2>() - truth(90).head<2>()).norm();
+  EXPECT_GT(day1_moved, 0.35 * day2_disagreement) << "day 1 kept: the graph preferred one day";
+  EXPECT_LT(day1_moved, 0.65 * day2_disagreement);
+  EXPECT_GT(day2_moved, 0.35 * day2_disagreement);
+  EXPECT_LT(day2_moved, 0.65 * day2_disagreement);
+  // The closures hold: both days' nodes at one place end up together.
+  EXPECT_LT((graph.FindNode(90)->pose.head<2>() - graph.FindNode(kDayNodes + 90)->pose.head<2>()).norm(),
+            0.1 * day2_disagreement);
 }
 
 // Closures need min_loop_frames between the nodes, closure_every_frames between closures

@@ -223,7 +223,9 @@ TEST_F(RunMetricsTest, TumFilesShareIncreasingRunStampsAndMatchFramesCsv) {
   for (std::size_t i = 0; i < est.size(); ++i) {
     EXPECT_EQ(est[i][0], gt[i][0]);
     EXPECT_EQ(est[i][0], odo[i][0]);
-    if (i > 0) EXPECT_GT(std::stod(est[i][0]), std::stod(est[i - 1][0])) << "line " << i;
+    if (i > 0) {
+      EXPECT_GT(std::stod(est[i][0]), std::stod(est[i - 1][0])) << "line " << i;
+    }
   }
   // The raw stamps repeat over the two days; frames.csv keeps them and adds run stamps.
   EXPECT_EQ(table.records.front().stamp_s, 0.0);

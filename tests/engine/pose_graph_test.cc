@@ -6,6 +6,7 @@
 #include "omnicml/engine/pose_graph.h"
 
 #include <cmath>
+#include <functional>
 #include <limits>
 #include <memory>
 #include <vector>
@@ -34,28 +35,37 @@ struct Loop {
   std::vector<Pose2> dead_reckoned;  // odometry from node 0's true pose
 };
 
-// Feeds the graph one lap: odometry increments of the truth with a heading bias of
-// `bias_rad` per step (drift), a node per frame at the dead-reckoned pose, and a known
-// start prior on node 0.
-Loop FeedLoop(PoseGraph* graph, double bias_rad) {
-  Loop loop;
+// Feeds the graph one session of `nodes` frames from `first_frame` along truth(0..nodes-1):
+// odometry increments of the truth with a heading bias of `bias_rad` per step (drift), a
+// node per frame at the dead-reckoned pose, and a known start prior at truth(0).
+// Returns the dead-reckoned poses.
+std::vector<Pose2> FeedSession(PoseGraph* graph, std::int64_t first_frame, int nodes,
+                               const std::function<Pose2(int)>& truth, double bias_rad) {
   Gaussian start;
-  start.mean = TruthAt(0);
+  start.mean = truth(0);
   start.covariance = Eigen::Vector3d(1e-4, 1e-4, 1e-6).asDiagonal();
-  graph->BeginSession(false, 0, start);
-  Pose2 odom = TruthAt(0);
-  for (int i = 0; i < kLoopNodes; ++i) {
+  graph->BeginSession(false, first_frame, start);
+  std::vector<Pose2> dead_reckoned;
+  Pose2 odom = truth(0);
+  for (int i = 0; i < nodes; ++i) {
     OdometryIncrement u;
     if (i > 0) {
-      u = ComputeIncrement(TruthAt(i - 1), TruthAt(i));
+      u = ComputeIncrement(truth(i - 1), truth(i));
       u.rot2_rad += bias_rad;
       odom = ApplyIncrement(odom, u);
     }
-    graph->AddFrameOdometry(i, u);
-    graph->AddNode(i, odom, std::nullopt);
-    loop.truth.push_back(TruthAt(i));
-    loop.dead_reckoned.push_back(odom);
+    graph->AddFrameOdometry(first_frame + i, u);
+    graph->AddNode(first_frame + i, odom, std::nullopt);
+    dead_reckoned.push_back(odom);
   }
+  return dead_reckoned;
+}
+
+// One lap of the circle from frame 0 (FeedSession).
+Loop FeedLoop(PoseGraph* graph, double bias_rad) {
+  Loop loop;
+  loop.dead_reckoned = FeedSession(graph, 0, kLoopNodes, TruthAt, bias_rad);
+  for (int i = 0; i < kLoopNodes; ++i) loop.truth.push_back(TruthAt(i));
   return loop;
 }
 
@@ -132,26 +142,8 @@ TEST(PoseGraph, TwoDaysOverOnePathMeetHalfWay) {
   o.closure_every_frames = 10;
   PoseGraph graph(o, MotionNoise{}, 1e-6, 1e-6, 1000);
   const auto truth = [](int i) { return MakePose(0.2 * i, 0.0, 0.0); };
-  Gaussian start;
-  start.mean = truth(0);
-  start.covariance = Eigen::Vector3d(1e-4, 1e-4, 1e-6).asDiagonal();
-  std::vector<Pose2> day2_dead_reckoned;
-  for (int day = 0; day < 2; ++day) {
-    const std::int64_t first = day * kDayNodes;
-    graph.BeginSession(false, first, start);
-    Pose2 odom = truth(0);
-    for (int i = 0; i < kDayNodes; ++i) {
-      OdometryIncrement u;
-      if (i > 0) {
-        u = ComputeIncrement(truth(i - 1), truth(i));
-        if (day == 1) u.rot2_rad += 0.002;
-        odom = ApplyIncrement(odom, u);
-      }
-      graph.AddFrameOdometry(first + i, u);
-      graph.AddNode(first + i, odom, std::nullopt);
-      if (day == 1) day2_dead_reckoned.push_back(odom);
-    }
-  }
+  FeedSession(&graph, 0, kDayNodes, truth, 0.0);
+  const std::vector<Pose2> day2_dead_reckoned = FeedSession(&graph, kDayNodes, kDayNodes, truth, 0.002);
   const int last = kDayNodes - 1;
   const double disagreement = (day2_dead_reckoned[last].head<2>() - truth(last).head<2>()).norm();
   ASSERT_GT(disagreement, 1.0);  // the drift is real

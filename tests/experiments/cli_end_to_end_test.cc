@@ -385,6 +385,32 @@ TEST_F(CliEndToEnd, DescribeTakesDescriptorOptionsFromAnEngineConfig) {
   EXPECT_NE(b.output.find("descriptor.fourier.bandz"), std::string::npos) << b.output;
 }
 
+TEST_F(CliEndToEnd, LapBoundOfAWorldRouteOrSaysWhyNot) {
+  // A world's route: the closed form and the Monte Carlo; --csv holds one row per pose.
+  const fs::path csv = Dir() / "lap_bound.csv";
+  const CommandResult r =
+      RunOmnicml("lap-bound --world institute --samples 2 --csv " + csv.string());
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("after the lap's closure"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("2 realisations"), std::string::npos) << r.output;
+  std::ifstream in(csv);
+  std::string line;
+  int rows = 0;
+  std::getline(in, line);
+  EXPECT_EQ(line, "pose,x_m,y_m,odometry_std_m,closed_std_m");
+  while (std::getline(in, line)) ++rows;
+  EXPECT_GT(rows, 100);
+  EXPECT_TRUE(TemporaryFiles(Dir()).empty());
+  // The test log's 50 frames never come back to their start: exit 2, naming the session.
+  const CommandResult no_lap = RunOmnicml("lap-bound " + (Dir() / "log").string());
+  EXPECT_EQ(no_lap.exit_code, 2) << no_lap.output;
+  EXPECT_NE(no_lap.output.find("session 1"), std::string::npos) << no_lap.output;
+  EXPECT_NE(no_lap.output.find("does not come back"), std::string::npos) << no_lap.output;
+  const CommandResult bad = RunOmnicml("lap-bound --world institute --noise 0.1,x,0,0");
+  EXPECT_EQ(bad.exit_code, 2);
+  EXPECT_NE(bad.output.find("--noise"), std::string::npos) << bad.output;
+}
+
 TEST_F(CliEndToEnd, BadInputExitsWithCodeTwoAndLeavesNothing) {
   // Unknown flags or keys, missing logs and foreign map files: exit code 2, a message
   // naming what and where, and no output files.

@@ -19,7 +19,7 @@ constexpr std::uint32_t kModelMagic = 0x4D45434Fu;  // "OCEM" little-endian
 // their footprints estimated from the components. Version 3 adds the number of events
 // logged and the per-session event counts before the (bounded) event ring; earlier
 // versions rebuild the counts from their complete log.
-constexpr std::uint32_t kModelVersion = 3;
+constexpr std::uint32_t kModelVersion = 4;  // 4: the look-back's recent updates
 
 // mu_t with its angle expressed relative to view i's panorama: phi_t minus the relative
 // heading RelativeHeading(y_t, y_i) (docs/design.md "Environment model", phase 2). Without a
@@ -211,6 +211,7 @@ void EnvironmentModelOptions::Validate() const {
   if (forget_min_missed_passes < 0)
     fail("forget_min_missed_passes", ">= 0", forget_min_missed_passes);
   if (pass_gap_frames < 0) fail("pass_gap_frames", ">= 0", pass_gap_frames);
+  if (look_back_frames < 0) fail("look_back_frames", ">= 0", look_back_frames);
   if (!(std::isfinite(footprint_confidence) && footprint_confidence >= 0))
     fail("footprint_confidence", "finite and >= 0", footprint_confidence);
   if (max_events < 0) fail("max_events", ">= 0", max_events);
@@ -669,11 +670,13 @@ UpdateStats EnvironmentModel::Update(const Descriptor& y, const Gaussian& estima
     }
   }
   stats.matching_views = static_cast<int>(matches.size());
+  std::uint64_t inserted_id = 0;
 
   // Phase 1 ([G 2.3]): insertion iff E(y_t, y_i) >= E_max for every view i.
   if (matches.empty()) {
     const std::size_t index = InsertView(y, context, mu_t);
     stats.view_inserted = true;
+    inserted_id = views_[index].id;
     ViewMatch self;
     self.view_index = index;
     self.view_id = views_[index].id;
@@ -892,7 +895,47 @@ UpdateStats EnvironmentModel::Update(const Descriptor& y, const Gaussian& estima
       ++stats.views_removed;
     }
   }
+  // Look-back (look_back_frames): after the weights, so the new components are not
+  // judged against mu_t, which lies ahead of them.
+  if (options_.look_back_frames > 0) {
+    if (!recent_updates_.empty() && recent_updates_.back().context.session != context.session) {
+      recent_updates_.clear();
+    }
+    if (stats.view_inserted) AddLookBackComponents(inserted_id, context, &stats);
+    recent_updates_.push_back(RecentUpdate{y, mu_t, c_t, context});
+    while (recent_updates_.size() > static_cast<std::size_t>(options_.look_back_frames)) {
+      recent_updates_.pop_front();
+    }
+  }
   return stats;
+}
+
+void EnvironmentModel::AddLookBackComponents(std::uint64_t view_id, const UpdateContext& context,
+                                             UpdateStats* stats) {
+  const std::optional<std::size_t> index = FindView(view_id);
+  if (!index) return;  // removed again in this Update
+  const std::vector<std::size_t> only = {*index};
+  for (auto it = recent_updates_.rbegin(); it != recent_updates_.rend(); ++it) {
+    if (context.frame - it->context.frame > options_.look_back_frames) break;
+    const std::vector<ViewMatch> m = Search(it->y, 0, /*exhaustive=*/true, &only);
+    if (m.empty()) break;  // the view's appearance ends here, going back
+    ReferenceView& view = views_[*index];
+    ViewComponent c;
+    c.id = next_component_id_++;
+    c.weight = options_.beta * m.front().similarity;  // one (16) confirmation from w = 0
+    c.eta = m.front().similarity;
+    c.mean = InViewFrame(it->mu, m.front().relative_heading_rad);
+    c.covariance = it->covariance;
+    view.components.push_back(c);
+    view.footprint.Observe(it->mu.x(), it->mu.y(), m.front().similarity);
+    spatial_.Insert(SpatialEntry{view.id, c.id, c.mean.x(), c.mean.y()});
+    ++num_components_;
+    ++stats->components_added;
+    if (options_.log_component_events) {
+      LogEvent(MapEvent{MapEventType::kComponentAdded, context.frame, context.session, view.id, c.id, c.mean,
+                        c.weight, "look-back"});
+    }
+  }
 }
 
 std::size_t EnvironmentModel::MemoryBytes() const {
@@ -972,6 +1015,17 @@ void EnvironmentModel::Serialize(BinaryWriter& out) const {
     WritePose(out, e.position);
     out.Write(e.weight);
     out.WriteString(e.reason);
+  }
+  // Version 4: the recent updates of the look-back, so that a run resumed from a saved
+  // map (whose queued updates are applied after loading) equals one run.
+  out.Write<std::uint64_t>(recent_updates_.size());
+  for (const RecentUpdate& r : recent_updates_) {
+    WriteDescriptorRecord(out, r.y);
+    WritePose(out, r.mu);
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) out.Write(r.covariance(i, j));
+    out.Write(r.context.frame);
+    out.Write<std::int32_t>(r.context.session);
   }
 }
 
@@ -1094,6 +1148,26 @@ EnvironmentModel EnvironmentModel::Deserialize(
       model.LogEvent(std::move(e));  // counts rebuilt from the (then complete) log
     } else {
       model.events_.push_back(std::move(e));
+    }
+  }
+  if (version >= 4) {
+    const std::size_t n = in.ReadCount("recent updates", 1 + 8 + 8 + 4 + 24 + 72 + 8 + 4);
+    for (std::size_t i = 0; i < n; ++i) {
+      RecentUpdate r;
+      r.y = ReadDescriptorRecord(in);
+      if (r.y.kind != model.extractor_->kind() || r.y.features.size() != model.feature_size_) {
+        in.Fail("recent update descriptor", "a descriptor of another kind or length");
+      }
+      r.mu = ReadPose(in, "recent update pose");
+      for (int a = 0; a < 3; ++a)
+        for (int b = 0; b < 3; ++b) r.covariance(a, b) = in.Read<double>("recent update covariance");
+      r.context.frame = in.Read<std::int64_t>("recent update frame");
+      r.context.session = in.Read<std::int32_t>("recent update session");
+      if (!r.mu.allFinite() || !r.covariance.allFinite()) in.Fail("recent update", "non-finite pose or covariance");
+      model.recent_updates_.push_back(std::move(r));
+    }
+    while (model.recent_updates_.size() > static_cast<std::size_t>(options.look_back_frames)) {
+      model.recent_updates_.pop_front();
     }
   }
   // A model loaded with a smaller max_events keeps the most recent ones.

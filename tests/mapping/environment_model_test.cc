@@ -65,6 +65,7 @@ EnvironmentModelOptions TestOptions() {
   o.d_for_m = 2.0;
   o.beta_for = 0.1;
   o.d_gain_m = 0.2;
+  o.look_back_frames = 0;  // LookBack* tests switch it on
   return o;
 }
 
@@ -856,6 +857,7 @@ TEST(EnvironmentModel, SerializeRoundTripAndCorruption) {
   EnvironmentModelOptions o = TestOptions();
   o.e_max = 0.7;
   o.log_component_events = true;
+  o.look_back_frames = 10;  // the recent updates are saved too
   EnvironmentModel m(o, fx);
   for (int t = 0; t < 300; ++t) {
     m.Update(fx->Make({u(rng), u(rng), u(rng)}, u(rng)), Est(u(rng), u(rng), u(rng) - 1.5),
@@ -875,8 +877,8 @@ TEST(EnvironmentModel, SerializeRoundTripAndCorruption) {
   for (int t = 300; t < 350; ++t) {
     const Descriptor y = fx->Make({u(rng), u(rng), u(rng)}, u(rng));
     const Gaussian g = Est(u(rng), u(rng), 0);
-    m.Update(y, g, {t, 3});
-    copy.Update(y, g, {t, 3});
+    m.Update(y, g, {t, 2});  // the saved session goes on: the look-back uses what was saved
+    copy.Update(y, g, {t, 2});
   }
   EXPECT_EQ(Bytes(copy), Bytes(m));
 
@@ -1025,6 +1027,67 @@ namespace {
 // MoveViewRigidly (global pose graph): component means, headings and covariances and
 // the footprint follow the anchor's rigid motion; other views stay; moving back
 // restores the view.
+// Look-back (look_back_frames): a new view also gets components at the preceding updates
+// of its session whose descriptor matches it, newest first, up to the first that does not
+// (weight beta * S, eta S, the update's pose and covariance, the footprint observed).
+TEST(EnvironmentModel, LookBackGivesANewViewThePosesThatWouldHaveMatchedIt) {
+  auto fx = MakeFakeExtractor(2);
+  EnvironmentModelOptions o = TestOptions();
+  o.e_max = 1.0;
+  o.look_back_frames = 10;
+  EnvironmentModel m(o, fx);
+  m.Update(fx->Make({0, 0}), Est(0, 0, 0), {0, 0});        // view A
+  m.Update(fx->Make({0.9f, 0}), Est(1, 0, 0), {1, 0});     // matches A; would match B
+  m.Update(fx->Make({0.2f, 0}), Est(2, 0, 0), {2, 0});     // matches A, not B: look-back stops
+  m.Update(fx->Make({0.95f, 0}), Est(3, 0, 0, 0.2, 0.3), {3, 0});  // matches A and B
+  ASSERT_EQ(m.NumViews(), 1u);
+  // A model saved here and loaded again looks back the same way (a resumed run's queued
+  // updates are applied after loading).
+  const std::vector<std::uint8_t> saved = Bytes(m);
+  BinaryReader in(saved, "model");
+  EnvironmentModel loaded = EnvironmentModel::Deserialize(in, o, fx);
+  const UpdateStats st = m.Update(fx->Make({1.5f, 0}), Est(4, 0, 0), {4, 0});  // view B
+  loaded.Update(fx->Make({1.5f, 0}), Est(4, 0, 0), {4, 0});
+  EXPECT_EQ(Bytes(loaded), Bytes(m));
+  ASSERT_TRUE(st.view_inserted);
+  ASSERT_EQ(m.NumViews(), 2u);
+  const ReferenceView& b = m.views()[1];
+  ASSERT_EQ(b.components.size(), 2u);  // its own pose and frame 3's, not frames 2 or 1
+  const ViewComponent& back = Newest(b);
+  const double s3 = 1.0 - fx->Distance(fx->Make({0.95f, 0}), b.descriptor) / o.e_max;
+  EXPECT_NEAR(back.mean.x(), 3.0, kTol);
+  EXPECT_NEAR(back.weight, o.beta * s3, kTol);
+  EXPECT_NEAR(back.eta, s3, kTol);
+  EXPECT_NEAR(back.covariance(0, 0), 0.04, kTol);
+  EXPECT_NEAR(back.covariance(1, 1), 0.09, kTol);
+  EXPECT_EQ(st.components_added, 2);  // the view's own and one looked back
+  EXPECT_NEAR(b.footprint.weight, 1.0 + s3, kTol);  // its own match (S = 1) and frame 3
+  // The spatial index knows the new component: rule (18)'s candidates near frame 3 include B.
+  const std::vector<ViewMatch> near = m.FindMatchesNear(fx->Make({1.5f, 0}), {{3.0, 0.0, 0.1}});
+  ASSERT_EQ(near.size(), 1u);
+  EXPECT_EQ(near[0].view_id, b.id);
+}
+
+// No look-back across sessions, beyond look_back_frames, or with look_back_frames 0.
+TEST(EnvironmentModel, LookBackStaysInItsSessionAndWindow) {
+  auto fx = MakeFakeExtractor(2);
+  const auto components_of_new_view = [&](int look_back, UpdateContext second, UpdateContext third) {
+    EnvironmentModelOptions o = TestOptions();
+    o.e_max = 1.0;
+    o.look_back_frames = look_back;
+    EnvironmentModel m(o, fx);
+    m.Update(fx->Make({0, 0}), Est(0, 0, 0), {0, 0});
+    m.Update(fx->Make({0.9f, 0}), Est(1, 0, 0), second);
+    OMNICML_CHECK(m.Update(fx->Make({1.4f, 0}), Est(2, 0, 0), third).view_inserted);
+    return m.views().back().components.size();
+  };
+  EXPECT_EQ(components_of_new_view(10, {1, 0}, {2, 0}), 2u);
+  EXPECT_EQ(components_of_new_view(10, {1, 0}, {2, 1}), 1u);   // another session
+  EXPECT_EQ(components_of_new_view(10, {1, 0}, {12, 0}), 1u);  // 11 frames back
+  EXPECT_EQ(components_of_new_view(10, {1, 0}, {11, 0}), 2u);  // 10 frames back
+  EXPECT_EQ(components_of_new_view(0, {1, 0}, {2, 0}), 1u);
+}
+
 TEST(EnvironmentModel, MoveViewRigidlyFollowsTheAnchor) {
   auto fx = MakeFakeExtractor(2);
   EnvironmentModelOptions o = TestOptions();

@@ -145,6 +145,18 @@ struct EnvironmentModelOptions {
   // Two Updates in which a view is expected belong to one pass through its footprint
   // when at most pass_gap_frames frames apart in the same session. >= 0.
   int pass_gap_frames = 25;
+  // Look-back (an addition to [G 2.3], docs/design.md "Environment model"): a view made
+  // at frame t is also given a component at each of the preceding updates of the same
+  // session, newest first, whose descriptor matches it (E < e_max), stopping at the first
+  // that does not and at most look_back_frames frames back. Without it a view's mixture
+  // only holds poses from its creation on (nothing could match it before), so it lies
+  // ahead of the view along the direction of travel (store_large survey map: median
+  // +0.40 m) and p(x|y) pulls estimates forward; an adapted map then absorbs that bias
+  // day after day. Each such component is one [G] (16) confirmation from w = 0: weight
+  // beta * S, eta S, the update's pose and covariance. Frames, >= 0 (0: off). The
+  // descriptor decides how far back: 25 and 50 give the same store_large runs. The
+  // recent updates are not saved with the model (a session's first update clears them).
+  int look_back_frames = 50;
   // ... and only when the robot is confident relative to the footprint: the largest
   // standard deviation of C_t's xy part at most footprint_confidence times the
   // footprint's largest standard deviation (dimensionless, >= 0; 0 disables the check).
@@ -243,6 +255,7 @@ void VisitFields(V& v, EnvironmentModelOptions& o) {
   v("footprint_gate", o.footprint_gate);
   v("forget_min_missed_passes", o.forget_min_missed_passes);
   v("pass_gap_frames", o.pass_gap_frames);
+  v("look_back_frames", o.look_back_frames);
   v("footprint_confidence", o.footprint_confidence);
   v("forget_by_matched_passes", o.forget_by_matched_passes);
   v("log_component_events", o.log_component_events);
@@ -544,6 +557,17 @@ class EnvironmentModel {
   std::shared_ptr<const DescriptorExtractor> extractor_;
   std::size_t feature_size_ = 0;
   std::vector<ReferenceView> views_;
+  // The latest updates of the current session, oldest first (look_back_frames).
+  struct RecentUpdate {
+    Descriptor y;
+    Pose2 mu;
+    Eigen::Matrix3d covariance;
+    UpdateContext context;
+  };
+  std::deque<RecentUpdate> recent_updates_;
+  // Gives the view of id `view_id`, just inserted at `context`, components at the recent
+  // updates that match it (look_back_frames).
+  void AddLookBackComponents(std::uint64_t view_id, const UpdateContext& context, UpdateStats* stats);
   std::vector<float> features_;  // views_.size() rows of feature_size_ floats
   std::unordered_map<std::uint64_t, std::size_t> index_of_id_;
   SpatialIndex spatial_;

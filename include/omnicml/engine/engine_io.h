@@ -56,7 +56,7 @@ namespace omnicml {
 // 9: options model.ann_min_views, ann_m, ann_ef_construction, ann_ef, ann_k (approximate
 //    retrieval, issue 19; the graph is rebuilt on load, not stored); descriptor.color's
 //    illumination options (issue 18).
-inline constexpr std::uint32_t kEngineFormatVersion = 10;
+inline constexpr std::uint32_t kEngineFormatVersion = 11;
 // The 8 magic bytes (including the terminating NUL).
 inline constexpr char kEngineMagic[8] = {'O', 'M', 'N', 'I', 'C', 'M', 'L', '\0'};
 

@@ -5,9 +5,9 @@
 // (experiments/lap_bound.h): the closed-form position standard deviation along the lap
 // before and after one exact closure, and a Monte Carlo of the engine's pose graph on
 // sampled odometry. The lap is the world's route sampled every --step-m (the simulator's
-// day 1), or the first lap of a log's first session's ground truth. The noise is the
-// world's odometry noise (the simulator's truth), else --noise, else the engine's motion
-// model (tracker.motion, from --config). --csv writes the per-pose profile.
+// day 1), or the first lap of a log's first session's ground truth. The noise is --noise,
+// else the world's odometry noise (the simulator's truth), else the engine's motion model
+// (tracker.motion, from --config). --csv writes the per-pose profile.
 #include <iostream>
 #include <memory>
 #include <sstream>
@@ -31,30 +31,11 @@ struct LapBoundFlags {
   std::string world;
   std::string log;
   double step_m = 0.2;
-  std::string noise;
+  std::vector<double> noise;  // a1, a2, a3, a4 (empty: the world's or the engine's)
   std::string config_path;
   std::string csv;
   LapBoundOptions options;
 };
-
-MotionNoise ParseNoise(const std::string& text) {
-  std::vector<double> v;
-  std::stringstream ss(text);
-  std::string item;
-  while (std::getline(ss, item, ',')) {
-    try {
-      std::size_t used = 0;
-      v.push_back(std::stod(item, &used));
-      if (used != item.size()) throw std::invalid_argument(item);
-    } catch (const std::exception&) {
-      throw Error(StrCat("--noise: '", item, "' is not a number (expected a1,a2,a3,a4)"));
-    }
-  }
-  if (v.size() != 4) throw Error(StrCat("--noise: expected 4 values a1,a2,a3,a4, got ", v.size()));
-  MotionNoise n{v[0], v[1], v[2], v[3]};
-  n.Validate();
-  return n;
-}
 
 // The first session's ground truth of a log, poses only.
 std::vector<Pose2> LogTruth(const std::string& dir) {
@@ -82,7 +63,9 @@ const CommandRegistration kRegistration{
       cmd->add_option("--world", f->world, "Built-in world or world file: its route is the lap");
       cmd->add_option("--step-m", f->step_m, "Distance between poses on the world's route, m")
           ->capture_default_str();
-      cmd->add_option("--noise", f->noise, "Odometry noise a1,a2,a3,a4 (default: the world's, else the engine's)");
+      cmd->add_option("--noise", f->noise, "Odometry noise a1,a2,a3,a4 (default: the world's, else the engine's)")
+          ->delimiter(',')
+          ->expected(4);
       cmd->add_option("--config", f->config_path, "Engine configuration (its tracker.motion is the default noise for a log)");
       cmd->add_option("--samples", f->options.samples, "Monte Carlo realisations (0: closed form only)")
           ->capture_default_str();
@@ -117,7 +100,7 @@ const CommandRegistration kRegistration{
           noise_source = "the engine's tracker.motion";
         }
         if (!f->noise.empty()) {
-          f->options.noise = ParseNoise(f->noise);
+          f->options.noise = MotionNoise{f->noise[0], f->noise[1], f->noise[2], f->noise[3]};
           noise_source = "--noise";
         }
         const LapBoundResult r = ComputeLapBound(lap, f->options);

@@ -1024,9 +1024,6 @@ TEST(EnvironmentModel, EventLogIsABoundedRing) {
 namespace omnicml {
 namespace {
 
-// MoveViewRigidly (global pose graph): component means, headings and covariances and
-// the footprint follow the anchor's rigid motion; other views stay; moving back
-// restores the view.
 // Look-back (look_back_frames): a new view also gets components at the preceding updates
 // of its session whose descriptor matches it, newest first, up to the first that does not
 // (weight beta * S, eta S, the update's pose and covariance, the footprint observed).
@@ -1088,6 +1085,9 @@ TEST(EnvironmentModel, LookBackStaysInItsSessionAndWindow) {
   EXPECT_EQ(components_of_new_view(0, {1, 0}, {2, 0}), 1u);
 }
 
+// MoveViewRigidly (global pose graph): component means, headings and covariances and
+// the footprint follow the anchor's rigid motion; other views stay; moving back
+// restores the view.
 TEST(EnvironmentModel, MoveViewRigidlyFollowsTheAnchor) {
   auto fx = MakeFakeExtractor(2);
   EnvironmentModelOptions o = TestOptions();

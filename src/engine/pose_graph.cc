@@ -155,9 +155,16 @@ std::vector<NodeCorrection> PoseGraph::Optimize(std::int64_t frame) {
   // (held constant).
   std::vector<std::array<double, 3>> x(nodes_.size() - first);
   std::map<std::size_t, std::array<double, 3>> constants;  // node index -> pose (stable addresses)
+  // Closure covariances are multiplied by this while solving (1 except during the
+  // graduated start below).
+  double closure_inflation = 1.0;
+  // Where each solve starts: the nodes' poses, or the graduated start's last solution.
+  std::vector<std::array<double, 3>> staged(x.size());
+  bool use_staged = false;
   const auto solve = [&]() -> bool {
   for (std::size_t i = first; i < nodes_.size(); ++i) {
-    for (int k = 0; k < 3; ++k) x[i - first][static_cast<std::size_t>(k)] = nodes_[i].pose[k];
+    for (int k = 0; k < 3; ++k)
+      x[i - first][static_cast<std::size_t>(k)] = use_staged ? staged[i - first][static_cast<std::size_t>(k)] : nodes_[i].pose[k];
   }
   constants.clear();
   auto block = [&](std::size_t i) -> double* {
@@ -199,7 +206,7 @@ std::vector<NodeCorrection> PoseGraph::Optimize(std::int64_t frame) {
     const std::size_t b = IndexOf(c.to_frame);
     if (a >= nodes_.size() || b >= nodes_.size() || (a < first && b < first)) continue;
     problem.AddResidualBlock(new ceres::AutoDiffCostFunction<BetweenFactor, 3, 3, 3>(
-                                 new BetweenFactor(c.z, SqrtInformation(c.covariance))),
+                                 new BetweenFactor(c.z, SqrtInformation(closure_inflation * c.covariance))),
                              new ceres::CauchyLoss(options_.loss_scale), block(a), block(b));
     if (a < first || b < first) gauge = true;
   }
@@ -218,6 +225,37 @@ std::vector<NodeCorrection> PoseGraph::Optimize(std::int64_t frame) {
   return summary.IsSolutionUsable();
   };
   optimizations_ += 1;
+  // Graduated start: when a closure disagrees with the current poses by far more than
+  // its covariance allows (a long loop closing), Levenberg-Marquardt from those poses
+  // can fold the loop (lap-bound on store_large, 100 realisations of one exact lap
+  // closure: worst mean error 37.5 m, rms 8.5 m against the closed form's 5.4 m). The
+  // window is first solved with the closures' covariances inflated 100 and 10 times, each
+  // solution starting the next: the loop bends in stages (worst 14.5 m, rms 5.7 m). The
+  // last solve is the unchanged problem, so only its starting point differs.
+  {
+    double worst = 0.0;
+    for (const PoseGraphClosure& c : closures_) {
+      const std::size_t a = IndexOf(c.from_frame);
+      const std::size_t b = IndexOf(c.to_frame);
+      if (a >= nodes_.size() || b >= nodes_.size() || (a < first && b < first)) continue;
+      double r[3];
+      BetweenFactor(c.z, SqrtInformation(c.covariance))(nodes_[a].pose.data(), nodes_[b].pose.data(), r);
+      worst = std::max(worst, r[0] * r[0] + r[1] * r[1] + r[2] * r[2]);
+    }
+    // Squared whitened residual beyond which a closure counts as far off: 1000 (about 30
+    // standard deviations in one of the 3 dimensions); below it LM starts close enough.
+    constexpr double kGraduatedStartChi2 = 1000.0;
+    if (worst > kGraduatedStartChi2) {
+      for (const double inflation : {100.0, 10.0}) {
+        closure_inflation = inflation;
+        if (!solve()) break;
+        for (std::size_t i = first; i < nodes_.size(); ++i)
+          for (int k = 0; k < 3; ++k) staged[i - first][static_cast<std::size_t>(k)] = x[i - first][static_cast<std::size_t>(k)];
+        use_staged = true;
+      }
+      closure_inflation = 1.0;
+    }
+  }
   bool usable = solve();
   // Closure verification (as RTAB-Map's maximum optimisation error): a closure whose
   // squared whitened residual after the robust optimisation exceeds reject_chi2 is

@@ -18,8 +18,9 @@ constexpr std::uint32_t kModelMagic = 0x4D45434Fu;  // "OCEM" little-endian
 // Version 2 adds each view's footprint (ViewFootprint); version 1 maps are still read,
 // their footprints estimated from the components. Version 3 adds the number of events
 // logged and the per-session event counts before the (bounded) event ring; earlier
-// versions rebuild the counts from their complete log.
-constexpr std::uint32_t kModelVersion = 4;  // 4: the look-back's recent updates
+// versions rebuild the counts from their complete log. Version 4 adds the look-back's
+// recent updates after the events (none are read from earlier versions).
+constexpr std::uint32_t kModelVersion = 4;
 
 // mu_t with its angle expressed relative to view i's panorama: phi_t minus the relative
 // heading RelativeHeading(y_t, y_i) (docs/design.md "Environment model", phase 2). Without a
@@ -952,6 +953,10 @@ std::size_t EnvironmentModel::MemoryBytes() const {
   bytes += view_index_.MemoryBytes();
   bytes += ann_index_.MemoryBytes();
   bytes += events_.size() * sizeof(MapEvent);
+  for (const RecentUpdate& r : recent_updates_) {
+    bytes += sizeof(RecentUpdate) + r.y.features.capacity() * sizeof(float) +
+             r.y.coefficients.capacity() * sizeof(std::complex<float>);
+  }
   bytes += event_counts_.size() * (sizeof(int) + sizeof(MapEventCounts) + 4 * sizeof(void*));
   for (const MapEvent& e : events_) bytes += e.reason.capacity() > 15 ? e.reason.capacity() : 0;
   return bytes;

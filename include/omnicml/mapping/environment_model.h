@@ -155,7 +155,8 @@ struct EnvironmentModelOptions {
   // day after day. Each such component is one [G] (16) confirmation from w = 0: weight
   // beta * S, eta S, the update's pose and covariance. Frames, >= 0 (0: off). The
   // descriptor decides how far back: 25 and 50 give the same store_large runs. The
-  // recent updates are not saved with the model (a session's first update clears them).
+  // recent updates (at most look_back_frames, of the current session) are saved with the
+  // model, so a run resumed from a saved map equals one run.
   int look_back_frames = 50;
   // ... and only when the robot is confident relative to the footprint: the largest
   // standard deviation of C_t's xy part at most footprint_confidence times the

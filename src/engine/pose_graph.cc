@@ -5,6 +5,7 @@
 #include <map>
 #include <cmath>
 #include <memory>
+#include <optional>
 
 #include <Eigen/Cholesky>
 #include <Eigen/LU>
@@ -159,12 +160,14 @@ std::vector<NodeCorrection> PoseGraph::Optimize(std::int64_t frame) {
   // graduated start below).
   double closure_inflation = 1.0;
   // Where each solve starts: the nodes' poses, or the graduated start's last solution.
-  std::vector<std::array<double, 3>> staged(x.size());
-  bool use_staged = false;
+  std::vector<std::array<double, 3>> staged;
   const auto solve = [&]() -> bool {
-  for (std::size_t i = first; i < nodes_.size(); ++i) {
-    for (int k = 0; k < 3; ++k)
-      x[i - first][static_cast<std::size_t>(k)] = use_staged ? staged[i - first][static_cast<std::size_t>(k)] : nodes_[i].pose[k];
+  if (!staged.empty()) {
+    x = staged;
+  } else {
+    for (std::size_t i = first; i < nodes_.size(); ++i) {
+      for (int k = 0; k < 3; ++k) x[i - first][static_cast<std::size_t>(k)] = nodes_[i].pose[k];
+    }
   }
   constants.clear();
   auto block = [&](std::size_t i) -> double* {
@@ -225,6 +228,18 @@ std::vector<NodeCorrection> PoseGraph::Optimize(std::int64_t frame) {
   return summary.IsSolutionUsable();
   };
   optimizations_ += 1;
+  // Squared whitened residual of closure c with its end poses given by pose_of(node
+  // index); nullopt when c is outside the window (both ends constant).
+  const auto closure_chi2 = [&](const PoseGraphClosure& c, const auto& pose_of) -> std::optional<double> {
+    const std::size_t a = IndexOf(c.from_frame);
+    const std::size_t b = IndexOf(c.to_frame);
+    if (a >= nodes_.size() || b >= nodes_.size() || (a < first && b < first)) return std::nullopt;
+    const Pose2 pa = pose_of(a);
+    const Pose2 pb = pose_of(b);
+    double r[3];
+    BetweenFactor(c.z, SqrtInformation(c.covariance))(pa.data(), pb.data(), r);
+    return r[0] * r[0] + r[1] * r[1] + r[2] * r[2];
+  };
   // Graduated start: when a closure disagrees with the current poses by far more than
   // its covariance allows (a long loop closing), Levenberg-Marquardt from those poses
   // can fold the loop (lap-bound on store_large, 100 realisations of one exact lap
@@ -234,14 +249,8 @@ std::vector<NodeCorrection> PoseGraph::Optimize(std::int64_t frame) {
   // last solve is the unchanged problem, so only its starting point differs.
   {
     double worst = 0.0;
-    for (const PoseGraphClosure& c : closures_) {
-      const std::size_t a = IndexOf(c.from_frame);
-      const std::size_t b = IndexOf(c.to_frame);
-      if (a >= nodes_.size() || b >= nodes_.size() || (a < first && b < first)) continue;
-      double r[3];
-      BetweenFactor(c.z, SqrtInformation(c.covariance))(nodes_[a].pose.data(), nodes_[b].pose.data(), r);
-      worst = std::max(worst, r[0] * r[0] + r[1] * r[1] + r[2] * r[2]);
-    }
+    const auto node_pose = [&](std::size_t i) { return nodes_[i].pose; };
+    for (const PoseGraphClosure& c : closures_) worst = std::max(worst, closure_chi2(c, node_pose).value_or(0.0));
     // Squared whitened residual beyond which a closure counts as far off: 1000 (about 30
     // standard deviations in one of the 3 dimensions); below it LM starts close enough.
     constexpr double kGraduatedStartChi2 = 1000.0;
@@ -249,9 +258,7 @@ std::vector<NodeCorrection> PoseGraph::Optimize(std::int64_t frame) {
       for (const double inflation : {100.0, 10.0}) {
         closure_inflation = inflation;
         if (!solve()) break;
-        for (std::size_t i = first; i < nodes_.size(); ++i)
-          for (int k = 0; k < 3; ++k) staged[i - first][static_cast<std::size_t>(k)] = x[i - first][static_cast<std::size_t>(k)];
-        use_staged = true;
+        staged = x;
       }
       closure_inflation = 1.0;
     }
@@ -269,18 +276,10 @@ std::vector<NodeCorrection> PoseGraph::Optimize(std::int64_t frame) {
     std::vector<PoseGraphClosure> kept;
     bool rejected = false;
     for (const PoseGraphClosure& c : closures_) {
-      const std::size_t a = IndexOf(c.from_frame);
-      const std::size_t b = IndexOf(c.to_frame);
-      if (a < nodes_.size() && b < nodes_.size() && (a >= first || b >= first)) {
-        const Pose2 pa = pose_of(a);
-        const Pose2 pb = pose_of(b);
-        double r[3];
-        BetweenFactor(c.z, SqrtInformation(c.covariance))(pa.data(), pb.data(), r);
-        if (r[0] * r[0] + r[1] * r[1] + r[2] * r[2] > options_.reject_chi2) {
-          rejected = true;
-          rejected_closures_ += 1;
-          continue;
-        }
+      if (closure_chi2(c, pose_of).value_or(0.0) > options_.reject_chi2) {
+        rejected = true;
+        rejected_closures_ += 1;
+        continue;
       }
       kept.push_back(c);
     }

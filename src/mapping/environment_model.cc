@@ -725,16 +725,7 @@ UpdateStats EnvironmentModel::Update(const Descriptor& y, const Gaussian& estima
 
     std::size_t k = closest_within_delta(added, comps.size());
     if (k == comps.size()) {
-      added.id = next_component_id_++;
-      comps.push_back(added);
-      spatial_.Insert(SpatialEntry{view.id, added.id, added.mean.x(), added.mean.y()});
-      ++num_components_;
-      fresh.push_back(added.id);
-      ++stats.components_added;
-      if (options_.log_component_events) {
-        LogEvent(MapEvent{MapEventType::kComponentAdded, context.frame, context.session,
-                                   view.id, added.id, added.mean, added.weight, "observation"});
-      }
+      fresh.push_back(AppendComponent(view, added, context, "observation", &stats));
       continue;
     }
     // The new component merges into component k; the moved result may now be within
@@ -922,21 +913,27 @@ void EnvironmentModel::AddLookBackComponents(std::uint64_t view_id, const Update
     if (m.empty()) break;  // the view's appearance ends here, going back
     ReferenceView& view = views_[*index];
     ViewComponent c;
-    c.id = next_component_id_++;
     c.weight = options_.beta * m.front().similarity;  // one (16) confirmation from w = 0
     c.eta = m.front().similarity;
     c.mean = InViewFrame(it->mu, m.front().relative_heading_rad);
     c.covariance = it->covariance;
-    view.components.push_back(c);
     view.footprint.Observe(it->mu.x(), it->mu.y(), m.front().similarity);
-    spatial_.Insert(SpatialEntry{view.id, c.id, c.mean.x(), c.mean.y()});
-    ++num_components_;
-    ++stats->components_added;
-    if (options_.log_component_events) {
-      LogEvent(MapEvent{MapEventType::kComponentAdded, context.frame, context.session, view.id, c.id, c.mean,
-                        c.weight, "look-back"});
-    }
+    AppendComponent(view, c, context, "look-back", stats);
   }
+}
+
+std::uint64_t EnvironmentModel::AppendComponent(ReferenceView& view, ViewComponent c, const UpdateContext& context,
+                                                const char* reason, UpdateStats* stats) {
+  c.id = next_component_id_++;
+  view.components.push_back(c);
+  spatial_.Insert(SpatialEntry{view.id, c.id, c.mean.x(), c.mean.y()});
+  ++num_components_;
+  ++stats->components_added;
+  if (options_.log_component_events) {
+    LogEvent(MapEvent{MapEventType::kComponentAdded, context.frame, context.session, view.id, c.id, c.mean,
+                      c.weight, reason});
+  }
+  return c.id;
 }
 
 std::size_t EnvironmentModel::MemoryBytes() const {

@@ -569,6 +569,10 @@ class EnvironmentModel {
   // Gives the view of id `view_id`, just inserted at `context`, components at the recent
   // updates that match it (look_back_frames).
   void AddLookBackComponents(std::uint64_t view_id, const UpdateContext& context, UpdateStats* stats);
+  // Appends c to `view` as a new component (a fresh id, the spatial index, the counters,
+  // the kComponentAdded event with `reason` when component events are logged); its id.
+  std::uint64_t AppendComponent(ReferenceView& view, ViewComponent c, const UpdateContext& context,
+                                const char* reason, UpdateStats* stats);
   std::vector<float> features_;  // views_.size() rows of feature_size_ floats
   std::unordered_map<std::uint64_t, std::size_t> index_of_id_;
   SpatialIndex spatial_;

@@ -45,6 +45,7 @@ LapBoundProfile ClosedForm(const std::vector<Pose2>& lap, const LapBoundOptions&
   Eigen::Matrix3d r2 = Eigen::Matrix3d::Zero();
   std::vector<Eigen::Matrix3d> s_tt(n);
   std::vector<Eigen::Matrix3d> s_tend(n);
+  const Eigen::Vector3d lever_end = Lever(end);
   for (std::size_t t = 0; t < n; ++t) {
     const Eigen::Vector3d l = Lever(lap[t]);
     s_tt[t] = q0 * l * l.transpose() + l * q1.transpose() + q1 * l.transpose() + q2;
@@ -54,7 +55,6 @@ LapBoundProfile ClosedForm(const std::vector<Pose2>& lap, const LapBoundOptions&
     const Eigen::Matrix3d m = MotionNoiseCovariance(u, options.noise);  // diag(rot1, trans, rot2)
     const double dir = lap[t].z() + u.rot1_rad;
     const Eigen::Vector3d d(std::cos(dir), std::sin(dir), 0.0);
-    const Eigen::Vector3d lever_end = Lever(end);
     // rot1 turns about p_t, rot2 about p_t+1.
     for (const auto& [var, pivot] : {std::pair{m(0, 0), lap[t]}, std::pair{m(2, 2), lap[t + 1]}}) {
       const Eigen::Vector3d b = PivotTerm(pivot);
@@ -130,12 +130,12 @@ LapBoundSample MonteCarlo(const std::vector<Pose2>& lap, const LapBoundOptions& 
   graph.Optimize(last);
   LapBoundSample s;
   for (std::size_t i = 0; i < lap.size(); ++i) {
-    s.odometry_mean_error_m += (dead_reckoned[i].head<2>() - lap[i].head<2>()).norm();
-    s.graph_mean_error_m += (graph.nodes()[i].pose.head<2>() - lap[i].head<2>()).norm();
-  }
-  for (std::size_t i = 0; i < lap.size(); ++i) {
-    s.odometry_rms_error_m += (dead_reckoned[i].head<2>() - lap[i].head<2>()).squaredNorm();
-    s.graph_rms_error_m += (graph.nodes()[i].pose.head<2>() - lap[i].head<2>()).squaredNorm();
+    const double odometry = (dead_reckoned[i].head<2>() - lap[i].head<2>()).norm();
+    const double graph_error = (graph.nodes()[i].pose.head<2>() - lap[i].head<2>()).norm();
+    s.odometry_mean_error_m += odometry;
+    s.graph_mean_error_m += graph_error;
+    s.odometry_rms_error_m += odometry * odometry;
+    s.graph_rms_error_m += graph_error * graph_error;
   }
   const auto k = static_cast<double>(lap.size());
   s.odometry_mean_error_m /= k;
@@ -171,7 +171,15 @@ LapBoundResult ComputeLapBound(const std::vector<Pose2>& lap, const LapBoundOpti
   r.odometry_end_std_m = r.profile.odometry_std_m.back();
   r.closed_rms_std_m = RootMeanSquare(r.profile.closed_std_m);
   r.closed_max_std_m = *std::max_element(r.profile.closed_std_m.begin(), r.profile.closed_std_m.end());
-  for (int s = 0; s < options.samples; ++s) r.samples.push_back(MonteCarlo(lap, options, s));
+  for (int s = 0; s < options.samples; ++s) {
+    r.samples.push_back(MonteCarlo(lap, options, s));
+    r.odometry_rms_error_m += r.samples.back().odometry_rms_error_m * r.samples.back().odometry_rms_error_m;
+    r.graph_rms_error_m += r.samples.back().graph_rms_error_m * r.samples.back().graph_rms_error_m;
+  }
+  if (!r.samples.empty()) {
+    r.odometry_rms_error_m = std::sqrt(r.odometry_rms_error_m / static_cast<double>(r.samples.size()));
+    r.graph_rms_error_m = std::sqrt(r.graph_rms_error_m / static_cast<double>(r.samples.size()));
+  }
   return r;
 }
 
@@ -220,27 +228,24 @@ std::string FormatLapBound(const LapBoundResult& r, const LapBoundOptions& o) {
       << r.closed_max_std_m << "\n";
   if (!r.samples.empty()) {
     std::vector<double> odo, graph;
-    double odo_sq = 0, graph_sq = 0;
     int worse = 0;
     for (const LapBoundSample& s : r.samples) {
       odo.push_back(s.odometry_mean_error_m);
       graph.push_back(s.graph_mean_error_m);
-      odo_sq += s.odometry_rms_error_m * s.odometry_rms_error_m;
-      graph_sq += s.graph_rms_error_m * s.graph_rms_error_m;
       if (s.graph_mean_error_m > s.odometry_mean_error_m) ++worse;
     }
     const double k = static_cast<double>(r.samples.size());
-    const auto row = [&](const char* name, std::vector<double> v, double sq) {
+    const auto row = [&](const char* name, std::vector<double> v, double rms) {
       std::sort(v.begin(), v.end());
       double sum = 0;
       for (double x : v) sum += x;
-      out << name << sum / k << " / " << v[v.size() / 2] << " / " << v.back() << "    " << std::sqrt(sq / k) << "\n";
+      out << name << sum / k << " / " << v[v.size() / 2] << " / " << v.back() << "    " << rms << "\n";
     };
     out << "Monte Carlo (" << r.samples.size() << " realisations, seed " << o.seed
         << "; position error over the lap's poses, metres):\n"
         << "  mean error per realisation: mean / median / worst; then rms over all realisations\n";
-    row("  dead reckoning:          ", odo, odo_sq);
-    row("  pose graph, lap closed:  ", graph, graph_sq);
+    row("  dead reckoning:          ", odo, r.odometry_rms_error_m);
+    row("  pose graph, lap closed:  ", graph, r.graph_rms_error_m);
     if (worse > 0) {
       out << "  in " << worse << " of " << r.samples.size()
           << " realisations the closed lap's mean error exceeds dead reckoning's\n";

@@ -78,6 +78,10 @@ struct LapBoundResult {
   double closed_rms_std_m = 0;
   double closed_max_std_m = 0;
   std::vector<LapBoundSample> samples;
+  // The samples' rms errors pooled over every realisation and pose (metres; 0 without
+  // samples): compare with odometry_rms_std_m and closed_rms_std_m.
+  double odometry_rms_error_m = 0;
+  double graph_rms_error_m = 0;
 };
 
 // The closed form and the Monte Carlo for `lap` (p_0 .. p_T, at least 3 poses). Throws

@@ -116,6 +116,9 @@ TEST(EnvironmentModelOptions, ValidateNamesTheField) {
   o = {};
   o.max_events = -1;
   expect_field(o, "max_events");
+  o = {};
+  o.look_back_frames = -1;
+  expect_field(o, "look_back_frames");
   EXPECT_EQ(ForgettingModeFromString(ToString(ForgettingMode::kPassive)), ForgettingMode::kPassive);
   EXPECT_EQ(ForgettingModeFromString("static"), ForgettingMode::kStatic);
   EXPECT_THROW(ForgettingModeFromString("sometimes"), Error);

@@ -663,15 +663,18 @@ TEST(EnvironmentModel, StaticWorldIsNotForgotten) {
       << "active " << views[0] << " passive " << views[1];
 }
 
-// One odd frame (or one odd pass) does not erase a place: a view that fails to match
-// during a single pass but matches again on the next keeps its weight rising.
+// One odd frame (or one odd pass) does not erase a place: a view seen on two passes that
+// fails to match during a single pass but matches again on the next keeps its weight
+// rising.
 TEST(EnvironmentModel, OneMissedPassDoesNotForget) {
   auto fx = MakeFakeExtractor(1);
   EnvironmentModelOptions o = TestOptions();
   o.d_for_m = 1.0;
   EnvironmentModel m(o, fx);
   for (int k = 0; k < 5; ++k) m.Update(fx->Make({0}), Est(0, 0, 0), {k, 0});
+  for (int k = 0; k < 5; ++k) m.Update(fx->Make({0}), Est(0, 0, 0), {50 + k, 0});
   const std::uint64_t id = m.views()[0].id;
+  ASSERT_EQ(ViewById(m, id).footprint.matched_passes, 2);
   const double w = m.views()[0].TotalWeight();
   // One pass in which the place looks different, then it looks as before again.
   for (int k = 0; k < 5; ++k) m.Update(fx->Make({9}), Est(0, 0, 0), {100 + k, 0});
@@ -690,6 +693,61 @@ TEST(EnvironmentModel, OneMissedPassDoesNotForget) {
   m.CheckInvariants();
 }
 
+// forget_unconfirmed_views: a view seen on its creation pass only is weakened from the
+// first pass that misses it (as ORB-SLAM culls recent map points not found again); with
+// the option off, or once it has matched on a second pass, that first missed pass is free.
+TEST(EnvironmentModel, UnconfirmedViewIsWeakenedOnItsFirstMissedPass) {
+  auto fx = MakeFakeExtractor(1);
+  auto after_one_missed_pass = [&](bool option, int matched_passes) {
+    EnvironmentModelOptions o = TestOptions();
+    o.d_for_m = 1.0;
+    o.forget_unconfirmed_views = option;
+    EnvironmentModel m(o, fx);
+    std::int64_t frame = 0;
+    for (int pass = 0; pass < matched_passes; ++pass, frame += 100) {
+      for (int k = 0; k < 5; ++k) m.Update(fx->Make({0}), Est(0, 0, 0), {frame + k, 0});
+    }
+    const std::uint64_t id = m.views()[0].id;
+    EXPECT_EQ(ViewById(m, id).footprint.matched_passes, matched_passes);
+    const double w0 = ViewById(m, id).TotalWeight();
+    // Within the creation pass the view is never weakened, whatever the option.
+    for (int k = 0; k < 5; ++k) m.Update(fx->Make({9}), Est(0, 0, 0), {frame + k, 0});
+    m.CheckInvariants();
+    const auto found = m.FindView(id);
+    const double w1 = found ? ViewById(m, id).TotalWeight() : 0.0;
+    return std::make_pair(w0, w1);
+  };
+  {
+    const auto [w0, w1] = after_one_missed_pass(true, 1);
+    EXPECT_LT(w1, w0) << "an unconfirmed view loses weight on its first missed pass";
+  }
+  {
+    const auto [w0, w1] = after_one_missed_pass(false, 1);
+    EXPECT_EQ(w1, w0) << "without the option the first missed pass is free";
+  }
+  {
+    const auto [w0, w1] = after_one_missed_pass(true, 2);
+    EXPECT_EQ(w1, w0) << "a view confirmed on a second pass keeps the free missed pass";
+  }
+}
+
+// The creation pass itself never weakens the new view: frames of the same pass that see
+// another appearance at the same place leave it as it is.
+TEST(EnvironmentModel, UnconfirmedViewKeptDuringItsCreationPass) {
+  auto fx = MakeFakeExtractor(1);
+  EnvironmentModelOptions o = TestOptions();
+  o.d_for_m = 1.0;
+  o.forget_unconfirmed_views = true;
+  EnvironmentModel m(o, fx);
+  for (int k = 0; k < 3; ++k) m.Update(fx->Make({0}), Est(0, 0, 0), {k, 0});
+  const std::uint64_t id = m.views()[0].id;
+  const double w0 = ViewById(m, id).TotalWeight();
+  for (int k = 3; k < 6; ++k) m.Update(fx->Make({9}), Est(0, 0, 0), {k, 0});
+  ASSERT_TRUE(m.FindView(id).has_value());
+  EXPECT_EQ(ViewById(m, id).TotalWeight(), w0);
+  m.CheckInvariants();
+}
+
 // forget_by_matched_passes: (19)'s b is divided by the passes in which the view matched,
 // so with the same missed passes a view matched on 3 passes loses 1/3 of the weight
 // fraction a view matched on 1 pass loses (b unclamped here).
@@ -699,6 +757,7 @@ TEST(EnvironmentModel, ForgettingSlowsWithMatchedPasses) {
     EnvironmentModelOptions o = TestOptions();
     o.d_for_m = 1.0;
     o.forget_by_matched_passes = by_passes;
+    o.forget_unconfirmed_views = false;  // the same free first missed pass for every view
     EnvironmentModel m(o, fx);
     std::int64_t frame = 0;
     for (int pass = 0; pass < matched_passes; ++pass) {

@@ -56,7 +56,10 @@ namespace omnicml {
 // 9: options model.ann_min_views, ann_m, ann_ef_construction, ann_ef, ann_k (approximate
 //    retrieval, issue 19; the graph is rebuilt on load, not stored); descriptor.color's
 //    illumination options (issue 18).
-inline constexpr std::uint32_t kEngineFormatVersion = 11;
+// 10: option model.merge_precision_weighted. 11: option model.look_back_frames and the
+//    model section's version 4 (its recent updates).
+// 12: option model.forget_unconfirmed_views (issue 14).
+inline constexpr std::uint32_t kEngineFormatVersion = 12;
 // The 8 magic bytes (including the terminating NUL).
 inline constexpr char kEngineMagic[8] = {'O', 'M', 'N', 'I', 'C', 'M', 'L', '\0'};
 

@@ -34,6 +34,19 @@ Gaussian Est(double x, double y, double phi, double sx = 0.1, double sy = 0.1, d
   return g;
 }
 
+// Feeds `passes` passes through the origin, each of `updates` Updates that see appearance
+// {0} with an estimate of standard deviation sigma_m, 100 frames apart (so separate passes
+// for the pass bookkeeping of rule (18)); returns the next free frame.
+std::int64_t SeeOriginOnPasses(EnvironmentModel& m, FakeDescriptorExtractor& fx, int passes,
+                               int updates, double sigma_m) {
+  std::int64_t frame = 0;
+  for (int pass = 0; pass < passes; ++pass) {
+    for (int k = 0; k < updates; ++k) m.Update(fx.Make({0}), Est(0, 0, 0, sigma_m), {frame++, 0});
+    frame += 100;
+  }
+  return frame;
+}
+
 // The component of a view with the largest id (the one added last).
 const ViewComponent& Newest(const ReferenceView& v) {
   return *std::max_element(
@@ -703,10 +716,7 @@ TEST(EnvironmentModel, UnconfirmedViewIsWeakenedOnItsFirstMissedPass) {
     o.d_for_m = 1.0;
     o.forget_unconfirmed_views = option;
     EnvironmentModel m(o, fx);
-    std::int64_t frame = 0;
-    for (int pass = 0; pass < matched_passes; ++pass, frame += 100) {
-      for (int k = 0; k < 5; ++k) m.Update(fx->Make({0}), Est(0, 0, 0), {frame + k, 0});
-    }
+    const std::int64_t frame = SeeOriginOnPasses(m, *fx, matched_passes, 5, 0.1);
     const std::uint64_t id = m.views()[0].id;
     EXPECT_EQ(ViewById(m, id).footprint.matched_passes, matched_passes);
     const double w0 = ViewById(m, id).TotalWeight();
@@ -759,11 +769,7 @@ TEST(EnvironmentModel, ForgettingSlowsWithMatchedPasses) {
     o.forget_by_matched_passes = by_passes;
     o.forget_unconfirmed_views = false;  // the same free first missed pass for every view
     EnvironmentModel m(o, fx);
-    std::int64_t frame = 0;
-    for (int pass = 0; pass < matched_passes; ++pass) {
-      for (int k = 0; k < 3; ++k) m.Update(fx->Make({0}), Est(0, 0, 0, 0.5), {frame++, 0});
-      frame += 100;
-    }
+    std::int64_t frame = SeeOriginOnPasses(m, *fx, matched_passes, 3, 0.5);
     const std::uint64_t id = m.views()[0].id;
     EXPECT_EQ(ViewById(m, id).footprint.matched_passes, matched_passes);
     const double w0 = ViewById(m, id).TotalWeight();

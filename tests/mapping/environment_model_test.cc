@@ -720,7 +720,7 @@ TEST(EnvironmentModel, UnconfirmedViewIsWeakenedOnItsFirstMissedPass) {
     const std::uint64_t id = m.views()[0].id;
     EXPECT_EQ(ViewById(m, id).footprint.matched_passes, matched_passes);
     const double w0 = ViewById(m, id).TotalWeight();
-    // Within the creation pass the view is never weakened, whatever the option.
+    // One later pass in which the place looks different.
     for (int k = 0; k < 5; ++k) m.Update(fx->Make({9}), Est(0, 0, 0), {frame + k, 0});
     m.CheckInvariants();
     const auto found = m.FindView(id);

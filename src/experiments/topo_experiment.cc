@@ -147,6 +147,7 @@ TopoExperimentResult RunTopoExperiment(const TopoExperimentOptions& experiment) 
            "confidence,voting_bands";
     for (int b = 0; b < ColorHistogram::kBands; ++b) csv << ",vote_" << bands[b];
     for (int b = 0; b < ColorHistogram::kBands; ++b) csv << ",conf_" << bands[b];
+    for (int b = 0; b < ColorHistogram::kBands; ++b) csv << ",ref_" << bands[b];
     csv << "\n";
     auto name = [&](int p) { return p < 0 ? std::string() : map.places()[p].name; };
     for (const auto& f : r.frames) {
@@ -159,9 +160,24 @@ TopoExperimentResult RunTopoExperiment(const TopoExperimentOptions& experiment) 
           << f.decision.voting_bands;
       for (const auto& v : f.decision.bands) csv << "," << name(v.place);
       for (const auto& v : f.decision.bands) csv << "," << FormatRoundTrip(v.confidence);
+      for (const auto& v : f.decision.bands) csv << "," << v.reference;
       csv << "\n";
     }
     WriteFileAtomic(out / "frames.csv", csv.str());
+  }
+  {
+    // The reference images (the ref_* columns of frames.csv index this table).
+    std::ostringstream csv;
+    csv << "reference,stamp_s,index,gt_x_m,gt_y_m,gt_phi_rad,place\n";
+    for (std::size_t i = 0; i < r.reference_frames.size(); ++i) {
+      const auto& f = r.reference_frames[i];
+      csv << i << "," << FormatRoundTrip(f.stamp_s) << "," << f.index_in_session << ","
+          << FormatRoundTrip(f.map_T_robot_truth.x()) << ","
+          << FormatRoundTrip(f.map_T_robot_truth.y()) << ","
+          << FormatRoundTrip(f.map_T_robot_truth.z()) << "," << map.places()[f.true_place].name
+          << "\n";
+    }
+    WriteFileAtomic(out / "references.csv", csv.str());
   }
   const std::string input = a.log.empty() ? a.world : a.log;
   const std::string title =

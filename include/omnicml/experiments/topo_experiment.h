@@ -7,7 +7,9 @@
 // every place_length_m metres (with a log the route is that of `world` or of
 // LOG/world.yaml, which `omnicml simulate` writes). The run directory receives
 //   frames.csv        one row per test frame: truth, true / believed / voted place,
-//                     state, confidence, the vote and confidence of each band
+//                     state, confidence, the vote, confidence and nearest reference
+//                     image (ref_*, a row of references.csv) of each band
+//   references.csv    one row per reference image: its training frame, truth, place
 //   summary.md        the [UN] Table 1 counts (TopologicalSummaryTable)
 //   places.yaml       the adjacency map used
 //   topo_config.yaml  the effective options

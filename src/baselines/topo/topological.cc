@@ -735,6 +735,12 @@ CrossSequenceResult RunCrossSequence(FrameSource* source, TopologicalLocalizer* 
     if (is_train && place >= 0 && labelled_train++ % options.reference_stride_frames == 0) {
       d = localizer->Describe(panorama_of(frame));
       train.emplace_back(place, *d);
+      TopologicalFrameResult ref;
+      ref.stamp_s = frame.stamp_s;
+      ref.index_in_session = frame.index_in_session;
+      ref.map_T_robot_truth = *frame.map_T_robot_truth;
+      ref.true_place = place;
+      result.reference_frames.push_back(ref);
     }
     if (is_test) {
       if (!d) d = localizer->Describe(panorama_of(frame));

@@ -353,6 +353,9 @@ struct CrossSequenceResult {
   std::vector<TopologicalFrameResult> frames;
   TopologicalCounts counts;
   int references = 0;           // reference images taken from the training session
+  // The training frames that became reference images, in reference order (index =
+  // BandVote::reference); stamp, index, truth and true_place set, decision unset.
+  std::vector<TopologicalFrameResult> reference_frames;
   BandCalibration calibration;  // when options().learn_band_thresholds
   int places_with_references = 0;
 };

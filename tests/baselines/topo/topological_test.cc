@@ -544,6 +544,20 @@ TEST(TopologicalLocalizer, SimulatedCrossDayMostlyCorrect) {
   ASSERT_GT(confident, 0.5 * c.frames);
   EXPECT_GT(c.confident_correct / confident, 0.85);
   EXPECT_GT(static_cast<double>(c.belief_correct) / c.frames, 0.7);
+  // reference_frames are the training frames in reference order: one per reference, all
+  // from day 1, and every band's nearest reference lies in the place the band names.
+  ASSERT_EQ(static_cast<int>(r.reference_frames.size()), r.references);
+  ASSERT_EQ(r.references, loc.NumReferences());
+  for (const auto& ref : r.reference_frames) {
+    EXPECT_EQ(map.PlaceAt(ref.map_T_robot_truth.head<2>(), &source.route()), ref.true_place);
+  }
+  for (const auto& f : r.frames) {
+    for (const BandVote& v : f.decision.bands) {
+      if (v.reference < 0) continue;
+      ASSERT_LT(v.reference, r.references);
+      EXPECT_EQ(r.reference_frames[v.reference].true_place, v.place);
+    }
+  }
 }
 
 // Issue 18: institute with the repository's room places (datasets/places/

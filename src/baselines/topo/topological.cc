@@ -731,25 +731,20 @@ CrossSequenceResult RunCrossSequence(FrameSource* source, TopologicalLocalizer* 
                          frame.session_index + 1, " has no ground truth (needed for the labels)"));
     }
     const int place = map.PlaceAt(frame.map_T_robot_truth->head<2>(), route);
+    TopologicalFrameResult labelled;
+    labelled.stamp_s = frame.stamp_s;
+    labelled.index_in_session = frame.index_in_session;
+    labelled.map_T_robot_truth = *frame.map_T_robot_truth;
+    labelled.true_place = place;
     std::optional<Descriptor> d;
     if (is_train && place >= 0 && labelled_train++ % options.reference_stride_frames == 0) {
       d = localizer->Describe(panorama_of(frame));
       train.emplace_back(place, *d);
-      TopologicalFrameResult ref;
-      ref.stamp_s = frame.stamp_s;
-      ref.index_in_session = frame.index_in_session;
-      ref.map_T_robot_truth = *frame.map_T_robot_truth;
-      ref.true_place = place;
-      result.reference_frames.push_back(ref);
+      result.reference_frames.push_back(labelled);
     }
     if (is_test) {
       if (!d) d = localizer->Describe(panorama_of(frame));
-      TopologicalFrameResult r;
-      r.stamp_s = frame.stamp_s;
-      r.index_in_session = frame.index_in_session;
-      r.map_T_robot_truth = *frame.map_T_robot_truth;
-      r.true_place = place;
-      result.frames.push_back(r);
+      result.frames.push_back(labelled);
       test_descriptors.push_back(std::move(*d));
     }
   }

@@ -149,6 +149,9 @@ py::dict FramesDict(const std::vector<FrameRecord>& r) {
   d["cov_yy_m2"] = Column<double>(r, [](const FrameRecord& x) { return x.cov_yy_m2; });
   d["var_phi_rad2"] = Column<double>(r, [](const FrameRecord& x) { return x.var_phi_rad2; });
   d["nees_xy"] = Column<double>(r, [](const FrameRecord& x) { return x.nees_xy; });
+  d["matches"] = Column<std::int32_t>(r, [](const FrameRecord& x) { return x.matches; });
+  d["best_similarity"] =
+      Column<double>(r, [](const FrameRecord& x) { return x.best_similarity; });
   return d;
 }
 
@@ -199,7 +202,8 @@ void BindExperiments(py::module_& m) {
       "frame, global_frame, stamp_s, has_estimate, estimate (N, 3), mean_estimate, unimodal, "
       "has_truth, truth (N, 3), position_error_m, heading_error_rad, odometry_error_m, views, "
       "map_components, hypotheses, mixture_components, cov_xx_m2, cov_xy_m2, cov_yy_m2, "
-      "var_phi_rad2, nees_xy (NaN where unknown)), days (per-day statistics dicts), "
+      "var_phi_rad2, nees_xy (NaN where unknown), matches (-1 unknown), best_similarity (NaN "
+      "unknown)), days (per-day statistics dicts), "
       "overall (the same over all days), the map size after finish, wall time, run_dir (\"\" "
       "when temporary) and, for run(), the engine as saved at the end (before finish(): "
       "resumable, as `omnicml run --map-out`); None for compare().")

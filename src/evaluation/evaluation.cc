@@ -35,7 +35,8 @@ const std::vector<std::string>& FixedColumns() {
 const std::vector<std::string>& LaterColumns() {
   static const std::vector<std::string> kColumns = {
       "localized", "run_stamp_s", "odom_x_m",     "odom_y_m", "odom_phi_rad",
-      "cov_xx_m2", "cov_xy_m2",   "cov_yy_m2",    "var_phi_rad2", "nees_xy"};
+      "cov_xx_m2", "cov_xy_m2",   "cov_yy_m2",    "var_phi_rad2", "nees_xy",
+      "matches",   "best_similarity"};
   return kColumns;
 }
 
@@ -102,6 +103,9 @@ void WriteFramesCsvRow(std::ostream& os, const FrameRecord& r) {
   os << ',' << ShortestDouble(r.cov_xx_m2) << ',' << ShortestDouble(r.cov_xy_m2) << ','
      << ShortestDouble(r.cov_yy_m2) << ',' << ShortestDouble(r.var_phi_rad2) << ','
      << ShortestDouble(r.nees_xy);
+  os << ',';
+  if (r.matches >= 0) os << r.matches;
+  os << ',' << ShortestDouble(r.best_similarity);
   os << '\n';
 }
 
@@ -179,6 +183,17 @@ FramesTable ReadFramesCsv(const fs::path& path) {
       r.var_phi_rad2 = num("var_phi_rad2");
     }
     if (col.count("nees_xy")) r.nees_xy = num("nees_xy");
+    if (col.count("matches")) {
+      const double m = num("matches");
+      if (std::isfinite(m)) {
+        if (m < 0 || m != std::floor(m)) {
+          throw Error(StrCat(path.string(), ":", line_no, ": column 'matches' must be a count, got '",
+                             Excerpt(cells[col.at("matches")]), "'"));
+        }
+        r.matches = static_cast<int>(m);
+      }
+    }
+    if (col.count("best_similarity")) r.best_similarity = num("best_similarity");
     const double ex = num("est_x_m"), ey = num("est_y_m"), ephi = num("est_phi_rad");
     r.has_estimate = std::isfinite(ex) && std::isfinite(ey) && std::isfinite(ephi);
     if (r.has_estimate) {

@@ -121,6 +121,8 @@ void RunRecorder::Record(const Frame& frame, const FrameResult& result) {
   r.map_components = static_cast<int>(s.num_map_components);
   r.hypotheses = s.hypothesis_components;
   r.mixture_components = s.mixture_components;
+  r.matches = s.num_matches;
+  r.best_similarity = s.best_similarity;
   r.stage_times_us = StageTimes(s);
   if (frames_csv_) WriteFramesCsvRow(frames_csv_->stream(), r);
   if (trajectory_ && r.has_estimate)

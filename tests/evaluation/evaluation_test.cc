@@ -390,6 +390,8 @@ TEST(FramesCsv, CovarianceAndNeesRoundTrip) {
     std::ofstream os(dir / "frames.csv");
     WriteFramesCsvHeader(os, {"total"});
     records[0].stage_times_us = {10.0};
+    records[0].matches = 3;
+    records[0].best_similarity = 0.4375;
     unknown.stage_times_us = {10.0};
     WriteFramesCsvRow(os, records[0]);
     WriteFramesCsvRow(os, unknown);
@@ -403,6 +405,10 @@ TEST(FramesCsv, CovarianceAndNeesRoundTrip) {
   EXPECT_EQ(table.records[0].nees_xy, records[0].nees_xy);
   EXPECT_TRUE(std::isnan(table.records[1].cov_xx_m2));
   EXPECT_TRUE(std::isnan(table.records[1].nees_xy));
+  EXPECT_EQ(table.records[0].matches, 3);
+  EXPECT_EQ(table.records[0].best_similarity, 0.4375);
+  EXPECT_EQ(table.records[1].matches, -1);  // unknown stays unknown
+  EXPECT_TRUE(std::isnan(table.records[1].best_similarity));
   const EvaluationResult result = Evaluate(table, Alignment::kNone);
   EXPECT_EQ(result.overall.nees_xy.count, 1);
   EXPECT_NEAR(result.overall.nees_xy.mean, records[0].nees_xy, 1e-9);
@@ -426,7 +432,26 @@ TEST(FramesCsv, CovarianceAndNeesRoundTrip) {
   ASSERT_EQ(old.records.size(), 1u);
   EXPECT_TRUE(std::isnan(old.records[0].cov_xx_m2));
   EXPECT_TRUE(std::isnan(old.records[0].nees_xy));
+  EXPECT_EQ(old.records[0].matches, -1);
+  EXPECT_TRUE(std::isnan(old.records[0].best_similarity));
   EXPECT_EQ(old.records[0].estimate, records[0].estimate);
+  {
+    // A match count that is not a count is named with its file, line and column.
+    std::ifstream in(dir / "frames.csv");
+    std::string header, row;
+    std::getline(in, header);
+    std::getline(in, row);
+    const std::size_t cut = row.rfind(",3,");
+    ASSERT_NE(cut, std::string::npos);
+    std::ofstream os(dir / "bad.csv");
+    os << header << "\n" << row.substr(0, cut) << ",2.5," << row.substr(cut + 3) << "\n";
+  }
+  try {
+    ReadFramesCsv(dir / "bad.csv");
+    ADD_FAILURE() << "a fractional match count was accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("bad.csv:2: column 'matches'"), std::string::npos) << e.what();
+  }
   fs::remove_all(dir);
 }
 

@@ -82,6 +82,12 @@ struct FrameRecord {
   // whose covariance is consistent with its error; below: under-confident, above:
   // over-confident. NaN without estimate, truth or covariance (RecomputeErrors).
   double nees_xy = kNaN;
+  // How the frame matched the map (engine runs; unknown in older files and MCL runs):
+  // views with E < e_max (after top_k), -1 unknown; and the similarity S of the best of
+  // them, 0 without a match, NaN unknown. p(x|y) enters the fusion only from S >=
+  // hypothesis_min_similarity (docs/experiments.md "Metrics").
+  int matches = -1;
+  double best_similarity = kNaN;
 };
 
 // Writes the header (with one time_<name>_us column per stage) and rows.

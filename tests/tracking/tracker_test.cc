@@ -273,7 +273,8 @@ TEST(Fusion, WeightsOfFigure2) {
   const Gaussian a1{MakePose(0, 0, 0), c, 0.6}, a2{MakePose(10, 0, 0), c, 0.4};
   const Gaussian b1{MakePose(0.3, 0, 0), c, 0.5}, b2{MakePose(-0.3, 0, 0), c, 0.3},
       b3{MakePose(20, 0, 0), c, 0.2};
-  TrackerOptions options;  // gamma 11.34: a1-b1 and a1-b2 at 0.3^2 / 0.02 = 4.5 are gated in
+  TrackerOptions options;  // [G]'s 99 % gate 11.34: a1-b1 and a1-b2 at 0.3^2 / 0.02 = 4.5 are gated in
+  options.gamma = 11.34;
   const Mixture out = FuseOnce({a1, a2}, {b1, b2, b3}, options);
   ASSERT_EQ(out.size(), 4u);
   // Order: a1's pairs, a2 copied, then the unmatched b3.
@@ -290,8 +291,8 @@ TEST(Fusion, WeightsOfFigure2) {
   EXPECT_EQ(out[3].mean, b3.mean);
   EXPECT_EQ(out[3].covariance, b3.covariance);
   // After normalisation (total 2.0): 0.4375, 0.2625, 0.2, 0.1.
-  const Mixture fused = Fuse({a1, a2}, {{b1, b2, b3}}, [] {
-    TrackerOptions o;
+  const Mixture fused = Fuse({a1, a2}, {{b1, b2, b3}}, [&] {
+    TrackerOptions o = options;
     o.delta = 0.0;  // no merging, to see the raw weights
     return o;
   }());
@@ -307,7 +308,9 @@ TEST(Fusion, WeightsOfOneBWithTwoCounterparts) {
   const Eigen::Matrix3d c = Diag(0.01, 0.01, 0.01);
   const Gaussian a1{MakePose(0.3, 0, 0), c, 0.2}, a2{MakePose(-0.3, 0, 0), c, 0.6};
   const Gaussian b1{MakePose(0, 0, 0), c, 1.0};
-  const Mixture out = FuseOnce({a1, a2}, {b1}, TrackerOptions{});
+  TrackerOptions options;
+  options.gamma = 11.34;  // both pairs at 0.3^2 / 0.02 = 4.5 are gated in
+  const Mixture out = FuseOnce({a1, a2}, {b1}, options);
   ASSERT_EQ(out.size(), 2u);
   // hat_w_a1 = hat_w_a2 = 1.0; hat_w_b1 = 0.8.
   EXPECT_NEAR(out[0].weight, 0.2 * 1.0 / 1.0 + 1.0 * 0.2 / 0.8, 1e-12);

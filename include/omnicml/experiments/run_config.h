@@ -16,7 +16,7 @@
 //     ifh: {kernels: [[[0, 0], [0, 1]], [[0, 3], [4, 0]]], angles: 8, bins: 16, scales: [1],
 //           color: true, sample_fraction: 1, seed: 42}
 //     color: {bins: 32, filter_width: 5, normalized_rgb: false, distance: jeffrey}
-//   tracker: {gamma: 11.34, w_min: 0.001, delta: 1, max_components: 50, unimodal_min_weight: 0.05,
+//   tracker: {gamma: 3, w_min: 0.001, delta: 1, max_components: 50, unimodal_min_weight: 0.05,
 //             min_covariance_eigenvalue: 1e-10, motion: {a1: 0.05, a2: 0.01, a3: 0.05, a4: 0.01}}
 //   model: {e_max: ..., top_k: 0, beta: 0.1, d_max: 3, d_for_m: 2, beta_for: 0.1, d_gain_m: 0.2,
 //           w_min: 0.01, merge_delta: 1, heading_sigma_no_rotation_rad: 3.14159,

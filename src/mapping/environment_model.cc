@@ -826,9 +826,11 @@ UpdateStats EnvironmentModel::Update(const Descriptor& y, const Gaussian& estima
       }
       NoteExpected(footprint, context, /*matched=*/false, options_.pass_gap_frames);
       // Evidence over passes: only after forget_min_missed_passes whole passes through
-      // the footprint without a match does a miss weaken the view; a view seen on its
-      // creation pass only, from the first pass that misses it (forget_unconfirmed_views).
+      // the footprint without a match does a miss weaken the view; a view made in this
+      // session and seen on its creation pass only, from the first pass that misses it
+      // (forget_unconfirmed_views).
       const bool unconfirmed = options_.forget_unconfirmed_views &&
+                               view.stats.created_session == context.session &&
                                footprint.matched_passes == 1 && !footprint.pass_matched;
       if (footprint.missed_passes < options_.forget_min_missed_passes && !unconfirmed) continue;
       // [G] eq. (19) with d_xy / d_for replaced by the footprint distance d_fp / gate:

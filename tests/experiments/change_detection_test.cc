@@ -235,6 +235,10 @@ TEST(MapHealth, ChangedWhereExpectedViewsStopMatching) {
   o.top_k = 0;
   o.d_for_m = 1.0;
   o.forgetting = ForgettingMode::kActive;
+  // Forgetting slow enough that the lamp-on view is still in the map after its two
+  // missed passes of session 1 (the health rule, not the forgetting speed, is tested).
+  o.beta_for = 0.5;
+  o.forget_unconfirmed_views = false;
   EnvironmentModel m(o, fx);
   std::int64_t frame = 0;
   // A pass: 3 Updates at place P (x = 1, cell (0,0) of 2 m) with look `p`, then 3 at

@@ -707,11 +707,13 @@ TEST(EnvironmentModel, OneMissedPassDoesNotForget) {
 }
 
 // forget_unconfirmed_views: a view seen on its creation pass only is weakened from the
-// first pass that misses it (as ORB-SLAM culls recent map points not found again); with
-// the option off, or once it has matched on a second pass, that first missed pass is free.
+// first pass of its session that misses it (as ORB-SLAM culls recent map points not
+// found again); with the option off, once it has matched on a second pass, or when the
+// missed pass is in a later session (another day: AntWorld's replayed route, where a
+// global start widens C_t), that first missed pass is free.
 TEST(EnvironmentModel, UnconfirmedViewIsWeakenedOnItsFirstMissedPass) {
   auto fx = MakeFakeExtractor(1);
-  auto after_one_missed_pass = [&](bool option, int matched_passes) {
+  auto after_one_missed_pass = [&](bool option, int matched_passes, int missed_session) {
     EnvironmentModelOptions o = TestOptions();
     o.d_for_m = 1.0;
     o.forget_unconfirmed_views = option;
@@ -721,23 +723,29 @@ TEST(EnvironmentModel, UnconfirmedViewIsWeakenedOnItsFirstMissedPass) {
     EXPECT_EQ(ViewById(m, id).footprint.matched_passes, matched_passes);
     const double w0 = ViewById(m, id).TotalWeight();
     // One later pass in which the place looks different.
-    for (int k = 0; k < 5; ++k) m.Update(fx->Make({9}), Est(0, 0, 0), {frame + k, 0});
+    for (int k = 0; k < 5; ++k) {
+      m.Update(fx->Make({9}), Est(0, 0, 0), {frame + k, missed_session});
+    }
     m.CheckInvariants();
     const auto found = m.FindView(id);
     const double w1 = found ? ViewById(m, id).TotalWeight() : 0.0;
     return std::make_pair(w0, w1);
   };
   {
-    const auto [w0, w1] = after_one_missed_pass(true, 1);
+    const auto [w0, w1] = after_one_missed_pass(true, 1, 0);
     EXPECT_LT(w1, w0) << "an unconfirmed view loses weight on its first missed pass";
   }
   {
-    const auto [w0, w1] = after_one_missed_pass(false, 1);
+    const auto [w0, w1] = after_one_missed_pass(false, 1, 0);
     EXPECT_EQ(w1, w0) << "without the option the first missed pass is free";
   }
   {
-    const auto [w0, w1] = after_one_missed_pass(true, 2);
+    const auto [w0, w1] = after_one_missed_pass(true, 2, 0);
     EXPECT_EQ(w1, w0) << "a view confirmed on a second pass keeps the free missed pass";
+  }
+  {
+    const auto [w0, w1] = after_one_missed_pass(true, 1, 1);
+    EXPECT_EQ(w1, w0) << "a view of an earlier session keeps the free missed pass";
   }
 }
 

@@ -91,8 +91,10 @@ struct EnvironmentModelOptions {
   // position is closer than d_for_m to mu_t (Euclidean, metres), then keeps only views
   // whose footprint holds mu_t (footprint_gate below). Must be > 0.
   double d_for_m = 0.5;
-  // [G] (19) gain beta_for, dimensionless, >= 0.
-  double beta_for = 0.5;
+  // [G] (19) gain beta_for, dimensionless, >= 0. 0.7 since 2026-11-25 (was 0.5), chosen
+  // among {0.5, 0.7, 1.0} with forget_unconfirmed_views on and tracker.gamma 3.0 on
+  // institute seeds 1-5 ([G] Table 1 setting; docs/experiments.md "Issue 14 defaults").
+  double beta_for = 0.7;
   // [G] (19) d_gain in metres: b = beta_for * max(1 - d_xy / d_for, 0) * d_gain /
   // (sigma_x + sigma_y) with sigma_x, sigma_y the standard deviations (m) of C_t, so the
   // fraction is dimensionless; b is clamped to [0, 1]. A confident estimate (small sigma)
@@ -168,17 +170,17 @@ struct EnvironmentModelOptions {
   // frames, seeds 1-3: mean error on day 10 1.90/1.53/1.80 m, with it 0.41/0.63/0.82 m;
   // docs/forgetting.md).
   bool forget_by_matched_passes = true;
-  // Unconfirmed views (docs/forgetting.md "Unconfirmed views"): a view that has matched
-  // on its creation pass only (matched_passes == 1) is weakened by (18) from the first
-  // pass through its footprint in which it does not match, without the
-  // forget_min_missed_passes whole passes an established view gets, as ORB-SLAM culls
-  // recent map points that later frames do not find again. A view that matched on two
-  // passes keeps the grace. Off by default: on institute ([G] Table 1, seeds 1-10) it
-  // makes the active map 3-13 % smaller at about equal mean error, but on AntWorld (frames
-  // 1 cm apart, where a footprint widened by C_t is wider than the few centimetres over
-  // which a view matches) a static world loses views on the second and third day and
-  // its day-3 error grows 0.019 -> 0.045 m (docs/experiments.md "Unconfirmed views").
-  bool forget_unconfirmed_views = false;
+  // Unconfirmed views (docs/forgetting.md "Unconfirmed views"): a view made in the current
+  // session that has matched on its creation pass only (matched_passes == 1) is weakened
+  // by (18) from the first pass through its footprint in which it does not match,
+  // without the forget_min_missed_passes whole passes an established view gets, as
+  // ORB-SLAM culls recent map points that the next keyframes do not find again. A view
+  // that matched on two passes, or one made in an earlier session (its next pass is on
+  // another day), keeps the grace. On by default since 2026-11-25: with it the institute
+  // map is 0.29-0.34 of passive's at equal or lower error on 4 of 5 seeds; AntWorld's
+  // static route keeps every view (the session condition: without it a replayed day lost
+  // views there while a global start widened C_t).
+  bool forget_unconfirmed_views = true;
   // Also log kComponentAdded and kComponentMerged events (one or more per matching view
   // per Update: large logs). View insertions/removals and component removals are always
   // logged.

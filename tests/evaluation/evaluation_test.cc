@@ -413,12 +413,17 @@ TEST(FramesCsv, CovarianceAndNeesRoundTrip) {
   EXPECT_EQ(result.overall.nees_xy.count, 1);
   EXPECT_NEAR(result.overall.nees_xy.mean, records[0].nees_xy, 1e-9);
   EXPECT_NE(FormatEvaluation(result, false).find("position NEES"), std::string::npos);
+  // The header and the first row of the file written above.
+  auto header_and_row = [&dir] {
+    std::ifstream in(dir / "frames.csv");
+    std::pair<std::string, std::string> lines;
+    std::getline(in, lines.first);
+    std::getline(in, lines.second);
+    return lines;
+  };
   {
     // Written before the covariance columns: the header stops at odom_phi_rad.
-    std::ifstream in(dir / "frames.csv");
-    std::string header, row;
-    std::getline(in, header);
-    std::getline(in, row);
+    const auto [header, row] = header_and_row();
     const std::size_t cut = header.find(",cov_xx_m2");
     ASSERT_NE(cut, std::string::npos);
     std::size_t cells = 0;
@@ -437,10 +442,7 @@ TEST(FramesCsv, CovarianceAndNeesRoundTrip) {
   EXPECT_EQ(old.records[0].estimate, records[0].estimate);
   {
     // A match count that is not a count is named with its file, line and column.
-    std::ifstream in(dir / "frames.csv");
-    std::string header, row;
-    std::getline(in, header);
-    std::getline(in, row);
+    const auto [header, row] = header_and_row();
     const std::size_t cut = row.rfind(",3,");
     ASSERT_NE(cut, std::string::npos);
     std::ofstream os(dir / "bad.csv");

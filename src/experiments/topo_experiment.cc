@@ -138,6 +138,14 @@ TopoExperimentResult RunTopoExperiment(const TopoExperimentOptions& experiment) 
   const fs::path out(a.out_dir);
   WriteFileAtomic(out / "places.yaml", AdjacencyMapYaml(map));
   WriteFileAtomic(out / "topo_config.yaml", ConfigYaml(a, options, cross, places_from));
+  auto name = [&](int p) { return p < 0 ? std::string() : map.places()[p].name; };
+  // The columns stamp_s,index,gt_x_m,gt_y_m,gt_phi_rad,<place> of a labelled frame.
+  auto labelled_cells = [&](std::ostream& csv, const TopologicalFrameResult& f) {
+    csv << FormatRoundTrip(f.stamp_s) << "," << f.index_in_session << ","
+        << FormatRoundTrip(f.map_T_robot_truth.x()) << ","
+        << FormatRoundTrip(f.map_T_robot_truth.y()) << ","
+        << FormatRoundTrip(f.map_T_robot_truth.z()) << "," << name(f.true_place);
+  };
   {
     const char* bands_rgb[] = {"H", "L", "S", "R", "G", "B"};
     const char* bands_nrgb[] = {"H", "L", "S", "r", "g", "b"};
@@ -149,13 +157,9 @@ TopoExperimentResult RunTopoExperiment(const TopoExperimentOptions& experiment) 
     for (int b = 0; b < ColorHistogram::kBands; ++b) csv << ",conf_" << bands[b];
     for (int b = 0; b < ColorHistogram::kBands; ++b) csv << ",ref_" << bands[b];
     csv << "\n";
-    auto name = [&](int p) { return p < 0 ? std::string() : map.places()[p].name; };
     for (const auto& f : r.frames) {
-      csv << FormatRoundTrip(f.stamp_s) << "," << f.index_in_session << ","
-          << FormatRoundTrip(f.map_T_robot_truth.x()) << ","
-          << FormatRoundTrip(f.map_T_robot_truth.y()) << ","
-          << FormatRoundTrip(f.map_T_robot_truth.z()) << "," << name(f.true_place) << ","
-          << name(f.believed_place) << "," << ToString(f.decision.state) << ","
+      labelled_cells(csv, f);
+      csv << "," << name(f.believed_place) << "," << ToString(f.decision.state) << ","
           << name(f.decision.place) << "," << FormatRoundTrip(f.decision.confidence) << ","
           << f.decision.voting_bands;
       for (const auto& v : f.decision.bands) csv << "," << name(v.place);
@@ -170,12 +174,9 @@ TopoExperimentResult RunTopoExperiment(const TopoExperimentOptions& experiment) 
     std::ostringstream csv;
     csv << "reference,stamp_s,index,gt_x_m,gt_y_m,gt_phi_rad,place\n";
     for (std::size_t i = 0; i < r.reference_frames.size(); ++i) {
-      const auto& f = r.reference_frames[i];
-      csv << i << "," << FormatRoundTrip(f.stamp_s) << "," << f.index_in_session << ","
-          << FormatRoundTrip(f.map_T_robot_truth.x()) << ","
-          << FormatRoundTrip(f.map_T_robot_truth.y()) << ","
-          << FormatRoundTrip(f.map_T_robot_truth.z()) << "," << map.places()[f.true_place].name
-          << "\n";
+      csv << i << ",";
+      labelled_cells(csv, r.reference_frames[i]);
+      csv << "\n";
     }
     WriteFileAtomic(out / "references.csv", csv.str());
   }

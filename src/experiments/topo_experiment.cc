@@ -156,6 +156,7 @@ TopoExperimentResult RunTopoExperiment(const TopoExperimentOptions& experiment) 
     for (int b = 0; b < ColorHistogram::kBands; ++b) csv << ",vote_" << bands[b];
     for (int b = 0; b < ColorHistogram::kBands; ++b) csv << ",conf_" << bands[b];
     for (int b = 0; b < ColorHistogram::kBands; ++b) csv << ",ref_" << bands[b];
+    for (int b = 0; b < ColorHistogram::kBands; ++b) csv << ",dist_" << bands[b];
     csv << "\n";
     for (const auto& f : r.frames) {
       labelled_cells(csv, f);
@@ -165,6 +166,7 @@ TopoExperimentResult RunTopoExperiment(const TopoExperimentOptions& experiment) 
       for (const auto& v : f.decision.bands) csv << "," << name(v.place);
       for (const auto& v : f.decision.bands) csv << "," << FormatRoundTrip(v.confidence);
       for (const auto& v : f.decision.bands) csv << "," << v.reference;
+      for (const auto& v : f.decision.bands) csv << "," << FormatRoundTrip(v.distance_nn);
       csv << "\n";
     }
     WriteFileAtomic(out / "frames.csv", csv.str());

@@ -8,7 +8,8 @@
 // LOG/world.yaml, which `omnicml simulate` writes). The run directory receives
 //   frames.csv        one row per test frame: truth, true / believed / voted place,
 //                     state, confidence, the vote, confidence and nearest reference
-//                     image (ref_*, a row of references.csv) of each band
+//                     image (ref_*, a row of references.csv) and its histogram
+//                     distance (dist_*) of each band
 //   references.csv    one row per reference image: its training frame, truth, place
 //   summary.md        the [UN] Table 1 counts (TopologicalSummaryTable)
 //   places.yaml       the adjacency map used

@@ -108,6 +108,30 @@ MclPrepared PrepareMcl(const MclExperimentOptions& a) {
        i += static_cast<std::size_t>(std::max(1, a.ref_every))) {
     refs_frames.push_back(train[i]);
   }
+  // Every true position must lie on the grid; one that does not means the map is not the
+  // log's (or its origin is off), and the filter would run without an error otherwise.
+  const std::string map_name = a.map_yaml.empty() ? StrCat("the grid of ", a.world) : a.map_yaml;
+  auto count_not_free = [&](const std::vector<MclFrame>& fs) {
+    int n = 0;
+    for (const MclFrame& f : fs) {
+      if (!f.truth) continue;
+      const CellIndex c = p.grid.CellOf(f.truth->head<2>());
+      if (!p.grid.InBounds(c)) {
+        const Eigen::Vector2d lo = p.grid.origin_m();
+        const Eigen::Vector2d hi =
+            lo + p.grid.resolution_m() * Eigen::Vector2d(p.grid.width(), p.grid.height());
+        throw Error(StrCat("mcl: ", map_name, ": day ", f.session + 1, " frame ", f.index,
+                           ": ground truth (", F(f.truth->x(), 2), ", ", F(f.truth->y(), 2),
+                           ") m lies outside the map ([", F(lo.x(), 2), ", ", F(hi.x(), 2),
+                           "] x [", F(lo.y(), 2), ", ", F(hi.y(), 2),
+                           "] m); is it the map of this log?"));
+      }
+      n += p.grid.IsFree(c) ? 0 : 1;
+    }
+    return n;
+  };
+  p.refs_not_free = count_not_free(refs_frames);
+  p.test_not_free = count_not_free(p.test);
   p.refs = MakeReferences(refs_frames);
   if (p.refs.empty()) throw Error("mcl: no reference frame with ground truth on the training day");
   if (p.test.empty()) throw Error("mcl: no frame on the test day");
@@ -580,6 +604,11 @@ std::string DescribeMclPrepared(const MclPrepared& p) {
      << "\n";
   os << "mcl: " << p.refs.size() << " references, " << p.test.size() << " queries, grid "
      << p.grid.width() << "x" << p.grid.height() << " prepared in " << F(p.prepare_s, 1) << " s\n";
+  if (p.refs_not_free > 0 || p.test_not_free > 0) {
+    os << "mcl: warning: the true positions of " << p.refs_not_free << " of " << p.refs.size()
+       << " references and " << p.test_not_free << " of " << p.test.size()
+       << " queries lie in occupied or unknown cells of the grid\n";
+  }
   return os.str();
 }
 

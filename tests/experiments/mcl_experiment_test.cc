@@ -48,6 +48,47 @@ TEST_F(MclExperimentTest, PreparationTakesReferencesFromTheTrainingDayAndQueries
   ASSERT_EQ(prepared_->test.size(), 120u);
   for (const MclFrame& f : prepared_->test) EXPECT_EQ(f.session, 1);
   EXPECT_EQ(prepared_->options.num_particles, 500);
+  // The world's own grid holds every true position in a free cell.
+  EXPECT_EQ(prepared_->refs_not_free, 0);
+  EXPECT_EQ(prepared_->test_not_free, 0);
+  EXPECT_EQ(Lines(DescribeMclPrepared(*prepared_)), 2u);
+}
+
+TEST_F(MclExperimentTest, MapThatIsNotTheInputsIsRejectedNamingMapAndFrame) {
+  // home_store is 25 m x 10 m; a 10 m x 15 m grid (institute's size) cannot hold its
+  // route. Without the check the filter ran and reported errors of metres.
+  const fs::path dir =
+      fs::temp_directory_path() /
+      StrCat("omnicml_mcl_wrong_map_", ::testing::UnitTest::GetInstance()->random_seed());
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  const std::string yaml = (dir / "small.yaml").string();
+  SaveOccupancyGrid(OccupancyGrid(100, 150, 0.1, Eigen::Vector2d::Zero()), yaml);
+  MclExperimentOptions o = Options();
+  o.map_yaml = yaml;
+  std::string what;
+  try {
+    PrepareMclExperiment(o);
+  } catch (const Error& e) {
+    what = e.what();
+  }
+  EXPECT_NE(what.find(yaml), std::string::npos) << what;
+  EXPECT_NE(what.find("lies outside the map"), std::string::npos) << what;
+  EXPECT_NE(what.find("day 1 frame"), std::string::npos) << what;
+  // The same grid made large enough: accepted, and the frames in its free cells counted
+  // as such (every cell free, so no warning).
+  SaveOccupancyGrid(OccupancyGrid(300, 150, 0.1, Eigen::Vector2d(-2.0, -2.0)), yaml);
+  const MclPrepared p = PrepareMclExperiment(o);
+  EXPECT_EQ(p.refs_not_free, 0);
+  EXPECT_EQ(p.test_not_free, 0);
+  // A grid whose cells are all unknown: every true position counted, and a warning line.
+  SaveOccupancyGrid(
+      OccupancyGrid(300, 150, 0.1, Eigen::Vector2d(-2.0, -2.0), CellState::kUnknown), yaml);
+  const MclPrepared q = PrepareMclExperiment(o);
+  EXPECT_EQ(q.refs_not_free, static_cast<int>(q.refs.size()));
+  EXPECT_EQ(q.test_not_free, static_cast<int>(q.test.size()));
+  EXPECT_NE(DescribeMclPrepared(q).find("warning"), std::string::npos);
+  fs::remove_all(dir);
 }
 
 TEST_F(MclExperimentTest, TrackingHasOneRowPerRunAndIsDeterministic) {

@@ -90,14 +90,20 @@ struct MclPrepared {
   // The visibility areas' cut-off distance used (VisibilityRadius), metres; 0: none.
   double visibility_radius_m = 0;
   double reference_spacing_m = 0;  // MedianReferenceSpacing of refs, metres
+  // Frames whose ground-truth position lies inside the grid but not in a free cell
+  // (an obstacle grown by the rasterisation, or unknown space): references, test frames.
+  int refs_not_free = 0;
+  int test_not_free = 0;
 };
 
 // Validates the options (runs, particles, days and frames within common/limits.h,
 // experiment name, out_dir creatable) and
-// prepares the frames. Throws omnicml::Error naming the flag or file.
+// prepares the frames. Throws omnicml::Error naming the flag or file, and naming the map
+// and the frame when a reference or test frame's ground truth lies outside the occupancy
+// grid (a map that is not the log's).
 MclPrepared PrepareMclExperiment(const MclExperimentOptions& options);
 // Two lines for stderr: empty and mean visibility areas; references, queries, grid and
-// preparation time.
+// preparation time; a third when some true positions lie outside the grid's free cells.
 std::string DescribeMclPrepared(const MclPrepared& prepared);
 
 // Single run.

@@ -90,6 +90,9 @@ const CommandRegistration kRegistration{
       cmd->add_flag("!--no-people", a->people, "Simulate without people");
       cmd->add_option("--descriptor", a->descriptor, "ifh | fourier | color")
           ->capture_default_str();
+      cmd->add_flag("--ifh-normalize-columns", a->ifh_normalize_columns,
+                    "ifh: divide each panorama column by its mean brightness first (lights "
+                    "that switch between the days; docs/experiments.md)");
       cmd->add_option("--grid-resolution", a->grid_resolution_m, "Occupancy grid cell size, m")
           ->capture_default_str();
       cmd->add_option("--particles", a->particles,

@@ -218,6 +218,36 @@ Descriptor InvariantFeatureHistogram::Compute(const cv::Mat& panorama) const {
   } else {
     image8 = panorama;
   }
+  if (options_.normalize_columns) {
+    // v -> v * 0.5 / mean(column) on 8-bit values, in integers so that a gain common to a
+    // column's pixels cancels exactly: with n the column's pixel values (rows x channels)
+    // and S their sum, v' = round(v 255 n / (2 S)) (half up), clipped to 255; S is floored
+    // at n / 4 (a mean brightness of 1e-3 of full scale).
+    const int w = image8.cols, h = image8.rows, ch = image8.channels();
+    const std::int64_t n = static_cast<std::int64_t>(h) * ch;
+    std::vector<std::int64_t> sum(static_cast<std::size_t>(w), 0);
+    for (int r = 0; r < h; ++r) {
+      const std::uint8_t* row = image8.ptr<std::uint8_t>(r);
+      for (int c = 0; c < w; ++c) {
+        for (int k = 0; k < ch; ++k) sum[c] += row[c * ch + k];
+      }
+    }
+    for (auto& s : sum) s = std::max<std::int64_t>(s, (n + 3) / 4);
+    cv::Mat normalized(h, w, image8.type());
+    for (int r = 0; r < h; ++r) {
+      const std::uint8_t* in = image8.ptr<std::uint8_t>(r);
+      std::uint8_t* out = normalized.ptr<std::uint8_t>(r);
+      for (int c = 0; c < w; ++c) {
+        const std::int64_t den = 2 * sum[c];
+        for (int k = 0; k < ch; ++k) {
+          const std::int64_t num = static_cast<std::int64_t>(in[c * ch + k]) * 255 * n;
+          out[c * ch + k] =
+              static_cast<std::uint8_t>(std::min<std::int64_t>(255, (2 * num + den) / (2 * den)));
+        }
+      }
+    }
+    image8 = normalized;
+  }
 
   double max_radius = 0;
   for (const auto& k : options_.kernels) {

@@ -55,6 +55,7 @@ MclPrepared PrepareMcl(const MclExperimentOptions& a) {
   p.options = MakeOptions(a);
   DescriptorOptions dopt;
   dopt.kind = DescriptorKindFromString(a.descriptor);
+  dopt.ifh.normalize_columns = a.ifh_normalize_columns;
   p.extractor = MakeDescriptorExtractor(dopt);
   if (a.train_day < 1 || a.test_day < 1) throw Error("mcl: --train-day and --test-day are 1-based");
   const std::vector<int> sessions = {a.train_day - 1, a.test_day - 1};
@@ -152,6 +153,7 @@ std::string ConfigYaml(const MclExperimentOptions& a, const MclPrepared& p) {
      << "panorama_width_px: " << a.panorama_width << "\npanorama_height_px: " << a.panorama_height
      << "\n"
      << "descriptor: " << a.descriptor << "\n"
+     << "ifh_normalize_columns: " << (a.ifh_normalize_columns ? "true" : "false") << "\n"
      << "grid_resolution_m: " << FormatRoundTrip(p.grid.resolution_m()) << "\n"
      << "start: " << (a.global ? "global" : "known") << "\n"
      << MclOptionsToYaml(p.options);
@@ -258,7 +260,9 @@ std::string ReportHtml(const MclExperimentOptions& a, const MclPrepared& p,
               Fx(eval.overall.coverage * 100, 1), " %; the filter always has an estimate)")},
       {"particles", std::to_string(p.options.num_particles)},
       {"start", a.global ? "global" : "known"},
-      {"descriptor", a.descriptor},
+      {"descriptor", a.descriptor == "ifh" && a.ifh_normalize_columns
+                         ? std::string("ifh, columns normalised")
+                         : a.descriptor},
       {"grid", StrCat(p.grid.width(), " x ", p.grid.height(), " cells of ",
                       F(p.grid.resolution_m(), 3), " m")},
       {"visibility areas cut at", StrCat(F(p.visibility_radius_m, 3),
@@ -580,6 +584,10 @@ MclPrepared PrepareMclExperiment(const MclExperimentOptions& a) {
       a.experiment != "kidnap" && a.experiment != "noise") {
     throw Error(
         StrCat("mcl: --experiment must be tracking|global|kidnap|noise, got '", a.experiment, "'"));
+  }
+  if (a.ifh_normalize_columns && a.descriptor != "ifh") {
+    throw Error(StrCat("mcl: --ifh-normalize-columns needs --descriptor ifh, got '", a.descriptor,
+                       "'"));
   }
   if (a.experiment.empty()) CheckRunDir(a.out_dir);
   if (!a.out_dir.empty()) CheckOutputDirectory(a.out_dir, "--out");

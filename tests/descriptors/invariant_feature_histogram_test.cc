@@ -60,6 +60,42 @@ TEST(InvariantFeatureHistogram, InvariantTo90DegreeRotation) {
   EXPECT_GT(ifh.Distance(d0, other), 0.02);
 }
 
+// normalize_columns: a brightness gain that differs between sectors of the panorama (the
+// lights of one room off: a quarter dimmed to 40 %) leaves the histogram as it was, a
+// uniform image of any brightness gives one descriptor, and the cyclic-translation
+// invariance holds. Without it the same dimming moves the descriptor.
+TEST(InvariantFeatureHistogram, ColumnNormalisationRemovesASectorGain) {
+  cv::Mat image = MakeSyntheticPanorama(160, 48, 4);
+  // Multiples of 5, so that 0.4 x value is an exact integer.
+  image.forEach<cv::Vec3b>([](cv::Vec3b& p, const int*) {
+    for (int k = 0; k < 3; ++k) p[k] = static_cast<std::uint8_t>(p[k] / 5 * 5);
+  });
+  cv::Mat dimmed = image.clone();
+  for (int r = 0; r < dimmed.rows; ++r) {
+    for (int c = 40; c < 80; ++c) {
+      for (int k = 0; k < 3; ++k) {
+        auto& v = dimmed.at<cv::Vec3b>(r, c)[k];
+        v = static_cast<std::uint8_t>(v * 2 / 5);
+      }
+    }
+  }
+  IfhOptions options;
+  options.normalize_columns = true;
+  const InvariantFeatureHistogram normalized(options);
+  const Descriptor a = normalized.Compute(image);
+  EXPECT_LT(normalized.Distance(a, normalized.Compute(dimmed)), 1e-3);
+  EXPECT_LT(MaxAbsDifference(a, normalized.Compute(RollBoth(image, 37, 0))), 1e-6);
+  const Descriptor other = normalized.Compute(MakeSyntheticPanorama(160, 48, 99));
+  EXPECT_GT(normalized.Distance(a, other), 0.02);
+  const Descriptor dark = normalized.Compute(cv::Mat(48, 160, CV_8UC3, cv::Scalar(20, 20, 20)));
+  const Descriptor light = normalized.Compute(cv::Mat(48, 160, CV_8UC3, cv::Scalar(200, 200, 200)));
+  EXPECT_EQ(MaxAbsDifference(dark, light), 0.0);
+
+  const InvariantFeatureHistogram raw;
+  ASSERT_FALSE(raw.options().normalize_columns);
+  EXPECT_GT(raw.Distance(raw.Compute(image), raw.Compute(dimmed)), 0.05);
+}
+
 // The normalised intersection of a histogram with itself is 1 (distance 0); it is
 // symmetric and within [0, 1] otherwise; the feature vector sums to 1.
 TEST(InvariantFeatureHistogram, NormalisedIntersection) {

@@ -153,6 +153,29 @@ TEST_F(MclExperimentTest, GlobalKidnapAndNoiseRowsFollowTheirDefinitions) {
   EXPECT_THROW(PrepareMclExperiment(o), Error);
 }
 
+TEST_F(MclExperimentTest, ColumnNormalisedHistogramsAreRecordedAndNeedIfh) {
+  // --ifh-normalize-columns changes the references' descriptors, is written to
+  // config.yaml (which loads back), and is refused with another descriptor.
+  MclExperimentOptions o = Options();
+  o.ifh_normalize_columns = true;
+  const MclPrepared p = PrepareMclExperiment(o);
+  ASSERT_EQ(p.refs.size(), prepared_->refs.size());
+  EXPECT_NE(p.refs[0].descriptor.features, prepared_->refs[0].descriptor.features);
+  const fs::path dir =
+      fs::temp_directory_path() /
+      StrCat("omnicml_mcl_ifh_columns_", ::testing::UnitTest::GetInstance()->random_seed());
+  fs::remove_all(dir);
+  o.out_dir = dir.string();
+  RunMclSingle(o, p);
+  const std::string config = ReadTextFile(dir / "config.yaml");
+  EXPECT_NE(config.find("ifh_normalize_columns: true"), std::string::npos) << config;
+  EXPECT_EQ(LoadMclOptions((dir / "config.yaml").string()).num_particles, 500);
+  fs::remove_all(dir);
+  o.out_dir.clear();
+  o.descriptor = "fourier";
+  EXPECT_THROW(PrepareMclExperiment(o), Error);
+}
+
 TEST_F(MclExperimentTest, SingleRunWritesEveryFileOfTheRunDirectory) {
   // One frames.csv row per query, summary.txt = the summary text, the grid, no
   // temporaries; an unrelated file in an existing run directory is kept.

@@ -62,6 +62,14 @@ struct IfhOptions {
   double sample_fraction = 1.0;
   // Seed of the Monte-Carlo pixel sampling (used only when sample_fraction < 1).
   std::uint32_t seed = 42;
+  // Column normalisation before the kernels (not in [W]): every pixel of column c (all
+  // channels) is multiplied by 0.5 / (the column's mean value in [0, 1] over its rows and
+  // channels, floored at 1e-3) and clipped to [0, 1], so a column's mean maps to mid-grey
+  // (computed on the 8-bit values in integers: a gain common to a column cancels exactly). A light switched
+  // or a curtain drawn scales a sector of the panorama by a factor nearly constant along
+  // each column (as for FourierSignatureOptions::normalize_columns); the division removes
+  // it. Invariant to a column roll, so the descriptor keeps its rotation invariance.
+  bool normalize_columns = false;
 
   // Throws omnicml::Error naming the field when a value is out of range.
   void Validate() const;
@@ -96,6 +104,7 @@ void VisitFields(V& v, IfhOptions& o) {
   v("color", o.color);
   v("sample_fraction", o.sample_fraction);
   v("seed", o.seed);
+  v("normalize_columns", o.normalize_columns);
 }
 
 class InvariantFeatureHistogram final : public DescriptorExtractor {

@@ -59,7 +59,8 @@ namespace omnicml {
 // 10: option model.merge_precision_weighted. 11: option model.look_back_frames and the
 //    model section's version 4 (its recent updates).
 // 12: option model.forget_unconfirmed_views (issue 14).
-inline constexpr std::uint32_t kEngineFormatVersion = 12;
+// 13: option descriptor.ifh.normalize_columns (issue 18).
+inline constexpr std::uint32_t kEngineFormatVersion = 13;
 // The 8 magic bytes (including the terminating NUL).
 inline constexpr char kEngineMagic[8] = {'O', 'M', 'N', 'I', 'C', 'M', 'L', '\0'};
 

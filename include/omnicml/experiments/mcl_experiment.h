@@ -45,6 +45,9 @@ struct MclExperimentOptions {
   int panorama_height = 36;
   bool people = true;              // simulate walking people
   std::string descriptor = "ifh";  // ifh | fourier | color
+  // ifh only: IfhOptions::normalize_columns (divide each panorama column by its mean
+  // brightness before the kernels; for lights that switch between the days).
+  bool ifh_normalize_columns = false;
   double grid_resolution_m = 0.1;  // grid rasterised from the world
   int particles = 5000;
   int random_samples = MclOptions{}.random_samples_per_step;  // injected per step ([W])

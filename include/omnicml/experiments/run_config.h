@@ -14,7 +14,7 @@
 //     fourier: {bands: 4, coefficients: 16, distance: l2, normalize_bands: true,
 //               normalize_columns: true}
 //     ifh: {kernels: [[[0, 0], [0, 1]], [[0, 3], [4, 0]]], angles: 8, bins: 16, scales: [1],
-//           color: true, sample_fraction: 1, seed: 42}
+//           color: true, sample_fraction: 1, seed: 42, normalize_columns: false}
 //     color: {bins: 32, filter_width: 5, normalized_rgb: false, distance: jeffrey}
 //   tracker: {gamma: 3, w_min: 0.001, delta: 1, max_components: 50, unimodal_min_weight: 0.05,
 //             min_covariance_eigenvalue: 1e-10, motion: {a1: 0.05, a2: 0.01, a3: 0.05, a4: 0.01}}

@@ -229,7 +229,7 @@ void VisitFields(V& v, MclOptions& o) {
 // Throws omnicml::Error "<file>:<line>: ..." naming the key.
 inline const std::vector<std::string> kMclRunKeys = {
     "input", "train_day", "test_day", "ref_every", "references", "panorama_width_px",
-    "panorama_height_px", "descriptor", "grid_resolution_m", "start"};
+    "panorama_height_px", "descriptor", "ifh_normalize_columns", "grid_resolution_m", "start"};
 MclOptions ParseMclOptionsYaml(const std::string& yaml_text, const std::string& source);
 MclOptions LoadMclOptions(const std::string& path);
 // Every field as YAML; LoadMclOptions reads it back to equal options.

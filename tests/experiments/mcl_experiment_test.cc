@@ -39,6 +39,17 @@ class MclExperimentTest : public ::testing::Test {
     return static_cast<std::size_t>(std::count(text.begin(), text.end(), '\n'));
   }
 
+  // An empty directory under the system's temporary directory, unique per test program
+  // run (gtest's random seed).
+  static fs::path FreshDir(const std::string& name) {
+    const fs::path dir = fs::temp_directory_path() /
+                         StrCat("omnicml_mcl_", name, "_",
+                                ::testing::UnitTest::GetInstance()->random_seed());
+    fs::remove_all(dir);
+    fs::create_directories(dir);
+    return dir;
+  }
+
   static inline MclPrepared* prepared_ = nullptr;
 };
 
@@ -57,11 +68,7 @@ TEST_F(MclExperimentTest, PreparationTakesReferencesFromTheTrainingDayAndQueries
 TEST_F(MclExperimentTest, MapThatIsNotTheInputsIsRejectedNamingMapAndFrame) {
   // home_store is 25 m x 10 m; a 10 m x 15 m grid (institute's size) cannot hold its
   // route. Without the check the filter ran and reported errors of metres.
-  const fs::path dir =
-      fs::temp_directory_path() /
-      StrCat("omnicml_mcl_wrong_map_", ::testing::UnitTest::GetInstance()->random_seed());
-  fs::remove_all(dir);
-  fs::create_directories(dir);
+  const fs::path dir = FreshDir("wrong_map");
   const std::string yaml = (dir / "small.yaml").string();
   SaveOccupancyGrid(OccupancyGrid(100, 150, 0.1, Eigen::Vector2d::Zero()), yaml);
   MclExperimentOptions o = Options();
@@ -161,10 +168,7 @@ TEST_F(MclExperimentTest, ColumnNormalisedHistogramsAreRecordedAndNeedIfh) {
   const MclPrepared p = PrepareMclExperiment(o);
   ASSERT_EQ(p.refs.size(), prepared_->refs.size());
   EXPECT_NE(p.refs[0].descriptor.features, prepared_->refs[0].descriptor.features);
-  const fs::path dir =
-      fs::temp_directory_path() /
-      StrCat("omnicml_mcl_ifh_columns_", ::testing::UnitTest::GetInstance()->random_seed());
-  fs::remove_all(dir);
+  const fs::path dir = FreshDir("ifh_columns");
   o.out_dir = dir.string();
   RunMclSingle(o, p);
   const std::string config = ReadTextFile(dir / "config.yaml");
@@ -179,11 +183,7 @@ TEST_F(MclExperimentTest, ColumnNormalisedHistogramsAreRecordedAndNeedIfh) {
 TEST_F(MclExperimentTest, SingleRunWritesEveryFileOfTheRunDirectory) {
   // One frames.csv row per query, summary.txt = the summary text, the grid, no
   // temporaries; an unrelated file in an existing run directory is kept.
-  const fs::path dir =
-      fs::temp_directory_path() /
-      StrCat("omnicml_mcl_experiment_", ::testing::UnitTest::GetInstance()->random_seed());
-  fs::remove_all(dir);
-  fs::create_directories(dir);
+  const fs::path dir = FreshDir("experiment");
   { std::ofstream(dir / "notes.txt") << "mine\n"; }
   MclExperimentOptions o = Options();
   o.out_dir = dir.string();

@@ -174,8 +174,10 @@ void BindDescriptors(py::module_& m) {
       "Invariant feature histogram [W]: histograms of kernel products averaged over rotations; "
       "rotation invariant, no heading.")
       .def(py::init([](int angles, int bins, const std::vector<double>& scales, bool color,
-                       double sample_fraction, std::uint32_t seed, const py::object& kernels) {
+                       double sample_fraction, std::uint32_t seed, const py::object& kernels,
+                       bool normalize_columns) {
              IfhOptions o;
+             o.normalize_columns = normalize_columns;
              o.angles = angles;
              o.bins = bins;
              o.scales = scales;
@@ -200,8 +202,11 @@ void BindDescriptors(py::module_& m) {
            py::arg("scales") = IfhOptions{}.scales, py::arg("color") = IfhOptions{}.color,
            py::arg("sample_fraction") = IfhOptions{}.sample_fraction,
            py::arg("seed") = IfhOptions{}.seed, py::arg("kernels") = py::none(),
+           py::arg("normalize_columns") = IfhOptions{}.normalize_columns,
            "kernels: list of kernels, each a list of 1..4 offsets [dx, dy] (default "
-           "[[[0, 0], [0, 1]], [[0, 3], [4, 0]]]). Raises omnicml.Error naming the field.");
+           "[[[0, 0], [0, 1]], [[0, 3], [4, 0]]]); normalize_columns: divide each column by "
+           "its mean value first (lights that switch part of the panorama). Raises "
+           "omnicml.Error naming the field.");
 
   py::class_<ColorHistogram, DescriptorExtractor, std::shared_ptr<ColorHistogram>>(
       m, "ColorHistogram",

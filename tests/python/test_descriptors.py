@@ -92,6 +92,17 @@ class HistogramTest(unittest.TestCase):
         c = omnicml.ColorHistogram()
         np.testing.assert_array_equal(c.compute(pano).features, c.compute(rolled).features)
 
+    def test_ifh_column_normalisation_removes_a_sector_gain(self):
+        # A quarter of the panorama at 40 % (a room's light off): unchanged with
+        # normalize_columns, changed without.
+        pano = (omnicml.synthetic_panorama(160, 48, seed=4) // 5 * 5).astype(np.uint8)
+        dimmed = pano.copy()
+        dimmed[:, 40:80] = (dimmed[:, 40:80].astype(np.int32) * 2 // 5).astype(np.uint8)
+        on = omnicml.InvariantFeatureHistogram(normalize_columns=True)
+        off = omnicml.InvariantFeatureHistogram()
+        self.assertLess(on.distance(on.compute(pano), on.compute(dimmed)), 1e-3)
+        self.assertGreater(off.distance(off.compute(pano), off.compute(dimmed)), 0.05)
+
 
 class UnwrapTest(unittest.TestCase):
     def test_render_then_unwrap_reproduces_the_panorama(self):

@@ -187,6 +187,17 @@ TopoExperimentResult RunTopoExperiment(const TopoExperimentOptions& experiment) 
       StrCat(input, ": train day ", a.train_day, ", test day ", a.test_day, " (", map.size(),
              " places, ", r.references, " reference images)");
   std::string table = TopologicalSummaryTable(r.counts, title);
+  if (r.train_frames_without_place > 0 || r.test_frames_without_place > 0) {
+    // Frames outside every place have no label: no reference, and not in the counts.
+    table += StrCat("frames in no place (not counted): ", r.train_frames_without_place, " of ",
+                    r.train_frames, " training, ", r.test_frames_without_place, " of ",
+                    r.frames.size(), " test\n");
+    if (2 * r.train_frames_without_place > r.train_frames) {
+      std::cerr << "warning: " << r.train_frames_without_place << " of " << r.train_frames
+                << " training frames lie in no place of " << places_from
+                << "; are the places those of this world or log?\n";
+    }
+  }
   if (options.learn_band_thresholds) {
     // The thresholds Localize used: max(band_threshold, learned on the training day).
     std::ostringstream os;

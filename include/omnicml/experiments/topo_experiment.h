@@ -11,7 +11,8 @@
 //                     image (ref_*, a row of references.csv) and its histogram
 //                     distance (dist_*) of each band
 //   references.csv    one row per reference image: its training frame, truth, place
-//   summary.md        the [UN] Table 1 counts (TopologicalSummaryTable)
+//   summary.md        the [UN] Table 1 counts (TopologicalSummaryTable), and how many
+//                     training and test frames lie in no place (when any does)
 //   places.yaml       the adjacency map used
 //   topo_config.yaml  the effective options
 // each written atomically. Deterministic: same options, same files.

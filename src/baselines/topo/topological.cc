@@ -731,6 +731,11 @@ CrossSequenceResult RunCrossSequence(FrameSource* source, TopologicalLocalizer* 
                          frame.session_index + 1, " has no ground truth (needed for the labels)"));
     }
     const int place = map.PlaceAt(frame.map_T_robot_truth->head<2>(), route);
+    if (is_train) {
+      ++result.train_frames;
+      result.train_frames_without_place += place < 0;
+    }
+    if (is_test) result.test_frames_without_place += place < 0;
     TopologicalFrameResult labelled;
     labelled.stamp_s = frame.stamp_s;
     labelled.index_in_session = frame.index_in_session;

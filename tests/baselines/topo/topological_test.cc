@@ -519,6 +519,34 @@ TEST(AdjacencyMap, PlacesFromRouteShareStretchesDrivenTwice) {
   EXPECT_THAT(ErrorOf([&] { PlacesFromRoute(route, 0.0); }), HasSubstr("place_length_m"));
 }
 
+// Places that cover only part of the floor (the west half of home_store): frames outside
+// them give no reference and are not counted, and the result says how many there were.
+TEST(TopologicalLocalizer, FramesOutsideEveryPlaceAreCountedApart) {
+  SimulatorOptions sim;
+  sim.world = "home_store";
+  sim.days = 2;
+  sim.frames_per_day = 120;
+  sim.seed = 1;
+  sim.step_m = 0.5;
+  sim.output = ImageKind::kPanorama;
+  SimulatedFrameSource source(sim);
+  const AdjacencyMap map = ParseAdjacencyMap(
+      "places:\n"
+      "  - {name: west, polygon_m: [[0, 0], [6, 0], [6, 10], [0, 10]], neighbours: [middle]}\n"
+      "  - {name: middle, polygon_m: [[6, 0], [12.5, 0], [12.5, 10], [6, 10]]}\n",
+      "west_half.yaml");
+  TopologicalLocalizer loc(map);
+  const CrossSequenceResult r = RunCrossSequence(&source, &loc, CrossSequenceOptions{});
+  EXPECT_EQ(r.train_frames, 120);
+  EXPECT_GT(r.train_frames_without_place, 0);
+  EXPECT_EQ(r.train_frames - r.train_frames_without_place, r.references);
+  std::int64_t unlabelled = 0;
+  for (const auto& f : r.frames) unlabelled += f.true_place < 0;
+  EXPECT_GT(unlabelled, 0);
+  EXPECT_EQ(r.test_frames_without_place, unlabelled);
+  EXPECT_EQ(r.counts.frames + unlabelled, static_cast<std::int64_t>(r.frames.size()));
+}
+
 // A short cross-day test on the simulated home_store (train on day 1, test on day 2):
 // most confident answers are right and the belief is mostly right.
 TEST(TopologicalLocalizer, SimulatedCrossDayMostlyCorrect) {
@@ -538,6 +566,10 @@ TEST(TopologicalLocalizer, SimulatedCrossDayMostlyCorrect) {
   const CrossSequenceResult r = RunCrossSequence(&source, &loc, cross, &source.route());
   const TopologicalCounts& c = r.counts;
   ASSERT_EQ(c.frames, 200);
+  // Route places cover every position.
+  EXPECT_EQ(r.train_frames, 200);
+  EXPECT_EQ(r.train_frames_without_place, 0);
+  EXPECT_EQ(r.test_frames_without_place, 0);
   EXPECT_EQ(c.confident_correct + c.confident_wrong + c.uncertain + c.confused, c.frames);
   const double confident = static_cast<double>(c.confident_correct + c.confident_wrong);
   std::cout << TopologicalSummaryTable(c, "home_store day 1 -> day 2");

@@ -24,4 +24,5 @@ steps="${OMNICML_DEMO_STEPS:-2000,4000,6000,8000}"
 echo "demo: omnicml compare on world '$world', 3 days x $frames frames (passive, active, static forgetting)"
 "$build_dir/omnicml" compare --world "$world" --days 3 --frames-per-day "$frames" --seed 1 \
   --steps "$steps" --threads 2 --log-every 1000 --out "$out"
-echo "demo: open $(pwd)/$out/report.html (per-mode runs in $out/passive, $out/active, $out/static)"
+case "$out" in /*) abs="$out" ;; *) abs="$(pwd)/$out" ;; esac
+echo "demo: open $abs/report.html (per-mode runs in $out/passive, $out/active, $out/static)"

@@ -547,47 +547,50 @@ TEST(TopologicalLocalizer, FramesOutsideEveryPlaceAreCountedApart) {
   EXPECT_EQ(r.counts.frames + unlabelled, static_cast<std::int64_t>(r.frames.size()));
 }
 
-// A short cross-day test on the simulated home_store (train on day 1, test on day 2):
-// most confident answers are right and the belief is mostly right.
+// A short cross-day test on the simulated home_store (train on day 1, test on day 2),
+// seeds 1-3: most confident answers are right and the belief is mostly right.
 TEST(TopologicalLocalizer, SimulatedCrossDayMostlyCorrect) {
-  SimulatorOptions sim;
-  sim.world = "home_store";
-  sim.days = 2;
-  sim.frames_per_day = 200;
-  sim.seed = 3;
-  sim.step_m = 0.3;
-  sim.output = ImageKind::kPanorama;
-  SimulatedFrameSource source(sim);
-  const AdjacencyMap map = PlacesFromRoute(source.route(), 3.0);
-  TopologicalLocalizer loc(map);
-  CrossSequenceOptions cross;
-  cross.train_session = 0;
-  cross.test_session = 1;
-  const CrossSequenceResult r = RunCrossSequence(&source, &loc, cross, &source.route());
-  const TopologicalCounts& c = r.counts;
-  ASSERT_EQ(c.frames, 200);
-  // Route places cover every position.
-  EXPECT_EQ(r.train_frames, 200);
-  EXPECT_EQ(r.train_frames_without_place, 0);
-  EXPECT_EQ(r.test_frames_without_place, 0);
-  EXPECT_EQ(c.confident_correct + c.confident_wrong + c.uncertain + c.confused, c.frames);
-  const double confident = static_cast<double>(c.confident_correct + c.confident_wrong);
-  std::cout << TopologicalSummaryTable(c, "home_store day 1 -> day 2");
-  ASSERT_GT(confident, 0.5 * c.frames);
-  EXPECT_GT(c.confident_correct / confident, 0.85);
-  EXPECT_GT(static_cast<double>(c.belief_correct) / c.frames, 0.7);
-  // reference_frames are the training frames in reference order: one per reference, all
-  // from day 1, and every band's nearest reference lies in the place the band names.
-  ASSERT_EQ(static_cast<int>(r.reference_frames.size()), r.references);
-  ASSERT_EQ(r.references, loc.NumReferences());
-  for (const auto& ref : r.reference_frames) {
-    EXPECT_EQ(map.PlaceAt(ref.map_T_robot_truth.head<2>(), &source.route()), ref.true_place);
-  }
-  for (const auto& f : r.frames) {
-    for (const BandVote& v : f.decision.bands) {
-      if (v.reference < 0) continue;
-      ASSERT_LT(v.reference, r.references);
-      EXPECT_EQ(r.reference_frames[v.reference].true_place, v.place);
+  for (std::uint64_t seed : {1u, 2u, 3u}) {
+    SCOPED_TRACE(StrCat("seed ", seed));
+    SimulatorOptions sim;
+    sim.world = "home_store";
+    sim.days = 2;
+    sim.frames_per_day = 200;
+    sim.seed = seed;
+    sim.step_m = 0.3;
+    sim.output = ImageKind::kPanorama;
+    SimulatedFrameSource source(sim);
+    const AdjacencyMap map = PlacesFromRoute(source.route(), 3.0);
+    TopologicalLocalizer loc(map);
+    CrossSequenceOptions cross;
+    cross.train_session = 0;
+    cross.test_session = 1;
+    const CrossSequenceResult r = RunCrossSequence(&source, &loc, cross, &source.route());
+    const TopologicalCounts& c = r.counts;
+    ASSERT_EQ(c.frames, 200);
+    // Route places cover every position.
+    EXPECT_EQ(r.train_frames, 200);
+    EXPECT_EQ(r.train_frames_without_place, 0);
+    EXPECT_EQ(r.test_frames_without_place, 0);
+    EXPECT_EQ(c.confident_correct + c.confident_wrong + c.uncertain + c.confused, c.frames);
+    const double confident = static_cast<double>(c.confident_correct + c.confident_wrong);
+    std::cout << TopologicalSummaryTable(c, StrCat("home_store day 1 -> day 2, seed ", seed));
+    ASSERT_GT(confident, 0.5 * c.frames);
+    EXPECT_GT(c.confident_correct / confident, 0.9);  // 0.99 / 0.97 / 0.96 at writing
+    EXPECT_GT(static_cast<double>(c.belief_correct) / c.frames, 0.7);
+    // reference_frames are the training frames in reference order: one per reference,
+    // all from day 1, and every band's nearest reference lies in the place the band names.
+    ASSERT_EQ(static_cast<int>(r.reference_frames.size()), r.references);
+    ASSERT_EQ(r.references, loc.NumReferences());
+    for (const auto& ref : r.reference_frames) {
+      EXPECT_EQ(map.PlaceAt(ref.map_T_robot_truth.head<2>(), &source.route()), ref.true_place);
+    }
+    for (const auto& f : r.frames) {
+      for (const BandVote& v : f.decision.bands) {
+        if (v.reference < 0) continue;
+        ASSERT_LT(v.reference, r.references);
+        EXPECT_EQ(r.reference_frames[v.reference].true_place, v.place);
+      }
     }
   }
 }

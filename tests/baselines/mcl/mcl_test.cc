@@ -424,6 +424,21 @@ SimData MakeSim(std::uint64_t seed, const std::string& world_name = "home_store"
   return d;
 }
 
+// Tracks the test day from the known start with these options; the largest position
+// error (m) and heading error (rad) over the day.
+std::pair<double, double> TrackFromKnownStart(const SimData& d, const MclOptions& o) {
+  auto refs = d.refs;
+  ComputeVisibilityAreas(d.grid, o, &refs);
+  MonteCarloLocalizer mcl(o, d.grid, refs, d.extractor);
+  const auto rec = RunMcl(mcl, d.test, {.known_start = true});
+  double max_err = 0, max_head = 0;
+  for (const auto& r : rec) {
+    max_err = std::max(max_err, r.position_error_m);
+    max_head = std::max(max_head, r.heading_error_rad);
+  }
+  return {max_err, max_head};
+}
+
 // Seed 3: a day 2 whose lighting lets IFH retrieval work (seeds 2, 5: ~12 % wrong).
 const SimData& Sim() {
   static const SimData data = MakeSim(3);
@@ -461,19 +476,10 @@ TEST(Mcl, TrackingErrorBoundedOnSimulatedLog) {
 // tracks every seed from the known start without jumping and within [W]'s accuracy.
 TEST(Mcl, DefaultFilterTracksEverySeed) {
   for (std::uint64_t seed : {1u, 2u, 5u}) {
-    const SimData d = MakeSim(seed);
     MclOptions o;
     o.num_particles = 1000;
     o.seed = 11;
-    auto refs = d.refs;
-    ComputeVisibilityAreas(d.grid, o, &refs);
-    MonteCarloLocalizer mcl(o, d.grid, refs, d.extractor);
-    const auto rec = RunMcl(mcl, d.test, {.known_start = true});
-    double max_err = 0, max_head = 0;
-    for (const auto& r : rec) {
-      max_err = std::max(max_err, r.position_error_m);
-      max_head = std::max(max_head, r.heading_error_rad);
-    }
+    const auto [max_err, max_head] = TrackFromKnownStart(MakeSim(seed), o);
     RecordProperty(StrCat("max_position_error_m_seed_", seed), std::to_string(max_err));
     EXPECT_LT(max_err, 1.0) << "seed " << seed;
     EXPECT_LT(max_head, 20 * kPi / 180) << "seed " << seed;
@@ -486,20 +492,12 @@ TEST(Mcl, DefaultFilterTracksEverySeed) {
 // (docs/experiments.md "institute with column-normalised histograms").
 TEST(Mcl, InstituteTracksWithColumnNormalisedHistograms) {
   for (std::uint64_t seed : {1u, 2u, 3u}) {
-    const SimData d = MakeSim(seed, "institute", /*ifh_normalize_columns=*/true);
     MclOptions o;
     o.num_particles = 1000;
     o.seed = 11;
     o.relative_heading = false;
-    auto refs = d.refs;
-    ComputeVisibilityAreas(d.grid, o, &refs);
-    MonteCarloLocalizer mcl(o, d.grid, refs, d.extractor);
-    const auto rec = RunMcl(mcl, d.test, {.known_start = true});
-    double max_err = 0, max_head = 0;
-    for (const auto& r : rec) {
-      max_err = std::max(max_err, r.position_error_m);
-      max_head = std::max(max_head, r.heading_error_rad);
-    }
+    const auto [max_err, max_head] =
+        TrackFromKnownStart(MakeSim(seed, "institute", /*ifh_normalize_columns=*/true), o);
     RecordProperty(StrCat("institute_max_position_error_m_seed_", seed), std::to_string(max_err));
     std::cout << "institute seed " << seed << ": max error " << max_err << " m, "
               << max_head * 180 / kPi << " deg\n";

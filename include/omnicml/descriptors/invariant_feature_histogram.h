@@ -64,11 +64,13 @@ struct IfhOptions {
   std::uint32_t seed = 42;
   // Column normalisation before the kernels (not in [W]): every pixel of column c (all
   // channels) is multiplied by 0.5 / (the column's mean value in [0, 1] over its rows and
-  // channels, floored at 1e-3) and clipped to [0, 1], so a column's mean maps to mid-grey
-  // (computed on the 8-bit values in integers: a gain common to a column cancels exactly). A light switched
-  // or a curtain drawn scales a sector of the panorama by a factor nearly constant along
-  // each column (as for FourierSignatureOptions::normalize_columns); the division removes
-  // it. Invariant to a column roll, so the descriptor keeps its rotation invariance.
+  // channels, floored at 1e-3) and clipped to [0, 1], so a column's mean maps to
+  // mid-grey; computed on the 8-bit values in integers, so a gain common to a column
+  // cancels exactly. A light switched or a curtain drawn scales a sector of the panorama
+  // by a factor nearly constant along each column (as for FourierOptions::
+  // normalize_columns); the division removes it. Invariant to a column roll, so the
+  // descriptor keeps its rotation invariance. Used by `omnicml mcl
+  // --ifh-normalize-columns` (issue 18: institute, whose lights switch between days).
   bool normalize_columns = false;
 
   // Throws omnicml::Error naming the field when a value is out of range.

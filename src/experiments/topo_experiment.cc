@@ -187,10 +187,10 @@ TopoExperimentResult RunTopoExperiment(const TopoExperimentOptions& experiment) 
       StrCat(input, ": train day ", a.train_day, ", test day ", a.test_day, " (", map.size(),
              " places, ", r.references, " reference images)");
   std::string table = TopologicalSummaryTable(r.counts, title);
-  if (r.train_frames_without_place > 0 || r.test_frames_without_place > 0) {
+  if (r.train_frames_without_place > 0 || r.test_frames_without_place() > 0) {
     // Frames outside every place have no label: no reference, and not in the counts.
     table += StrCat("frames in no place (not counted): ", r.train_frames_without_place, " of ",
-                    r.train_frames, " training, ", r.test_frames_without_place, " of ",
+                    r.train_frames, " training, ", r.test_frames_without_place(), " of ",
                     r.frames.size(), " test\n");
     if (2 * r.train_frames_without_place > r.train_frames) {
       std::cerr << "warning: " << r.train_frames_without_place << " of " << r.train_frames

@@ -731,11 +731,7 @@ CrossSequenceResult RunCrossSequence(FrameSource* source, TopologicalLocalizer* 
                          frame.session_index + 1, " has no ground truth (needed for the labels)"));
     }
     const int place = map.PlaceAt(frame.map_T_robot_truth->head<2>(), route);
-    if (is_train) {
-      ++result.train_frames;
-      result.train_frames_without_place += place < 0;
-    }
-    if (is_test) result.test_frames_without_place += place < 0;
+    result.train_frames += is_train;
     TopologicalFrameResult labelled;
     labelled.stamp_s = frame.stamp_s;
     labelled.index_in_session = frame.index_in_session;
@@ -753,6 +749,8 @@ CrossSequenceResult RunCrossSequence(FrameSource* source, TopologicalLocalizer* 
       test_descriptors.push_back(std::move(*d));
     }
   }
+  // labelled_train counts the training frames that lie in a place.
+  result.train_frames_without_place = result.train_frames - labelled_train;
   for (const auto& [place, d] : train) localizer->AddReference(place, d);
   result.references = static_cast<int>(train.size());
   for (int p = 0; p < map.size(); ++p)

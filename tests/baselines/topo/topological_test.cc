@@ -543,7 +543,7 @@ TEST(TopologicalLocalizer, FramesOutsideEveryPlaceAreCountedApart) {
   std::int64_t unlabelled = 0;
   for (const auto& f : r.frames) unlabelled += f.true_place < 0;
   EXPECT_GT(unlabelled, 0);
-  EXPECT_EQ(r.test_frames_without_place, unlabelled);
+  EXPECT_EQ(r.test_frames_without_place(), unlabelled);
   EXPECT_EQ(r.counts.frames + unlabelled, static_cast<std::int64_t>(r.frames.size()));
 }
 
@@ -571,7 +571,7 @@ TEST(TopologicalLocalizer, SimulatedCrossDayMostlyCorrect) {
     // Route places cover every position.
     EXPECT_EQ(r.train_frames, 200);
     EXPECT_EQ(r.train_frames_without_place, 0);
-    EXPECT_EQ(r.test_frames_without_place, 0);
+    EXPECT_EQ(r.test_frames_without_place(), 0);
     EXPECT_EQ(c.confident_correct + c.confident_wrong + c.uncertain + c.confused, c.frames);
     const double confident = static_cast<double>(c.confident_correct + c.confident_wrong);
     std::cout << TopologicalSummaryTable(c, StrCat("home_store day 1 -> day 2, seed ", seed));

@@ -358,11 +358,14 @@ struct CrossSequenceResult {
   std::vector<TopologicalFrameResult> reference_frames;
   BandCalibration calibration;  // when options().learn_band_thresholds
   int places_with_references = 0;
-  // Frames of the training / test session, and how many of them lie in no place (no
-  // reference image; not in counts): many of them suggest a places file of another world.
+  // Frames of the training session, and how many of them lie in no place (no reference
+  // image): many of them suggest a places file of another world.
   std::int64_t train_frames = 0;
   std::int64_t train_frames_without_place = 0;
-  std::int64_t test_frames_without_place = 0;
+  // Test frames that lie in no place (not in counts).
+  std::int64_t test_frames_without_place() const {
+    return static_cast<std::int64_t>(frames.size()) - counts.frames;
+  }
 };
 
 // The cross-sequence experiment of [UN]: reads `source` once; frames of

@@ -225,14 +225,14 @@ Descriptor InvariantFeatureHistogram::Compute(const cv::Mat& panorama) const {
     // at n / 4 (a mean brightness of 1e-3 of full scale).
     const int w = image8.cols, h = image8.rows, ch = image8.channels();
     const std::int64_t n = static_cast<std::int64_t>(h) * ch;
+    cv::Mat column_sums;  // 1 x w, ch channels: exact integer sums over the rows
+    cv::reduce(image8, column_sums, 0, cv::REDUCE_SUM, CV_32S);
     std::vector<std::int64_t> sum(static_cast<std::size_t>(w), 0);
-    for (int r = 0; r < h; ++r) {
-      const std::uint8_t* row = image8.ptr<std::uint8_t>(r);
-      for (int c = 0; c < w; ++c) {
-        for (int k = 0; k < ch; ++k) sum[c] += row[c * ch + k];
-      }
+    const std::int32_t* cs = column_sums.ptr<std::int32_t>(0);
+    for (int c = 0; c < w; ++c) {
+      for (int k = 0; k < ch; ++k) sum[c] += cs[c * ch + k];
+      sum[c] = std::max<std::int64_t>(sum[c], (n + 3) / 4);
     }
-    for (auto& s : sum) s = std::max<std::int64_t>(s, (n + 3) / 4);
     cv::Mat normalized(h, w, image8.type());
     for (int r = 0; r < h; ++r) {
       const std::uint8_t* in = image8.ptr<std::uint8_t>(r);

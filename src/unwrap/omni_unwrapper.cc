@@ -2,10 +2,12 @@
 
 #include <algorithm>
 #include <atomic>
+#include <cctype>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <set>
+#include <string_view>
 #include <system_error>
 #include <vector>
 
@@ -168,6 +170,33 @@ std::string PngStructureProblem(const std::vector<std::uint8_t>& b) {
     if (type == "IEND") return "";
     i += 12 + length;
   }
+}
+
+// The image formats ReadImage decodes, by the signature OpenCV's own decoder checks
+// (imgcodecs grfmt_*.cpp checkSignature): PNG, JPEG, BMP, TIFF (classic and BigTIFF),
+// PBM/PGM/PPM/PAM and WebP. OpenCV tries its decoders in order and hands bytes no earlier
+// decoder claims to later ones; the DICOM decoder (GDCM) then aborts the process on a
+// malformed file (fuzz_image found it), so other formats are refused before decoding.
+// Returns the format's name, or "" when the bytes start like none of them.
+std::string SupportedImageFormat(const std::vector<std::uint8_t>& b) {
+  const auto starts_with = [&](std::string_view magic, std::size_t at = 0) {
+    return b.size() >= at + magic.size() &&
+           std::equal(magic.begin(), magic.end(), b.begin() + static_cast<std::ptrdiff_t>(at),
+                      [](char m, std::uint8_t v) { return static_cast<std::uint8_t>(m) == v; });
+  };
+  using namespace std::string_view_literals;
+  if (starts_with("\x89PNG\r\n\x1a\n"sv)) return "PNG";
+  if (starts_with("\xFF\xD8\xFF"sv)) return "JPEG";
+  if (starts_with("BM"sv)) return "BMP";
+  if (starts_with("II\x2A\x00"sv) || starts_with("MM\x00\x2A"sv) || starts_with("II\x2B\x00"sv) ||
+      starts_with("MM\x00\x2B"sv)) {
+    return "TIFF";
+  }
+  if (b.size() >= 3 && b[0] == 'P' && b[1] >= '1' && b[1] <= '7' && std::isspace(b[2])) {
+    return b[1] == '7' ? "PAM" : "PNM";
+  }
+  if (starts_with("RIFF"sv) && starts_with("WEBP"sv, 8)) return "WebP";
+  return "";
 }
 
 // Width and height declared by a PNG (IHDR) or baseline/progressive JPEG (SOFn) header;
@@ -797,6 +826,11 @@ cv::Mat ReadImage(const std::string& path) {
   if (declared_width * declared_height > kMaxImagePixels) {
     throw Error(StrCat("image file '", path, "' declares ", declared_width, "x", declared_height,
                        " pixels (more than the limit of ", kMaxImagePixels, ")"));
+  }
+  if (SupportedImageFormat(bytes).empty()) {
+    throw Error(StrCat("image file '", path,
+                       "' is unreadable: not a PNG, JPEG, BMP, TIFF, PBM/PGM/PPM/PAM or WebP "
+                       "image (unknown signature)"));
   }
   if (const std::string problem = PngStructureProblem(bytes); !problem.empty()) {
     throw Error(StrCat("image file '", path, "' is unreadable: ", problem));

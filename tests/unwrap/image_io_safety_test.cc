@@ -85,6 +85,40 @@ TEST(ImageIoSafety, DeclaredSizeCheckedBeforeDecoding) {
   EXPECT_EQ(err, "");
 }
 
+// Bytes that start like none of the supported formats are refused before decoding. A
+// DICOM-shaped file (128-byte preamble, "DICM") used to reach OpenCV's GDCM decoder,
+// which aborted the process on the fuzzer's input
+// (fuzz/corpus/image/regression-dicm-preamble); a PGM still decodes (the signature check
+// is OpenCV's own).
+TEST(ImageIoSafety, UnknownSignatureIsRefusedBeforeDecoding) {
+  const fs::path dir = FreshDir("signature");
+  std::vector<std::uint8_t> dicom(128, 0);
+  for (char c : std::string("DICM")) dicom.push_back(static_cast<std::uint8_t>(c));
+  dicom.resize(dicom.size() + 64, 0xA1);
+  WriteBytes(dir / "scan.dcm", dicom);
+  std::vector<std::uint8_t> fuzzed(90, 0xA1);  // the fuzzer's input, shortened
+  fuzzed[0] = 0x89;
+  fuzzed[1] = 0x50;
+  for (char c : std::string("NG\r\n\x1a")) fuzzed.push_back(static_cast<std::uint8_t>(c));
+  fuzzed.resize(124, 0xE0);
+  for (char c : std::string("DICM")) fuzzed.push_back(static_cast<std::uint8_t>(c));
+  fuzzed.push_back(0x82);
+  WriteBytes(dir / "fuzzed.png", fuzzed);
+  for (const char* name : {"scan.dcm", "fuzzed.png"}) {
+    SCOPED_TRACE(name);
+    const auto [message, err] = ReadImageError(dir / name);
+    EXPECT_THAT(message, HasSubstr(name));
+    EXPECT_THAT(message, HasSubstr("unknown signature"));
+    EXPECT_EQ(err, "");
+  }
+  std::vector<std::uint8_t> pgm;
+  ASSERT_TRUE(cv::imencode(".pgm", cv::Mat(3, 4, CV_8UC1, cv::Scalar(7)), pgm));
+  WriteBytes(dir / "grey.pgm", pgm);
+  const cv::Mat grey = ReadImage((dir / "grey.pgm").string());
+  EXPECT_EQ(grey.size(), cv::Size(4, 3));
+  EXPECT_EQ(grey.at<std::uint8_t>(2, 3), 7);
+}
+
 // Truncated and corrupted PNG files give one line naming the file, and nothing from
 // libpng on stderr.
 TEST(ImageIoSafety, BrokenPngIsOneQuietLine) {

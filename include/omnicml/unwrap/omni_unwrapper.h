@@ -123,12 +123,14 @@ AutoCalibrationResult AutoCalibrate(const cv::Mat& raw, const OmniCalibration& i
 // column). Render resamples panoramas of another size the same way.
 cv::Mat PreparePanorama(const cv::Mat& panorama, int width = 0, int height = 0);
 
-// Reads an image file as 8-bit grey or BGR. Throws omnicml::Error naming the file when
+// Reads an image file as 8-bit grey or BGR: PNG, JPEG, BMP, TIFF, PBM/PGM/PPM/PAM or WebP,
+// recognised by their signature before any decoder runs (OpenCV's other decoders, DICOM
+// among them, are not offered untrusted bytes). Throws omnicml::Error naming the file when
 // it is missing, not a regular file (directory, FIFO, device), larger than
-// kMaxImageFileBytes, declares more than kMaxImagePixels in its PNG/JPEG header (checked
-// before decoding), unreadable, empty, 1x1, or has a channel count other than 1, 3 or 4
-// (4 is converted to 3). 16-bit images are scaled to 8 bit (v * 255 / 65535); other
-// depths are an error.
+// kMaxImageFileBytes, of another format, declares more than kMaxImagePixels in its
+// PNG/JPEG header (checked before decoding), unreadable, empty, 1x1, or has a channel
+// count other than 1, 3 or 4 (4 is converted to 3). 16-bit images are scaled to 8 bit
+// (v * 255 / 65535); other depths are an error.
 cv::Mat ReadImage(const std::string& path);
 
 // Writes an image atomically: encodes it in memory in the format of the extension, then

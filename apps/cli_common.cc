@@ -54,7 +54,7 @@ void AddRunInputFlags(CLI::App* cmd, RunSettings* f, bool with_forgetting) {
   }
   cmd->add_option_function<double>(
       "--e-max", [f](double v) { f->overrides.e_max = v; },
-      "Descriptor distance at which a view stops matching (model.e_max)");
+      "Descriptor distance at which a view stops matching (model.retrieval.e_max)");
   cmd->add_option_function<int>(
       "--update-delay", [f](int v) { f->overrides.update_delay_frames = v; },
       "Frames before an observation reaches the map (update_delay_frames)");

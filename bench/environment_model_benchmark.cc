@@ -82,16 +82,16 @@ Descriptor RandomDescriptor(std::mt19937& rng, const DescriptorExtractor& extrac
 Fixture MakeFixture(std::size_t num_views, std::int64_t which_extractor = 0) {
   std::mt19937 rng(1234);
   EnvironmentModelOptions o;
-  o.e_max = 1.0;  // random views are ~3.3 apart; a perturbed copy is ~0.4 from its view
-  o.d_for_m = 2.0;
-  o.top_k = 0;
-  o.beta = 0.1;
-  o.d_gain_m = 0.2;
+  o.retrieval.e_max = 1.0;  // random views are ~3.3 apart; a perturbed copy is ~0.4 from its view
+  o.forgetting.d_for_m = 2.0;
+  o.retrieval.top_k = 0;
+  o.update.beta = 0.1;
+  o.forgetting.d_gain_m = 0.2;
   // Random descriptors never match their neighbours, so with the default gain active
   // forgetting would empty the neighbourhood of the repeated query poses within the
   // benchmark's iterations; a tiny gain keeps the map size constant (same work per call).
-  o.beta_for = 1e-6;
-  o.spatial_cell_m = 1.0;
+  o.forgetting.beta_for = 1e-6;
+  o.index.spatial_cell_m = 1.0;
   Fixture f;
   f.model = std::make_unique<EnvironmentModel>(o, MakeExtractor(which_extractor));
   if (f.model->extractor().FeatureSize() != kFeatures) throw Error("benchmark expects 64 features");

@@ -1,4 +1,4 @@
-// Scale of the environment model (issue 19): place retrieval at 1k ... 1M views, the
+// Scale of the environment model: place retrieval at 1k ... 1M views, the
 // exhaustive scan against the candidate index (view_index.h), recall, ProcessFrame-like
 // cost, memory per view. Public EnvironmentModel API only (AddView to build, FindMatches
 // / FindMatchesExhaustive to query, Update for the frame loop).
@@ -114,7 +114,7 @@ std::vector<std::uint64_t> TrueMatches(const EnvironmentModel& model, const Desc
   for (const ReferenceView& v : model.views()) {
     const double e = model.extractor().Distance(q.features.data(), v.descriptor.features.data(),
                                                 q.features.size());
-    if (e < model.options().e_max) m.emplace_back(e, v.id);
+    if (e < model.options().retrieval.e_max) m.emplace_back(e, v.id);
   }
   std::sort(m.begin(), m.end());
   std::vector<std::uint64_t> ids;
@@ -141,7 +141,7 @@ std::pair<double, double> CandidateFraction(const EnvironmentModel& model, const
   if (!model.IndexActive()) return {1.0, 1.0};
   std::vector<std::size_t> rows;
   const std::size_t bounded =
-      model.view_index().Candidates(q.features.data(), model.options().e_max, &rows);
+      model.view_index().Candidates(q.features.data(), model.options().retrieval.e_max, &rows);
   const double n = static_cast<double>(model.NumViews());
   return {static_cast<double>(rows.size()) / n, static_cast<double>(bounded) / n};
 }
@@ -159,17 +159,17 @@ ScaleFixture& Fixture(const Key& key) {
       MakeDescriptorExtractor(DescriptorOptions{});
   if (extractor->FeatureSize() != kFeatures) throw Error("benchmark expects 64 features");
   EnvironmentModelOptions o;
-  o.e_max = key.e_max;
-  o.top_k = 8;
+  o.retrieval.e_max = key.e_max;
+  o.retrieval.top_k = 8;
   // Built once, by the last AddView, so index_build_s is one build over the whole map.
-  o.index_min_views = key.index && !key.ann ? static_cast<int>(n) : 0;
+  o.index.index_min_views = key.index && !key.ann ? static_cast<int>(n) : 0;
   // The graph is kept from the first view on; searched from n / 2 views, so a
   // ProcessFrame-like run that removes views keeps using it.
-  o.ann_min_views = key.ann ? static_cast<int>(n / 2) : 0;
-  o.ann_m = key.ann_m;
-  o.ann_ef_construction = key.ann_ef_construction;
-  o.index_dims = key.index_dims;
-  o.index_max_bounded_fraction = 1.0;  // measure the index even where the model would drop it
+  o.index.ann_min_views = key.ann ? static_cast<int>(n / 2) : 0;
+  o.index.ann_m = key.ann_m;
+  o.index.ann_ef_construction = key.ann_ef_construction;
+  o.index.index_dims = key.index_dims;
+  o.index.index_max_bounded_fraction = 1.0;  // measure the index even where the model would drop it
   f.model = std::make_unique<EnvironmentModel>(o, extractor);
 
   std::mt19937 rng(1919);
@@ -380,8 +380,8 @@ void BM_Ann(benchmark::State& state) {
   ScaleFixture& f = Fixture(key);
   const int ef = state.range(2) > 0 ? static_cast<int>(state.range(2))
                                     : EnvironmentModelOptions{}.ann_ef;
-  if (ef != f.model->options().ann_ef) {
-    f.model->SetAnnSearch(ef, f.model->options().ann_k);
+  if (ef != f.model->options().index.ann_ef) {
+    f.model->SetAnnSearch(ef, f.model->options().index.ann_k);
     Measure(f);
   }
   std::size_t k = 0;

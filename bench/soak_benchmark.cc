@@ -1,10 +1,10 @@
-// Soak benchmark (issues 17 and 20): many simulated days of one world through the whole
+// Soak benchmark: many simulated days of one world through the whole
 // `omnicml run` path (simulator -> engine -> run recorder writing a real run directory),
 // one process, and after every day a row of what must stay bounded by the map rather
 // than by the run's length:
 //
 //   views, components   the map (EnvironmentModel)
-//   events_held         events in the model's ring (<= model.max_events)
+//   events_held         events in the model's ring (<= model.events.max_events)
 //   events_logged       events since the start (events.csv has them all)
 //   map_bytes           EncodeEngine size = the saved map file's size
 //   rss_mb, anon_mb, peak_mb

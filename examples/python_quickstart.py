@@ -43,7 +43,7 @@ def main():
     print("log:", log_dir, omnicml.validate_log(log_dir)["total_frames"], "frames")
 
     # The engine, options as a dict (the keys of an engine YAML file).
-    engine = omnicml.CmlEngine({"threads": 2, "model": {"forgetting": "active"}})
+    engine = omnicml.CmlEngine({"threads": 2, "model": {"forgetting": {"mode": "active"}}})
     errors = [[] for _ in range(reader.num_sessions)]
     odom_errors = [[] for _ in range(reader.num_sessions)]
     for frame in reader:

@@ -492,7 +492,7 @@ void BindEngine(py::module_& m) {
       .def("set_forgetting_mode",
            [](CmlEngine& e, const std::string& mode) { e.SetForgettingMode(ForgettingModeFromString(mode)); },
            py::arg("mode"),
-           "Changes options.model.forgetting between frames: 'active', 'passive' or 'static' "
+           "Changes options.model.forgetting.mode between frames: 'active', 'passive' or 'static' "
            "(e.g. learn day 1, then freeze the map); queued updates apply under the new mode.")
       .def("map_json", [](const CmlEngine& e) { return MapToJson(e).dump(); },
            "The map as JSON text (datasets/map_schema.md).");

@@ -1,6 +1,7 @@
 #include "omnicml/common/options.h"
 
 #include <algorithm>
+#include <iostream>
 #include <charconv>
 #include <cmath>
 #include <filesystem>
@@ -299,6 +300,9 @@ TreeReader::TreeReader(const OptionValue& map, const OptionSource& src, std::str
 }
 
 const OptionValue* TreeReader::Take(const char* key) {
+  for (const auto& [old_key, new_path] : renamed_) {
+    if (old_key == key) return nullptr;  // read under its former meaning (TakeRenamed)
+  }
   claimed_.emplace_back(key);
   for (const auto& [k, v] : map_.members) {
     if (k == key) return &v;
@@ -307,7 +311,29 @@ const OptionValue* TreeReader::Take(const char* key) {
   return nullptr;
 }
 
+const OptionValue* TreeReader::TakeRenamed(const char* old_key, const char* new_path) {
+  for (const auto& [k, v] : map_.members) {
+    if (k != old_key || v.kind == OptionValue::Kind::kMap) continue;
+    claimed_.emplace_back(old_key);
+    if (renamed_.empty()) renamed_line_ = v.line;
+    renamed_.emplace_back(old_key, new_path);
+    return &v;
+  }
+  return nullptr;
+}
+
 void TreeReader::Finish() const {
+  if (!renamed_.empty()) {
+    std::string where = src_.name;
+    if (renamed_line_ > 0) where += StrCat(":", renamed_line_);
+    std::string list;
+    for (const auto& [old_key, new_path] : renamed_) {
+      list += StrCat(list.empty() ? "" : ", ", JoinPath(prefix_, old_key.c_str()), " -> ",
+                     JoinPath(prefix_, new_path.c_str()));
+    }
+    std::cerr << where << ": warning: deprecated option keys, write them in their sections: "
+              << list << "\n";
+  }
   for (const auto& [k, v] : map_.members) {
     if (std::find(claimed_.begin(), claimed_.end(), k) != claimed_.end()) continue;
     if (prefix_.empty() &&

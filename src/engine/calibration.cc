@@ -68,7 +68,7 @@ Calibration Calibrate(FrameSource& source, const CmlEngineOptions& options,
 
   Calibration c;
   c.frames_used = n;
-  c.e_max = options.model.e_max;
+  c.e_max = options.model.retrieval.e_max;
   {
     std::vector<double> steps;
     for (int t = 1; t < n; ++t) steps.push_back(path_m[t] - path_m[t - 1]);
@@ -104,16 +104,16 @@ Calibration Calibrate(FrameSource& source, const CmlEngineOptions& options,
   const CmlEngineOptions defaults;
   c.appearance_sigma_m = defaults.appearance_sigma_m * c.scale;
   c.anchor_max_sigma_m = defaults.anchor_max_sigma_m * c.scale;
-  c.d_for_m = defaults.model.d_for_m * c.scale;
-  c.spatial_cell_m = defaults.model.spatial_cell_m * c.scale;
+  c.d_for_m = defaults.model.forgetting.d_for_m * c.scale;
+  c.spatial_cell_m = defaults.model.index.spatial_cell_m * c.scale;
   return c;
 }
 
 void ApplyCalibration(const Calibration& calibration, CmlEngineOptions* options) {
   options->appearance_sigma_m = calibration.appearance_sigma_m;
   options->anchor_max_sigma_m = calibration.anchor_max_sigma_m;
-  options->model.d_for_m = calibration.d_for_m;
-  options->model.spatial_cell_m = calibration.spatial_cell_m;
+  options->model.forgetting.d_for_m = calibration.d_for_m;
+  options->model.index.spatial_cell_m = calibration.spatial_cell_m;
 }
 
 std::string Calibration::ToYaml() const {

@@ -129,7 +129,7 @@ void CmlEngine::SetThreads(int threads) {
 }
 
 void CmlEngine::SetForgettingMode(ForgettingMode mode) {
-  options_.model.forgetting = mode;
+  options_.model.forgetting.mode = mode;
   model_->SetForgettingMode(mode);
 }
 

@@ -14,7 +14,7 @@
 #include "omnicml/common/common.h"
 #include "omnicml/common/file_io.h"
 #include "omnicml/common/options.h"
-#include "engine/internal/pose_io.h"
+#include "omnicml/geometry/pose_io.h"
 
 namespace omnicml {
 
@@ -115,12 +115,25 @@ OmniCalibration ReadCalibration(BinaryReader& in) {
 }  // namespace
 
 // The options section is the schema's tree of every field (cml_engine.h VisitFields,
-// common/options.h EncodeOptions): names and values, so reading checks that every field
-// is present and none is unknown.
-void WriteEngineOptions(BinaryWriter& out, const CmlEngineOptions& o) { EncodeOptions(out, o); }
+// common/options.h EncodeOptionValue): names and values, so reading checks that every
+// field is present and none is unknown. The model's options are stored in the flat
+// layout the file has always had (environment_model_options.h FlatModelOptionsValue), so files keep
+// their bytes across the grouping of those options into sections.
+void WriteEngineOptions(BinaryWriter& out, const CmlEngineOptions& o) {
+  OptionValue tree = OptionsToValue(o);
+  for (auto& [key, value] : tree.members) {
+    if (key == "model") value = FlatModelOptionsValue(value);
+  }
+  EncodeOptionValue(out, tree);
+}
 
 CmlEngineOptions ReadEngineOptions(BinaryReader& in) {
-  CmlEngineOptions o = DecodeOptions<CmlEngineOptions>(in, "options");
+  OptionValue tree = DecodeOptionValue(in, "options");
+  for (auto& [key, value] : tree.members) {
+    if (key == "model") value = GroupedModelOptionsValue(value);
+  }
+  CmlEngineOptions o;
+  OptionsFromValue(tree, OptionSource{"options", true, {}}, &o);
   o.reconstruction.motion = o.tracker.motion;
   return o;
 }

@@ -14,7 +14,7 @@
 #include "omnicml/common/common.h"
 #include "omnicml/engine/trajectory_reconstruction.h"
 #include "engine/internal/pose_factors.h"
-#include "engine/internal/pose_io.h"
+#include "omnicml/geometry/pose_io.h"
 
 namespace omnicml {
 namespace {

@@ -226,7 +226,7 @@ CompareExperimentResult RunCompareExperiment(const CompareExperimentOptions& opt
       result.mode = ToString(mode);
       CmlEngineOptions engine_options = base;
       // static: learn the first day actively, then freeze (see the file comment).
-      engine_options.model.forgetting =
+      engine_options.model.forgetting.mode =
           mode == ForgettingMode::kStatic ? ForgettingMode::kActive : mode;
       CmlEngine engine(engine_options);
       auto source = OpenFrameSource(f.input);

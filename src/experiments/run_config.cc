@@ -59,8 +59,8 @@ CmlEngineOptions ResolveEngineOptions(const OptionOverrides& overrides) {
     options.descriptor.kind = DescriptorKindFromString(*overrides.descriptor);
   }
   if (overrides.forgetting)
-    options.model.forgetting = ForgettingModeFromString(*overrides.forgetting);
-  if (overrides.e_max) options.model.e_max = *overrides.e_max;
+    options.model.forgetting.mode = ForgettingModeFromString(*overrides.forgetting);
+  if (overrides.e_max) options.model.retrieval.e_max = *overrides.e_max;
   if (overrides.update_delay_frames) options.update_delay_frames = *overrides.update_delay_frames;
   if (overrides.threads) options.threads = *overrides.threads;
   try {

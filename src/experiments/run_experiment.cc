@@ -102,7 +102,7 @@ RunExperimentResult RunExperiment(const RunExperimentOptions& o) {
   // Survey with static forgetting: the survey builds the map (active forgetting), which is
   // frozen after the last survey day ([G]'s static "old" map).
   SessionEndHook freeze;
-  if (f.survey.enabled() && engine->options().model.forgetting == ForgettingMode::kStatic &&
+  if (f.survey.enabled() && engine->options().model.forgetting.mode == ForgettingMode::kStatic &&
       engine->session_state().session + 1 < f.survey.days) {
     engine->SetForgettingMode(ForgettingMode::kActive);
     const int last_survey_session = f.survey.days - 1;
@@ -110,7 +110,7 @@ RunExperimentResult RunExperiment(const RunExperimentOptions& o) {
       if (session == last_survey_session) e.SetForgettingMode(ForgettingMode::kStatic);
     };
   }
-  if (engine->options().model.forgetting == ForgettingMode::kStatic &&
+  if (engine->options().model.forgetting.mode == ForgettingMode::kStatic &&
       engine->model().NumViews() == 0 && !f.quiet) {
     std::cerr << "omnicml run: warning: static forgetting on an empty map: the map will stay empty "
                  "(build it first, then resume with --map-in MAP --forgetting static)\n";

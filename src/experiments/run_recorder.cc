@@ -158,7 +158,7 @@ void RunRecorder::Commit(const CmlEngine& engine,
   std::vector<std::pair<std::string, std::string>> all_notes = notes;
   if (events_lost_ > 0) {
     all_notes.emplace_back("map events missing from events.csv",
-                           StrCat(events_lost_, " (more than model.max_events in one frame)"));
+                           StrCat(events_lost_, " (more than model.events.max_events in one frame)"));
   }
   std::vector<std::unique_ptr<AtomicFile>> files;
   if (!options_.run_dir.empty()) {

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <functional>
 #include <limits>
 #include <numeric>
 #include <utility>
@@ -260,11 +261,42 @@ std::int32_t ViewIndex::BuildNode(std::uint32_t begin, std::uint32_t end,
   return index;
 }
 
+void ViewIndex::VisitLeaves(const std::int16_t* q, std::int64_t limit,
+                            const std::function<void(std::size_t, std::size_t)>& scan) const {
+  // Depth-first over the tree; a node is skipped when the bound from its box on the
+  // tree's axes reaches the limit.
+  if (nodes_.empty()) return;
+  const std::size_t t = static_cast<std::size_t>(tree_dims_);
+  constexpr int kStack = 128;
+  std::int32_t stack[kStack];
+  int top = 0;
+  stack[top++] = 0;
+  while (top > 0) {
+    const std::size_t ni = static_cast<std::size_t>(stack[--top]);
+    const Node& node = nodes_[ni];
+    const std::int16_t* lo = box_lo_.data() + ni * t;
+    const std::int16_t* hi = box_hi_.data() + ni * t;
+    std::int64_t box = 0;
+    for (std::size_t k = 0; k < t; ++k) {
+      const int outside = std::max({int{lo[k]} - int{q[k]}, int{q[k]} - int{hi[k]}, 0});
+      const std::int64_t gap = std::max(0, outside - 1);
+      box += gap * gap;
+    }
+    if (box >= limit) continue;
+    if (node.left < 0) {
+      scan(node.begin, node.end);
+      continue;
+    }
+    OMNICML_CHECK(top + 2 <= kStack) << "kd-tree deeper than its stack";
+    stack[top++] = node.right;
+    stack[top++] = node.left;
+  }
+}
+
 std::size_t ViewIndex::Candidates(const float* query, double radius,
                                   std::vector<std::size_t>* rows_out) const {
   if (!built() || !(radius > 0)) return 0;
   const std::size_t pd = static_cast<std::size_t>(padded_dims_);
-  const std::size_t t = static_cast<std::size_t>(tree_dims_);
   std::vector<std::int16_t> qc(pd);
   if (!Encode(query, qc.data())) return 0;  // E is NaN or infinite for every vector
   // Prune iff s^2 sum gap^2 >= (radius + slack)^2, i.e. sum gap^2 >= limit (integers).
@@ -328,34 +360,7 @@ std::size_t ViewIndex::Candidates(const float* query, double radius,
       if (first < limit && alive_[slot]) finish(slot, first);
     }
   };
-  // Depth-first over the tree; a node is skipped when the bound from its box on the
-  // tree's axes reaches the limit.
-  if (!nodes_.empty()) {
-    constexpr int kStack = 128;
-    std::int32_t stack[kStack];
-    int top = 0;
-    stack[top++] = 0;
-    while (top > 0) {
-      const std::size_t ni = static_cast<std::size_t>(stack[--top]);
-      const Node& node = nodes_[ni];
-      const std::int16_t* lo = box_lo_.data() + ni * t;
-      const std::int16_t* hi = box_hi_.data() + ni * t;
-      std::int64_t box = 0;
-      for (std::size_t k = 0; k < t; ++k) {
-        const int outside = std::max({int{lo[k]} - int{q[k]}, int{q[k]} - int{hi[k]}, 0});
-        const std::int64_t gap = std::max(0, outside - 1);
-        box += gap * gap;
-      }
-      if (box >= limit) continue;
-      if (node.left < 0) {
-        scan(node.begin, node.end);
-        continue;
-      }
-      OMNICML_CHECK(top + 2 <= kStack) << "kd-tree deeper than its stack";
-      stack[top++] = node.right;
-      stack[top++] = node.left;
-    }
-  }
+  VisitLeaves(q, limit, scan);
   scan(tree_slots_, rows_.size());
   return bounded;
 }

@@ -610,17 +610,17 @@ nlohmann::ordered_json MapToJson(const CmlEngine& engine, const MapExportOptions
                 {"next_view_id", model.next_view_id()},
                 {"next_component_id", model.next_component_id()},
                 {"options",
-                 {{"e_max", mo.e_max},
-                  {"top_k", mo.top_k},
-                  {"beta", mo.beta},
-                  {"d_max", mo.d_max},
-                  {"d_for_m", mo.d_for_m},
-                  {"beta_for", mo.beta_for},
-                  {"d_gain_m", mo.d_gain_m},
-                  {"w_min", mo.w_min},
-                  {"merge_delta", mo.merge_delta},
-                  {"forgetting", ToString(mo.forgetting)},
-                  {"spatial_cell_m", mo.spatial_cell_m}}}};
+                 {{"e_max", mo.retrieval.e_max},
+                  {"top_k", mo.retrieval.top_k},
+                  {"beta", mo.update.beta},
+                  {"d_max", mo.update.d_max},
+                  {"d_for_m", mo.forgetting.d_for_m},
+                  {"beta_for", mo.forgetting.beta_for},
+                  {"d_gain_m", mo.forgetting.d_gain_m},
+                  {"w_min", mo.update.w_min},
+                  {"merge_delta", mo.update.merge_delta},
+                  {"forgetting", ToString(mo.forgetting.mode)},
+                  {"spatial_cell_m", mo.index.spatial_cell_m}}}};
   j["descriptor"] = {{"kind", ToString(model.extractor().kind())},
                      {"feature_size", model.extractor().FeatureSize()}};
   json views = json::array();
@@ -865,8 +865,8 @@ std::string InspectText(const CmlEngine& engine, const MapHealthOptions& options
      << StrCat(std::fixed, std::setprecision(1), model.MemoryBytes() / 1024.0) << " KiB\n";
   os << "descriptor: " << ToString(model.extractor().kind()) << " ("
      << model.extractor().FeatureSize()
-     << " features); forgetting: " << ToString(model.options().forgetting) << "; e_max "
-     << model.options().e_max << "\n";
+     << " features); forgetting: " << ToString(model.options().forgetting.mode) << "; e_max "
+     << model.options().retrieval.e_max << "\n";
   const EngineCounters& k = engine.counters();
   os << "engine: " << engine.next_frame() << " frames over " << latest + 1 << " sessions; unimodal "
      << k.unimodal_frames << ", multimodal " << k.multimodal_frames << ", unknown "
@@ -893,7 +893,7 @@ std::string InspectText(const CmlEngine& engine, const MapHealthOptions& options
   os << "health by area (" << options.cell_m << " m cells; latest session "
      << DescribeSession(latest) << "): " << health.ok << " ok, " << health.changed << " changed, "
      << health.fresh << " new, " << health.stale << " stale\n";
-  // Health reads the latest session's events from the ring (model.max_events).
+  // Health reads the latest session's events from the ring (model.events.max_events).
   if (const auto it = model.event_counts().find(latest); it != model.event_counts().end()) {
     const MapEventCounts& n = it->second;
     const std::int64_t logged = n.views_inserted + n.views_removed + n.components_added +
@@ -901,7 +901,7 @@ std::string InspectText(const CmlEngine& engine, const MapHealthOptions& options
     std::int64_t held = 0;
     for (const MapEvent& e : model.events()) held += e.session == latest ? 1 : 0;
     if (held < logged) {
-      os << "note: the map's event ring (model.max_events " << model.options().max_events
+      os << "note: the map's event ring (model.events.max_events " << model.options().events.max_events
          << ") holds " << held << " of the " << logged << " events of session "
          << DescribeSession(latest) << "; the health counts only those\n";
     }

@@ -122,7 +122,7 @@ CmlEngineOptions TestOptions() {
   CmlEngineOptions o;
   o.update_delay_frames = 2;
   // Descriptor distances in this small room are smaller than in the simulator's worlds.
-  o.model.e_max = 0.1;
+  o.model.retrieval.e_max = 0.1;
   return o;
 }
 
@@ -165,7 +165,7 @@ TEST(CmlEngineOptions, ValidateNamesField) {
   const CmlEngineOptions defaults;
   EXPECT_NO_THROW(defaults.Validate());
   expect_named([](CmlEngineOptions& o) { o.update_delay_frames = 0; }, "update_delay_frames");
-  expect_named([](CmlEngineOptions& o) { o.model.e_max = -1.0; }, "model");
+  expect_named([](CmlEngineOptions& o) { o.model.retrieval.e_max = -1.0; }, "model");
   expect_named([](CmlEngineOptions& o) { o.panorama_width = 64; }, "panorama_width");
   expect_named([](CmlEngineOptions& o) { o.hypothesis_weight_scale = 0.0; }, "hypothesis_weight_scale");
   expect_named([](CmlEngineOptions& o) { o.appearance_sigma_m = -1.0; }, "appearance_sigma_m");

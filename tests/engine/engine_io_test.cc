@@ -78,7 +78,7 @@ TEST(EngineIo, RoundTripRestoresState) {
   const fs::path dir = ScratchDir("round_trip");
   CmlEngineOptions o = TestOptions();
   o.update_delay_frames = 4;
-  o.model.e_max = 0.45;
+  o.model.retrieval.e_max = 0.45;
   o.descriptor.fourier.coefficients = 12;
   CmlEngine engine(o);
   const std::vector<RouteFrame> route = MakeLaps(1, 0.3, 21, 0);
@@ -89,7 +89,7 @@ TEST(EngineIo, RoundTripRestoresState) {
   SaveEngine(engine, file.string());
   const std::unique_ptr<CmlEngine> loaded = LoadEngine(file.string());
   EXPECT_EQ(EncodeEngine(*loaded), EncodeEngine(engine));
-  EXPECT_EQ(loaded->options().model.e_max, 0.45);
+  EXPECT_EQ(loaded->options().model.retrieval.e_max, 0.45);
   EXPECT_EQ(loaded->options().descriptor.fourier.coefficients, 12);
   EXPECT_EQ(loaded->options().update_delay_frames, 4);
   EXPECT_EQ(loaded->counters(), engine.counters());

@@ -231,14 +231,14 @@ Gaussian At(double x) {
 TEST(MapHealth, ChangedWhereExpectedViewsStopMatching) {
   auto fx = testing::MakeFakeExtractor(2);
   EnvironmentModelOptions o;
-  o.e_max = 1.0;
-  o.top_k = 0;
-  o.d_for_m = 1.0;
-  o.forgetting = ForgettingMode::kActive;
+  o.retrieval.e_max = 1.0;
+  o.retrieval.top_k = 0;
+  o.forgetting.d_for_m = 1.0;
+  o.forgetting.mode = ForgettingMode::kActive;
   // Forgetting slow enough that the lamp-on view is still in the map after its two
   // missed passes of session 1 (the health rule, not the forgetting speed, is tested).
-  o.beta_for = 0.5;
-  o.forget_unconfirmed_views = false;
+  o.forgetting.beta_for = 0.5;
+  o.forgetting.forget_unconfirmed_views = false;
   EnvironmentModel m(o, fx);
   std::int64_t frame = 0;
   // A pass: 3 Updates at place P (x = 1, cell (0,0) of 2 m) with look `p`, then 3 at
@@ -286,9 +286,9 @@ TEST(MapHealth, ChangedWhereExpectedViewsStopMatching) {
 TEST(MapHealth, NeighbourEvidenceMarksACellBetweenChangedOnes) {
   auto fx = testing::MakeFakeExtractor(2);
   EnvironmentModelOptions o;
-  o.e_max = 1.0;
-  o.top_k = 0;
-  o.forgetting = ForgettingMode::kPassive;
+  o.retrieval.e_max = 1.0;
+  o.retrieval.top_k = 0;
+  o.forgetting.mode = ForgettingMode::kPassive;
   EnvironmentModel m(o, fx);
   std::int64_t frame = 0;
   auto pass = [&](const std::array<std::array<float, 2>, 3>& looks, int session) {

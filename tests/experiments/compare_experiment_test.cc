@@ -157,7 +157,7 @@ TEST_F(CompareExperimentTest, ResumingWithStaticForgettingFreezesTheSavedMap) {
   const std::size_t saved_views = LoadEngine(first.map_out)->model().NumViews();
   EXPECT_GT(saved_views, 0u);
   EXPECT_EQ(r2.views, saved_views);
-  EXPECT_NE(ReadTextFile(dir_ / "day2" / "config.yaml").find("forgetting: static"),
+  EXPECT_NE(ReadTextFile(dir_ / "day2" / "config.yaml").find("mode: static"),
             std::string::npos);
   // Change detection (change_detection.h): not scored on the map's first day; the resumed
   // run scores simulated day 2 (its first_day + 1) against the day-2 events, in the

@@ -105,15 +105,15 @@ TEST_F(EngineModeTest, SetForgettingModeMidRunEqualsTheDecodedEngineWithThatMode
   // Freezing after day 1 in place gives the state and day 2 of the spliced-and-decoded
   // engine (the old RebuildEngineWithOptions path), bit for bit.
   CmlEngineOptions options;
-  options.model.forgetting = ForgettingMode::kActive;
+  options.model.forgetting.mode = ForgettingMode::kActive;
   CmlEngine in_place(options);
   RunDay(in_place, 0);
   CmlEngineOptions frozen = in_place.options();
-  frozen.model.forgetting = ForgettingMode::kStatic;
+  frozen.model.forgetting.mode = ForgettingMode::kStatic;
   std::unique_ptr<CmlEngine> decoded = DecodeWithOptions(in_place, frozen);
   in_place.SetForgettingMode(ForgettingMode::kStatic);
-  EXPECT_EQ(in_place.options().model.forgetting, ForgettingMode::kStatic);
-  EXPECT_EQ(in_place.model().options().forgetting, ForgettingMode::kStatic);
+  EXPECT_EQ(in_place.options().model.forgetting.mode, ForgettingMode::kStatic);
+  EXPECT_EQ(in_place.model().options().forgetting.mode, ForgettingMode::kStatic);
   EXPECT_EQ(EncodeEngine(in_place), EncodeEngine(*decoded));
   ExpectSameSequence(RunDay(in_place, 1), RunDay(*decoded, 1));
   in_place.Finish();
@@ -124,9 +124,9 @@ TEST_F(EngineModeTest, SetForgettingModeMidRunEqualsTheDecodedEngineWithThatMode
 TEST_F(EngineModeTest, SetForgettingModeBeforeTheFirstFrameEqualsConstructingWithIt) {
   // An engine switched to passive before any frame is the engine constructed passive.
   CmlEngineOptions active;
-  active.model.forgetting = ForgettingMode::kActive;
+  active.model.forgetting.mode = ForgettingMode::kActive;
   CmlEngineOptions passive = active;
-  passive.model.forgetting = ForgettingMode::kPassive;
+  passive.model.forgetting.mode = ForgettingMode::kPassive;
   CmlEngine switched(active);
   switched.SetForgettingMode(ForgettingMode::kPassive);
   CmlEngine constructed(passive);

@@ -1,4 +1,4 @@
-// The bounded map event log (issue 20): the model keeps a ring of model.max_events
+// The bounded map event log: the model keeps a ring of model.events.max_events
 // events, while the run directory's events.csv (run_recorder.h) still gets every event
 // and days.csv / inspect use the model's exact per-session counts.
 #include <unistd.h>
@@ -41,8 +41,8 @@ RecordedRun RunWithRing(int max_events, const fs::path& dir) {
   sim.output = ImageKind::kPanorama;
   SimulatedFrameSource source(sim);
   CmlEngineOptions options;
-  options.model.log_component_events = true;
-  options.model.max_events = max_events;
+  options.model.events.log_component_events = true;
+  options.model.events.max_events = max_events;
   RecordedRun run{std::make_unique<CmlEngine>(options), dir};
   RunRecorderOptions ro;
   ro.run_dir = dir;

@@ -41,9 +41,9 @@ tracker:
   gamma: 9.5
   motion: {a3: 0.2}
 model:
-  e_max: 0.75
-  forgetting: passive
-  top_k: 4
+  retrieval: {e_max: 0.75, top_k: 4}
+  forgetting:
+    mode: passive
 reconstruction: {max_iterations: 17}
 )";
   const CmlEngineOptions o = ParseEngineOptionsYaml(yaml, "test.yaml");
@@ -58,9 +58,9 @@ reconstruction: {max_iterations: 17}
   EXPECT_EQ(o.tracker.gamma, 9.5);
   EXPECT_EQ(o.tracker.motion.a3, 0.2);
   EXPECT_EQ(o.tracker.motion.a1, MotionNoise{}.a1);  // untouched keys keep defaults
-  EXPECT_EQ(o.model.e_max, 0.75);
-  EXPECT_EQ(o.model.forgetting, ForgettingMode::kPassive);
-  EXPECT_EQ(o.model.top_k, 4);
+  EXPECT_EQ(o.model.retrieval.e_max, 0.75);
+  EXPECT_EQ(o.model.forgetting.mode, ForgettingMode::kPassive);
+  EXPECT_EQ(o.model.retrieval.top_k, 4);
   EXPECT_EQ(o.reconstruction.max_iterations, 17);
 }
 
@@ -73,10 +73,10 @@ TEST(RunConfig, DumpRoundTripsExactly) {
     o.tracker.gamma = 5 + 10 * u(rng);
     o.tracker.w_min = 1e-4 + 1e-3 * u(rng);
     o.tracker.motion.a2 = u(rng) / 3;
-    o.model.e_max = 0.1 + u(rng);
-    o.model.beta = 0.01 + 0.5 * u(rng);
-    o.model.d_gain_m = u(rng);
-    o.model.forgetting = static_cast<ForgettingMode>(trial % 3);
+    o.model.retrieval.e_max = 0.1 + u(rng);
+    o.model.update.beta = 0.01 + 0.5 * u(rng);
+    o.model.forgetting.d_gain_m = u(rng);
+    o.model.forgetting.mode = static_cast<ForgettingMode>(trial % 3);
     o.update_delay_frames = 1 + trial % 5;
     o.initial_pose = Pose2(u(rng) * 10, -u(rng) * 10, u(rng) - 0.5);
     o.initial_covariance =
@@ -90,7 +90,7 @@ TEST(RunConfig, DumpRoundTripsExactly) {
     EXPECT_EQ(EngineOptionsToYaml(back), yaml);
     EXPECT_TRUE(SameEngineOptions(o, back));
     EXPECT_EQ(back.tracker.gamma, o.tracker.gamma);
-    EXPECT_EQ(back.model.e_max, o.model.e_max);
+    EXPECT_EQ(back.model.retrieval.e_max, o.model.retrieval.e_max);
     EXPECT_EQ(back.initial_pose, o.initial_pose);
     EXPECT_EQ(back.initial_covariance, o.initial_covariance);
     EXPECT_EQ(back.descriptor.ifh.scales, o.descriptor.ifh.scales);
@@ -140,6 +140,7 @@ TEST(RunConfig, OverridesApplyOnTopOfTheFile) {
       ("omnicml_run_config_test_" + std::to_string(::getpid()) + ".yaml");
   {
     std::ofstream os(path);
+    // The former flat model keys (still read, with a deprecation warning).
     os << "update_delay_frames: 5\nmodel: {e_max: 0.5, beta: 0.2}\n";
   }
   OptionOverrides ov;
@@ -149,9 +150,9 @@ TEST(RunConfig, OverridesApplyOnTopOfTheFile) {
   ov.threads = 2;
   const CmlEngineOptions o = ResolveEngineOptions(ov);
   EXPECT_EQ(o.update_delay_frames, 5);
-  EXPECT_EQ(o.model.beta, 0.2);
-  EXPECT_EQ(o.model.e_max, 0.9);
-  EXPECT_EQ(o.model.forgetting, ForgettingMode::kStatic);
+  EXPECT_EQ(o.model.update.beta, 0.2);
+  EXPECT_EQ(o.model.retrieval.e_max, 0.9);
+  EXPECT_EQ(o.model.forgetting.mode, ForgettingMode::kStatic);
   EXPECT_EQ(o.threads, 2);
   ov.forgetting = "often";
   EXPECT_THROW(ResolveEngineOptions(ov), Error);

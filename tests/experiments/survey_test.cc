@@ -67,8 +67,8 @@ std::vector<Frame> RunSurvey(CmlEngine& engine, const SimulatorOptions& so, cons
 // component is the full pose (heading included) of the frame that created it.
 TEST(Survey, ViewsAreBuiltAtTheTrustedPoses) {
   CmlEngineOptions o;
-  o.model.merge_delta = 1e-12;  // no merge: a component is one update's pose
-  o.model.forgetting = ForgettingMode::kPassive;
+  o.model.update.merge_delta = 1e-12;  // no merge: a component is one update's pose
+  o.model.forgetting.mode = ForgettingMode::kPassive;
   CmlEngine engine(o);
   SurveyOptions survey;
   survey.days = 1;

@@ -1,5 +1,5 @@
 // The approximate candidate index (ann_index.h) and the model's approximate search
-// (options ann_*, issue 19): removed vectors are never returned, slots are reused, copies
+// (options ann_*): removed vectors are never returned, slots are reused, copies
 // and repeated builds answer alike, and on maps above ann_min_views the model's matches
 // equal the exhaustive scan's for at least 99 % of the queries (several seeds), through
 // updates, removals, save and load.
@@ -109,7 +109,7 @@ std::vector<std::pair<std::uint64_t, double>> AllTrue(const EnvironmentModel& m,
   std::vector<std::pair<double, std::uint64_t>> s;
   for (const ReferenceView& v : m.views()) {
     const double e = m.extractor().Distance(y.features.data(), v.descriptor.features.data(), kD);
-    if (e < m.options().e_max) s.emplace_back(e, v.id);
+    if (e < m.options().retrieval.e_max) s.emplace_back(e, v.id);
   }
   std::sort(s.begin(), s.end());
   std::vector<std::pair<std::uint64_t, double>> k;
@@ -168,10 +168,10 @@ TEST(AnnIndex, RemovedNeverReturnedSlotsReusedCopiesEqual) {
 
 EnvironmentModelOptions AnnOptions(int min_views) {
   EnvironmentModelOptions o;
-  o.e_max = 0.45;
-  o.top_k = 8;
-  o.index_min_views = 0;
-  o.ann_min_views = min_views;
+  o.retrieval.e_max = 0.45;
+  o.retrieval.top_k = 8;
+  o.index.index_min_views = 0;
+  o.index.ann_min_views = min_views;
   return o;
 }
 
@@ -256,10 +256,10 @@ TEST(EnvironmentModelAnn, DeterministicCopiesAndReloadWithoutRemovals) {
 // rebuilds the graph without the removal history).
 TEST(EnvironmentModelAnn, UpdatesRemovalsAndReload) {
   EnvironmentModelOptions o = AnnOptions(300);
-  o.forget_min_missed_passes = 0;
-  o.beta_for = 0.6;
-  o.d_for_m = 1.5;
-  o.pass_gap_frames = 0;
+  o.forgetting.forget_min_missed_passes = 0;
+  o.forgetting.beta_for = 0.6;
+  o.forgetting.d_for_m = 1.5;
+  o.forgetting.pass_gap_frames = 0;
   auto run = [&](std::size_t* removed, int* same, int* queries) {
     Map m = BuildMap(o, 11, 1200, 0);
     RouteSource src(12);
@@ -316,11 +316,11 @@ TEST(EnvironmentModelAnn, UpdatesRemovalsAndReload) {
 // rule (18) weaken a local view that matches.
 TEST(EnvironmentModelAnn, UpdateNearTheRobotIsExact) {
   EnvironmentModelOptions with_graph = AnnOptions(300);
-  with_graph.forget_min_missed_passes = 0;  // (18) acts on the first miss
-  with_graph.ann_ef = 1;
-  with_graph.ann_k = 1;
+  with_graph.forgetting.forget_min_missed_passes = 0;  // (18) acts on the first miss
+  with_graph.index.ann_ef = 1;
+  with_graph.index.ann_k = 1;
   EnvironmentModelOptions scan = with_graph;
-  scan.ann_min_views = 0;
+  scan.index.ann_min_views = 0;
   const Map g = BuildMap(with_graph, 31, 600, 0);
   const Map e = BuildMap(scan, 31, 600, 0);
   ASSERT_TRUE(g.model->AnnActive());
@@ -340,7 +340,7 @@ TEST(EnvironmentModelAnn, UpdateNearTheRobotIsExact) {
     for (const ReferenceView& v : b.views()) {
       for (const ViewComponent& c : v.components) {
         // Strictly inside d_for (QueryRadius's boundary), with a margin for rounding.
-        if ((c.mean.head<2>() - at.mean.head<2>()).norm() > scan.d_for_m - 1e-6) continue;
+        if ((c.mean.head<2>() - at.mean.head<2>()).norm() > scan.forgetting.d_for_m - 1e-6) continue;
         const auto other = a.FindView(v.id);
         ASSERT_TRUE(other.has_value()) << "view " << v.id << " removed only with the graph";
         for (const ViewComponent& d : a.views()[*other].components) {
@@ -370,7 +370,7 @@ TEST(EnvironmentModelAnn, Options) {
   m.CheckInvariants();
 
   EnvironmentModelOptions off = o;
-  off.ann_min_views = 0;
+  off.index.ann_min_views = 0;
   EnvironmentModel never(off, Fourier());
   for (int i = 0; i < 60; ++i)
     never.AddView(MakeFourier(src.Next(), src.rng()), {Component(i, 0)}, {});
@@ -378,11 +378,11 @@ TEST(EnvironmentModelAnn, Options) {
 
   for (const auto& [name, set] :
        std::vector<std::pair<std::string, void (*)(EnvironmentModelOptions&)>>{
-           {"ann_min_views", [](EnvironmentModelOptions& x) { x.ann_min_views = -1; }},
-           {"ann_m", [](EnvironmentModelOptions& x) { x.ann_m = 1; }},
-           {"ann_ef_construction", [](EnvironmentModelOptions& x) { x.ann_ef_construction = 0; }},
-           {"ann_ef", [](EnvironmentModelOptions& x) { x.ann_ef = 0; }},
-           {"ann_k", [](EnvironmentModelOptions& x) { x.ann_k = 0; }}}) {
+           {"ann_min_views", [](EnvironmentModelOptions& x) { x.index.ann_min_views = -1; }},
+           {"ann_m", [](EnvironmentModelOptions& x) { x.index.ann_m = 1; }},
+           {"ann_ef_construction", [](EnvironmentModelOptions& x) { x.index.ann_ef_construction = 0; }},
+           {"ann_ef", [](EnvironmentModelOptions& x) { x.index.ann_ef = 0; }},
+           {"ann_k", [](EnvironmentModelOptions& x) { x.index.ann_k = 0; }}}) {
     EnvironmentModelOptions bad = o;
     set(bad);
     try {

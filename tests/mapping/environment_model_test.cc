@@ -15,6 +15,7 @@
 
 #include <opencv2/imgproc.hpp>
 
+#include "omnicml/common/options.h"
 #include "omnicml/descriptors/descriptor_factory.h"
 
 namespace omnicml {
@@ -71,15 +72,66 @@ double TestSquaredMahalanobis(const Pose2& a, const Pose2& b, const Eigen::Matri
 // defaults are the engine's, docs/design.md "Defaults and their measurements").
 EnvironmentModelOptions TestOptions() {
   EnvironmentModelOptions o;
-  o.e_max = 1.0;
-  o.top_k = 0;
-  o.beta = 0.1;
-  o.d_max = 3.0;
-  o.d_for_m = 2.0;
-  o.beta_for = 0.1;
-  o.d_gain_m = 0.2;
-  o.look_back_frames = 0;  // LookBack* tests switch it on
+  o.retrieval.e_max = 1.0;
+  o.retrieval.top_k = 0;
+  o.update.beta = 0.1;
+  o.update.d_max = 3.0;
+  o.forgetting.d_for_m = 2.0;
+  o.forgetting.beta_for = 0.1;
+  o.forgetting.d_gain_m = 0.2;
+  o.update.look_back_frames = 0;  // LookBack* tests switch it on
   return o;
+}
+
+// The sectioned YAML layout round-trips every field exactly.
+TEST(EnvironmentModelOptions, SectionsRoundTripThroughYaml) {
+  std::mt19937 rng(11);
+  EnvironmentModelOptions o;
+  RandomizeOptions(&o, rng);
+  const std::string yaml = OptionsToYaml(o);
+  EXPECT_NE(yaml.find("retrieval:"), std::string::npos) << yaml;
+  EXPECT_NE(yaml.find("forgetting:"), std::string::npos) << yaml;
+  EnvironmentModelOptions back;
+  OptionsFromValue(ParseOptionYaml(yaml, "t.yaml"), OptionSource{"t.yaml", true, {}}, &back);
+  EXPECT_TRUE(SameOptions(o, back));
+}
+
+// The former flat keys still load into their sections ("forgetting" holding a mode name
+// is the former mode key); a section wins over a flat key given as well.
+TEST(EnvironmentModelOptions, FlatKeysStillLoad) {
+  const EnvironmentModelOptions o = ParseOptionsYaml<EnvironmentModelOptions>(
+      "e_max: 0.3\nforgetting: passive\nmax_events: 7\nann_k: 5\nlook_back_frames: 3\n", "flat.yaml");
+  EXPECT_EQ(o.retrieval.e_max, 0.3);
+  EXPECT_EQ(o.forgetting.mode, ForgettingMode::kPassive);
+  EXPECT_EQ(o.events.max_events, 7);
+  EXPECT_EQ(o.index.ann_k, 5);
+  EXPECT_EQ(o.update.look_back_frames, 3);
+  const EnvironmentModelOptions both = ParseOptionsYaml<EnvironmentModelOptions>(
+      "top_k: 3\nretrieval: {top_k: 4}\nforgetting: {mode: static}\n", "both.yaml");
+  EXPECT_EQ(both.retrieval.top_k, 4);
+  EXPECT_EQ(both.forgetting.mode, ForgettingMode::kStatic);
+  EXPECT_THROW(ParseOptionsYaml<EnvironmentModelOptions>("e_maxx: 1\n", "bad.yaml"), Error);
+}
+
+// The engine file's flat layout holds every field under its former key, in the former
+// order, and groups back to the same options.
+TEST(EnvironmentModelOptions, FlatTreeGroupsBackToTheSameOptions) {
+  std::mt19937 rng(5);
+  EnvironmentModelOptions o;
+  RandomizeOptions(&o, rng);
+  const OptionValue flat = FlatModelOptionsValue(OptionsToValue(o));
+  std::vector<std::string> keys;
+  for (const auto& [k, v] : flat.members) {
+    EXPECT_EQ(v.kind, OptionValue::Kind::kScalar) << k;
+    keys.push_back(k);
+  }
+  ASSERT_EQ(keys.size(), 30u);
+  EXPECT_EQ(keys.front(), "e_max");
+  EXPECT_EQ(keys[11], "forgetting");
+  EXPECT_EQ(keys.back(), "ann_k");
+  EnvironmentModelOptions back;
+  OptionsFromValue(GroupedModelOptionsValue(flat), OptionSource{"flat", true, {}}, &back);
+  EXPECT_TRUE(SameOptions(o, back));
 }
 
 // Each invalid option is rejected with an Error naming its field.
@@ -94,43 +146,43 @@ TEST(EnvironmentModelOptions, ValidateNamesTheField) {
     }
   };
   EnvironmentModelOptions o;
-  o.e_max = 0;
+  o.retrieval.e_max = 0;
   expect_field(o, "e_max");
   o = {};
-  o.top_k = -1;
+  o.retrieval.top_k = -1;
   expect_field(o, "top_k");
   o = {};
-  o.beta = 1.5;
+  o.update.beta = 1.5;
   expect_field(o, "beta");
   o = {};
-  o.d_max = -1;
+  o.update.d_max = -1;
   expect_field(o, "d_max");
   o = {};
-  o.d_for_m = 0;
+  o.forgetting.d_for_m = 0;
   expect_field(o, "d_for_m");
   o = {};
-  o.beta_for = -0.1;
+  o.forgetting.beta_for = -0.1;
   expect_field(o, "beta_for");
   o = {};
-  o.d_gain_m = std::nan("");
+  o.forgetting.d_gain_m = std::nan("");
   expect_field(o, "d_gain_m");
   o = {};
-  o.w_min = 1.0;
+  o.update.w_min = 1.0;
   expect_field(o, "w_min");
   o = {};
-  o.merge_delta = -1;
+  o.update.merge_delta = -1;
   expect_field(o, "merge_delta");
   o = {};
-  o.heading_sigma_no_rotation_rad = 0;
+  o.retrieval.heading_sigma_no_rotation_rad = 0;
   expect_field(o, "heading_sigma_no_rotation_rad");
   o = {};
-  o.spatial_cell_m = 0;
+  o.index.spatial_cell_m = 0;
   expect_field(o, "spatial_cell_m");
   o = {};
-  o.max_events = -1;
+  o.events.max_events = -1;
   expect_field(o, "max_events");
   o = {};
-  o.look_back_frames = -1;
+  o.update.look_back_frames = -1;
   expect_field(o, "look_back_frames");
   EXPECT_EQ(ForgettingModeFromString(ToString(ForgettingMode::kPassive)), ForgettingMode::kPassive);
   EXPECT_EQ(ForgettingModeFromString("static"), ForgettingMode::kStatic);
@@ -184,7 +236,7 @@ TEST(EnvironmentModel, FindMatchesNearComparesOnlyViewsInTheDiscs) {
 TEST(EnvironmentModel, InsertionExactlyWhenEveryDistanceAtLeastEmax) {
   auto fx = MakeFakeExtractor(2);
   EnvironmentModelOptions o = TestOptions();
-  o.e_max = 1.0;
+  o.retrieval.e_max = 1.0;
   EnvironmentModel m(o, fx);
   EXPECT_TRUE(m.Update(fx->Make({0, 0}), Est(0, 0, 0), {0, 0}).view_inserted);
   EXPECT_TRUE(m.Update(fx->Make({1, 0}), Est(1, 0, 0), {1, 0}).view_inserted);  // E = 1 = e_max
@@ -203,8 +255,8 @@ TEST(EnvironmentModel, InsertionExactlyWhenEveryDistanceAtLeastEmax) {
   std::uniform_real_distribution<float> u(0.0f, 4.0f);
   auto f4 = MakeFakeExtractor(4);
   EnvironmentModelOptions o4 = TestOptions();
-  o4.e_max = 1.0;
-  o4.forgetting = ForgettingMode::kPassive;
+  o4.retrieval.e_max = 1.0;
+  o4.forgetting.mode = ForgettingMode::kPassive;
   EnvironmentModel r(o4, f4);
   for (int t = 0; t < 300; ++t) {
     const Descriptor y = f4->Make({u(rng), u(rng), u(rng), u(rng)});
@@ -212,7 +264,7 @@ TEST(EnvironmentModel, InsertionExactlyWhenEveryDistanceAtLeastEmax) {
     for (const ReferenceView& v : r.views()) min_e = std::min(min_e, f4->Distance(y, v.descriptor));
     const std::size_t before = r.NumViews();
     const UpdateStats s = r.Update(y, Est(u(rng), u(rng), 0), {t, 0});
-    EXPECT_EQ(s.view_inserted, min_e >= o4.e_max) << "t=" << t;
+    EXPECT_EQ(s.view_inserted, min_e >= o4.retrieval.e_max) << "t=" << t;
     EXPECT_EQ(r.NumViews(),
               before + (s.view_inserted ? 1 : 0) - static_cast<std::size_t>(s.views_removed));
   }
@@ -223,14 +275,14 @@ TEST(EnvironmentModel, InsertionExactlyWhenEveryDistanceAtLeastEmax) {
 TEST(EnvironmentModel, EtaFollowsEq11) {
   auto fx = MakeFakeExtractor(2);
   EnvironmentModelOptions o = TestOptions();
-  o.e_max = 2.0;
+  o.retrieval.e_max = 2.0;
   EnvironmentModel m(o, fx);
   m.Update(fx->Make({0, 0}), Est(0, 0, 0), {0, 0});
   m.Update(fx->Make({3, 0}), Est(5, 0, 0), {1, 0});
   ASSERT_EQ(m.NumViews(), 2u);
   const Descriptor y = fx->Make({1.2f, 0});
-  const double s_a = 1.0 - fx->Distance(y, m.views()[0].descriptor) / o.e_max;
-  const double s_b = 1.0 - fx->Distance(y, m.views()[1].descriptor) / o.e_max;
+  const double s_a = 1.0 - fx->Distance(y, m.views()[0].descriptor) / o.retrieval.e_max;
+  const double s_b = 1.0 - fx->Distance(y, m.views()[1].descriptor) / o.retrieval.e_max;
   ASSERT_GT(s_a, 0);
   ASSERT_GT(s_b, 0);
   const UpdateStats st = m.Update(y, Est(20, 20, 0), {2, 0});
@@ -240,8 +292,8 @@ TEST(EnvironmentModel, EtaFollowsEq11) {
   const ViewComponent& b = Newest(m.views()[1]);
   EXPECT_NEAR(a.eta, s_a / (s_a + s_b), kTol);
   EXPECT_NEAR(b.eta, s_b / (s_a + s_b), kTol);
-  EXPECT_NEAR(a.weight, o.beta * s_a, kTol);
-  EXPECT_NEAR(b.weight, o.beta * s_b, kTol);
+  EXPECT_NEAR(a.weight, o.update.beta * s_a, kTol);
+  EXPECT_NEAR(b.weight, o.update.beta * s_b, kTol);
   EXPECT_EQ(m.views()[0].stats.observations, 2);
   EXPECT_EQ(m.views()[0].stats.last_seen_frame, 2);
 }
@@ -250,13 +302,13 @@ TEST(EnvironmentModel, EtaFollowsEq11) {
 TEST(EnvironmentModel, WeightIncreaseEq16) {
   auto fx = MakeFakeExtractor(2);
   EnvironmentModelOptions o = TestOptions();
-  o.merge_delta = 0.0;  // keep components apart so each rule acts on its own component
+  o.update.merge_delta = 0.0;  // keep components apart so each rule acts on its own component
   EnvironmentModel m(o, fx);
   m.Update(fx->Make({0, 0}), Est(0, 0, 0), {0, 0});
   const double w0 = m.views()[0].components[0].weight;
-  EXPECT_NEAR(w0, o.beta, kTol);
+  EXPECT_NEAR(w0, o.update.beta, kTol);
   const Descriptor y = fx->Make({0.3f, 0});
-  const double bs = o.beta * (1.0 - fx->Distance(y, m.views()[0].descriptor) / o.e_max);
+  const double bs = o.update.beta * (1.0 - fx->Distance(y, m.views()[0].descriptor) / o.retrieval.e_max);
   const UpdateStats st = m.Update(y, Est(0.1, 0, 0), {1, 0});
   ASSERT_EQ(m.views()[0].components.size(), 2u);
   EXPECT_NEAR(m.views()[0].components[0].weight, bs + (1 - bs) * w0, kTol);
@@ -270,17 +322,17 @@ TEST(EnvironmentModel, WeightIncreaseEq16) {
 TEST(EnvironmentModel, PassiveForgettingEq17) {
   auto fx = MakeFakeExtractor(2);
   EnvironmentModelOptions o = TestOptions();
-  o.merge_delta = 0.0;
+  o.update.merge_delta = 0.0;
   EnvironmentModel m(o, fx);
   m.Update(fx->Make({0, 0}), Est(0, 0, 0), {0, 0});
   const double w0 = m.views()[0].components[0].weight;
   const Descriptor y = fx->Make({0.3f, 0});
-  const double bs = o.beta * (1.0 - fx->Distance(y, m.views()[0].descriptor) / o.e_max);
+  const double bs = o.update.beta * (1.0 - fx->Distance(y, m.views()[0].descriptor) / o.retrieval.e_max);
   // d = |(0.5, 0)| / sqrt(0.02) = 3.54 > d_max = 3.
   const Pose2 a = m.views()[0].components[0].mean;
   const double d =
       std::sqrt(TestSquaredMahalanobis(MakePose(0.5, 0, 0), a, Est(0, 0, 0).covariance * 2));
-  ASSERT_GT(d, o.d_max);
+  ASSERT_GT(d, o.update.d_max);
   const UpdateStats st = m.Update(y, Est(0.5, 0, 0), {1, 0});
   EXPECT_NEAR(m.views()[0].components[0].weight, (1 - bs) * w0, kTol);
   EXPECT_EQ(st.components_passive_forgotten, 1);
@@ -296,10 +348,10 @@ TEST(EnvironmentModel, PassiveForgettingEq17) {
 TEST(EnvironmentModel, ActiveForgettingEq18And19) {
   auto fx = MakeFakeExtractor(2);
   EnvironmentModelOptions o = TestOptions();
-  o.d_for_m = 2.0;
-  o.beta_for = 0.5;
-  o.d_gain_m = 0.2;
-  o.forget_min_missed_passes = 0;  // the first miss counts (passes: see below)
+  o.forgetting.d_for_m = 2.0;
+  o.forgetting.beta_for = 0.5;
+  o.forgetting.d_gain_m = 0.2;
+  o.forgetting.forget_min_missed_passes = 0;  // the first miss counts (passes: see below)
   EnvironmentModel m(o, fx);
   m.Update(fx->Make({0, 0}), Est(0, 0, 0), {0, 0});  // view A at (0, 0)
   m.Update(fx->Make({0, 5}), Est(3, 0, 0), {1, 0});  // view C at (3, 0), 2.8 m from mu_t below
@@ -352,8 +404,8 @@ TEST_P(MergeWeights, MergeKeepsEtaMeanAndCovariance) {
   const bool precision_weighted = GetParam();
   auto fx = MakeFakeExtractor(2);
   EnvironmentModelOptions o = TestOptions();
-  o.merge_delta = 1.0;
-  o.merge_precision_weighted = precision_weighted;
+  o.update.merge_delta = 1.0;
+  o.update.merge_precision_weighted = precision_weighted;
   EnvironmentModel m(o, fx);
   const Descriptor y = fx->Make({0, 0});
   m.Update(y, Est(0, 0, kPi - 0.05, 0.5, 0.5, 0.2), {0, 0});
@@ -364,7 +416,7 @@ TEST_P(MergeWeights, MergeKeepsEtaMeanAndCovariance) {
     const ViewComponent before = m.views()[0].components[0];
     const Gaussian& g = steps[k];
     ASSERT_LT(TestSquaredMahalanobis(g.mean, before.mean, g.covariance + before.covariance),
-              o.merge_delta);
+              o.update.merge_delta);
     const UpdateStats st = m.Update(y, g, {static_cast<std::int64_t>(k) + 1, 0});
     EXPECT_EQ(st.components_merged, 1);
     ASSERT_EQ(m.views()[0].components.size(), 1u);
@@ -392,7 +444,7 @@ TEST_P(MergeWeights, MergeKeepsEtaMeanAndCovariance) {
     EXPECT_GT(std::abs(after.mean.z()), 3.0);  // near pi, not averaged to 0
     EXPECT_TRUE(after.covariance.isApprox(cov, 1e-12)) << after.covariance << "\n" << cov;
     // w summed (w + 0) then (16) with S = 1 since mu_t is close to the merged mean.
-    EXPECT_NEAR(after.weight, o.beta + (1 - o.beta) * before.weight, kTol);
+    EXPECT_NEAR(after.weight, o.update.beta + (1 - o.update.beta) * before.weight, kTol);
   }
 }
 
@@ -411,8 +463,8 @@ TEST(EnvironmentModel, PreciseComponentIsNotDraggedByUncertainMatches) {
   double moved[2];
   for (const bool precision_weighted : {false, true}) {
     EnvironmentModelOptions o = TestOptions();
-    o.merge_delta = 9.0;  // every estimate below merges (squared Mahalanobis < 9)
-    o.merge_precision_weighted = precision_weighted;
+    o.update.merge_delta = 9.0;  // every estimate below merges (squared Mahalanobis < 9)
+    o.update.merge_precision_weighted = precision_weighted;
     EnvironmentModel m(o, fx);
     m.Update(y, Est(0, 0, 0, 0.02, 0.02, 0.01), {0, 0});  // the survey pose
     std::mt19937 rng(7);
@@ -435,15 +487,15 @@ TEST(EnvironmentModel, PreciseComponentIsNotDraggedByUncertainMatches) {
 TEST(EnvironmentModel, NewComponentExemptFromRemovalOnce) {
   auto fx = MakeFakeExtractor(2);
   EnvironmentModelOptions o = TestOptions();
-  o.w_min = 0.05;
-  o.beta = 0.1;
+  o.update.w_min = 0.05;
+  o.update.beta = 0.1;
   EnvironmentModel m(o, fx);
   m.Update(fx->Make({0, 0}), Est(0, 0, 0), {0, 0});
   const Descriptor weak = fx->Make({0.9f, 0});  // S ~ 0.1: beta S ~ 0.01 < w_min
   m.Update(weak, Est(10, 0, 0), {1, 0});
   ASSERT_EQ(m.views()[0].components.size(), 2u);
   const ViewComponent fresh = Newest(m.views()[0]);
-  EXPECT_LT(fresh.weight, o.w_min);
+  EXPECT_LT(fresh.weight, o.update.w_min);
   m.Update(weak, Est(10, 0, 0), {2, 0});  // merges into it, (16) leaves it below w_min
   for (const ViewComponent& c : m.views()[0].components) EXPECT_NE(c.id, fresh.id);
   ASSERT_FALSE(m.events().empty());
@@ -457,8 +509,8 @@ TEST(EnvironmentModel, NewComponentExemptFromRemovalOnce) {
 TEST(EnvironmentModel, HypothesisRotatesHeadingsAndWeighsBySimilarity) {
   auto fx = MakeFakeExtractor(2);
   EnvironmentModelOptions o = TestOptions();
-  o.e_max = 2.0;
-  o.merge_delta = 0.0;
+  o.retrieval.e_max = 2.0;
+  o.update.merge_delta = 0.0;
   EnvironmentModel m(o, fx);
   m.Update(fx->Make({0, 0}, 0.0), Est(1, 2, 3.0), {0, 0});   // view A, stored phi 3.0
   m.Update(fx->Make({3, 0}, 1.0), Est(-4, 0, 0.2), {1, 0});  // view B
@@ -504,7 +556,7 @@ TEST(EnvironmentModel, HypothesisRotatesHeadingsAndWeighsBySimilarity) {
 TEST(EnvironmentModel, HypothesisWithoutHeadingInflatesHeadingVariance) {
   auto fx = MakeFakeExtractor(2, /*provides_heading=*/false);
   EnvironmentModelOptions o = TestOptions();
-  o.heading_sigma_no_rotation_rad = 1.5;
+  o.retrieval.heading_sigma_no_rotation_rad = 1.5;
   EnvironmentModel m(o, fx);
   const Gaussian g = Est(1, 2, 2.5, 0.1, 0.2, 0.3);
   m.Update(fx->Make({0, 0}), g, {0, 0});
@@ -520,8 +572,8 @@ TEST(EnvironmentModel, HypothesisWithoutHeadingInflatesHeadingVariance) {
 TEST(EnvironmentModel, TopKAndDeterministicOrder) {
   auto fx = MakeFakeExtractor(2);
   EnvironmentModelOptions o = TestOptions();
-  o.e_max = 1.5;
-  o.top_k = 2;
+  o.retrieval.e_max = 1.5;
+  o.retrieval.top_k = 2;
   EnvironmentModel m(o, fx);
   m.Update(fx->Make({1, 0}), Est(0, 0, 0), {0, 0});
   m.Update(fx->Make({-1, 0}), Est(5, 0, 0), {1, 0});
@@ -547,7 +599,7 @@ TEST(EnvironmentModel, FindMatchesEqualsBruteForce) {
   std::uniform_real_distribution<float> u(0.0f, 3.0f);
   auto fx = MakeFakeExtractor(3);
   EnvironmentModelOptions o = TestOptions();
-  o.e_max = 0.8;
+  o.retrieval.e_max = 0.8;
   EnvironmentModel m(o, fx);
   for (int t = 0; t < 400; ++t)
     m.Update(fx->Make({u(rng), u(rng), u(rng)}), Est(u(rng), u(rng), 0), {t, 0});
@@ -556,7 +608,7 @@ TEST(EnvironmentModel, FindMatchesEqualsBruteForce) {
     std::vector<std::pair<double, std::uint64_t>> expected;
     for (const ReferenceView& v : m.views()) {
       const double e = fx->Distance(y, v.descriptor);
-      if (e < o.e_max) expected.emplace_back(e, v.id);
+      if (e < o.retrieval.e_max) expected.emplace_back(e, v.id);
     }
     std::sort(expected.begin(), expected.end());
     const auto got = m.FindAllMatches(y);
@@ -576,7 +628,7 @@ TEST(EnvironmentModel, ActiveForgetsChangedPlacePassiveKeepsIt) {
   std::normal_distribution<double> jitter(0.0, 0.05);
   for (const ForgettingMode mode : {ForgettingMode::kActive, ForgettingMode::kPassive}) {
     EnvironmentModelOptions o = TestOptions();
-    o.forgetting = mode;
+    o.forgetting.mode = mode;
     EnvironmentModel m(o, fx);
     const Descriptor before_change = fx->Make({0, 0});
     const Descriptor after_change = fx->Make({5, 0});  // E = 5 >= e_max: the place looks different
@@ -636,9 +688,9 @@ TEST(EnvironmentModel, ActiveForgetsChangedPlacePassiveKeepsIt) {
 // The forgetting gains of the engine's defaults (the EnvironmentModelOptions defaults).
 EnvironmentModelOptions EngineLikeOptions() {
   EnvironmentModelOptions o = TestOptions();
-  o.d_for_m = 0.5;
-  o.beta_for = 0.5;
-  o.d_gain_m = 1.0;
+  o.forgetting.d_for_m = 0.5;
+  o.forgetting.beta_for = 0.5;
+  o.forgetting.d_gain_m = 1.0;
   return o;
 }
 
@@ -654,7 +706,7 @@ TEST(EnvironmentModel, StaticWorldIsNotForgotten) {
   std::size_t views[2] = {0, 0};
   for (const ForgettingMode mode : {ForgettingMode::kActive, ForgettingMode::kPassive}) {
     EnvironmentModelOptions o = EngineLikeOptions();
-    o.forgetting = mode;
+    o.forgetting.mode = mode;
     EnvironmentModel m(o, fx);
     int frame = 0;
     for (int session = 0; session < 4; ++session) {
@@ -682,7 +734,7 @@ TEST(EnvironmentModel, StaticWorldIsNotForgotten) {
 TEST(EnvironmentModel, OneMissedPassDoesNotForget) {
   auto fx = MakeFakeExtractor(1);
   EnvironmentModelOptions o = TestOptions();
-  o.d_for_m = 1.0;
+  o.forgetting.d_for_m = 1.0;
   EnvironmentModel m(o, fx);
   for (int k = 0; k < 5; ++k) m.Update(fx->Make({0}), Est(0, 0, 0), {k, 0});
   for (int k = 0; k < 5; ++k) m.Update(fx->Make({0}), Est(0, 0, 0), {50 + k, 0});
@@ -715,8 +767,8 @@ TEST(EnvironmentModel, UnconfirmedViewIsWeakenedOnItsFirstMissedPass) {
   auto fx = MakeFakeExtractor(1);
   auto after_one_missed_pass = [&](bool option, int matched_passes, int missed_session) {
     EnvironmentModelOptions o = TestOptions();
-    o.d_for_m = 1.0;
-    o.forget_unconfirmed_views = option;
+    o.forgetting.d_for_m = 1.0;
+    o.forgetting.forget_unconfirmed_views = option;
     EnvironmentModel m(o, fx);
     const std::int64_t frame = SeeOriginOnPasses(m, *fx, matched_passes, 5, 0.1);
     const std::uint64_t id = m.views()[0].id;
@@ -754,8 +806,8 @@ TEST(EnvironmentModel, UnconfirmedViewIsWeakenedOnItsFirstMissedPass) {
 TEST(EnvironmentModel, UnconfirmedViewKeptDuringItsCreationPass) {
   auto fx = MakeFakeExtractor(1);
   EnvironmentModelOptions o = TestOptions();
-  o.d_for_m = 1.0;
-  o.forget_unconfirmed_views = true;
+  o.forgetting.d_for_m = 1.0;
+  o.forgetting.forget_unconfirmed_views = true;
   EnvironmentModel m(o, fx);
   for (int k = 0; k < 3; ++k) m.Update(fx->Make({0}), Est(0, 0, 0), {k, 0});
   const std::uint64_t id = m.views()[0].id;
@@ -773,9 +825,9 @@ TEST(EnvironmentModel, ForgettingSlowsWithMatchedPasses) {
   auto fx = MakeFakeExtractor(1);
   auto decrement = [&](int matched_passes, bool by_passes) {
     EnvironmentModelOptions o = TestOptions();
-    o.d_for_m = 1.0;
-    o.forget_by_matched_passes = by_passes;
-    o.forget_unconfirmed_views = false;  // the same free first missed pass for every view
+    o.forgetting.d_for_m = 1.0;
+    o.forgetting.forget_by_matched_passes = by_passes;
+    o.forgetting.forget_unconfirmed_views = false;  // the same free first missed pass for every view
     EnvironmentModel m(o, fx);
     std::int64_t frame = SeeOriginOnPasses(m, *fx, matched_passes, 3, 0.5);
     const std::uint64_t id = m.views()[0].id;
@@ -806,7 +858,7 @@ TEST(EnvironmentModel, ChangedWorldIsForgotten) {
   std::normal_distribution<double> jitter(0.0, 0.02);
   for (const ForgettingMode mode : {ForgettingMode::kActive, ForgettingMode::kPassive}) {
     EnvironmentModelOptions o = EngineLikeOptions();
-    o.forgetting = mode;
+    o.forgetting.mode = mode;
     EnvironmentModel m(o, fx);
     int frame = 0;
     auto lap = [&](float appearance, int session) {
@@ -865,7 +917,7 @@ TEST(EnvironmentModel, StaticModeNeverChangesTheMap) {
   }
   EXPECT_EQ(Bytes(m), frozen);
   EnvironmentModelOptions o = TestOptions();
-  o.forgetting = ForgettingMode::kStatic;
+  o.forgetting.mode = ForgettingMode::kStatic;
   EnvironmentModel empty(o, fx);
   empty.Update(fx->Make({1, 1}), Est(0, 0, 0), {0, 0});
   EXPECT_EQ(empty.NumViews(), 0u);
@@ -884,11 +936,11 @@ TEST(EnvironmentModel, ForgettingNeverRaisesWeight) {
   for (int k = 0; k < 12; ++k) centres.push_back({u(rng), u(rng), u(rng)});
   for (const ForgettingMode mode : {ForgettingMode::kActive, ForgettingMode::kPassive}) {
     EnvironmentModelOptions o = TestOptions();
-    o.forgetting = mode;
-    o.e_max = 0.6;
-    o.d_for_m = 1.5;
-    o.beta_for = 0.3;
-    o.forget_min_missed_passes = 0;
+    o.forgetting.mode = mode;
+    o.retrieval.e_max = 0.6;
+    o.forgetting.d_for_m = 1.5;
+    o.forgetting.beta_for = 0.3;
+    o.forgetting.forget_min_missed_passes = 0;
     EnvironmentModel m(o, fx);
     int decreases = 0;
     for (int t = 0; t < 600; ++t) {
@@ -931,9 +983,9 @@ TEST(EnvironmentModel, SerializeRoundTripAndCorruption) {
   std::uniform_real_distribution<float> u(0.0f, 3.0f);
   auto fx = MakeFakeExtractor(3);
   EnvironmentModelOptions o = TestOptions();
-  o.e_max = 0.7;
-  o.log_component_events = true;
-  o.look_back_frames = 10;  // the recent updates are saved too
+  o.retrieval.e_max = 0.7;
+  o.events.log_component_events = true;
+  o.update.look_back_frames = 10;  // the recent updates are saved too
   EnvironmentModel m(o, fx);
   for (int t = 0; t < 300; ++t) {
     m.Update(fx->Make({u(rng), u(rng), u(rng)}, u(rng)), Est(u(rng), u(rng), u(rng) - 1.5),
@@ -1013,7 +1065,7 @@ TEST(EnvironmentModel, RealFourierSignatureRecoversHeading) {
   const Descriptor y0 = fx->Compute(panorama);
   const Descriptor y1 = fx->Compute(rolled);
   EnvironmentModelOptions o = TestOptions();
-  o.e_max = 1.0;
+  o.retrieval.e_max = 1.0;
   EnvironmentModel m(o, fx);
   m.Update(y0, Est(1, 2, 0.7), {0, 0});
   const double turn = k * kTwoPi / panorama.cols;
@@ -1036,8 +1088,8 @@ TEST(EnvironmentModel, RealFourierSignatureRecoversHeading) {
 TEST(EnvironmentModel, EventLogIsABoundedRing) {
   auto fx = MakeFakeExtractor(1);
   EnvironmentModelOptions o = TestOptions();
-  o.log_component_events = true;
-  o.max_events = 50;
+  o.events.log_component_events = true;
+  o.events.max_events = 50;
   EnvironmentModel m(o, fx);
   std::size_t bytes_after_lap_10 = 0, views_after_lap_10 = 0;
   std::uint64_t logged_after_lap_10 = 0;
@@ -1080,7 +1132,7 @@ TEST(EnvironmentModel, EventLogIsABoundedRing) {
   EXPECT_EQ(Bytes(back), bytes);
   // Loaded with a smaller ring: the most recent events are kept.
   EnvironmentModelOptions smaller = o;
-  smaller.max_events = 10;
+  smaller.events.max_events = 10;
   BinaryReader r2(bytes);
   const EnvironmentModel cut = EnvironmentModel::Deserialize(r2, smaller, fx);
   ASSERT_EQ(cut.events().size(), 10u);
@@ -1106,8 +1158,8 @@ namespace {
 TEST(EnvironmentModel, LookBackGivesANewViewThePosesThatWouldHaveMatchedIt) {
   auto fx = MakeFakeExtractor(2);
   EnvironmentModelOptions o = TestOptions();
-  o.e_max = 1.0;
-  o.look_back_frames = 10;
+  o.retrieval.e_max = 1.0;
+  o.update.look_back_frames = 10;
   EnvironmentModel m(o, fx);
   m.Update(fx->Make({0, 0}), Est(0, 0, 0), {0, 0});        // view A
   m.Update(fx->Make({0.9f, 0}), Est(1, 0, 0), {1, 0});     // matches A; would match B
@@ -1127,9 +1179,9 @@ TEST(EnvironmentModel, LookBackGivesANewViewThePosesThatWouldHaveMatchedIt) {
   const ReferenceView& b = m.views()[1];
   ASSERT_EQ(b.components.size(), 2u);  // its own pose and frame 3's, not frames 2 or 1
   const ViewComponent& back = Newest(b);
-  const double s3 = 1.0 - fx->Distance(fx->Make({0.95f, 0}), b.descriptor) / o.e_max;
+  const double s3 = 1.0 - fx->Distance(fx->Make({0.95f, 0}), b.descriptor) / o.retrieval.e_max;
   EXPECT_NEAR(back.mean.x(), 3.0, kTol);
-  EXPECT_NEAR(back.weight, o.beta * s3, kTol);
+  EXPECT_NEAR(back.weight, o.update.beta * s3, kTol);
   EXPECT_NEAR(back.eta, s3, kTol);
   EXPECT_NEAR(back.covariance(0, 0), 0.04, kTol);
   EXPECT_NEAR(back.covariance(1, 1), 0.09, kTol);
@@ -1146,8 +1198,8 @@ TEST(EnvironmentModel, LookBackStaysInItsSessionAndWindow) {
   auto fx = MakeFakeExtractor(2);
   const auto components_of_new_view = [&](int look_back, UpdateContext second, UpdateContext third) {
     EnvironmentModelOptions o = TestOptions();
-    o.e_max = 1.0;
-    o.look_back_frames = look_back;
+    o.retrieval.e_max = 1.0;
+    o.update.look_back_frames = look_back;
     EnvironmentModel m(o, fx);
     m.Update(fx->Make({0, 0}), Est(0, 0, 0), {0, 0});
     m.Update(fx->Make({0.9f, 0}), Est(1, 0, 0), second);
@@ -1167,7 +1219,7 @@ TEST(EnvironmentModel, LookBackStaysInItsSessionAndWindow) {
 TEST(EnvironmentModel, MoveViewRigidlyFollowsTheAnchor) {
   auto fx = MakeFakeExtractor(2);
   EnvironmentModelOptions o = TestOptions();
-  o.forgetting = ForgettingMode::kPassive;
+  o.forgetting.mode = ForgettingMode::kPassive;
   EnvironmentModel m(o, fx);
   m.Update(fx->Make({0, 0}), Est(2, 1, 0.3, 0.1, 0.3, 0.05), {0, 0});
   m.Update(fx->Make({5, 5}), Est(-4, 3, 0.0), {1, 0});

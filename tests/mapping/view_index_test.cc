@@ -1,4 +1,4 @@
-// The candidate index (view_index.h) and the model's indexed search (issue 19): the
+// The candidate index (view_index.h) and the model's indexed search: the
 // candidates are a superset of the vectors within the radius, the indexed model behaves
 // exactly like the exhaustive one through inserts, removals, save and load, and distances
 // without an L2 lower bound fall back to the scan.
@@ -251,18 +251,18 @@ TEST(EnvironmentModelIndex, IdenticalToExhaustiveThroughUpdatesAndSaveLoad) {
   for (const FourierDistance distance : {FourierDistance::kL2, FourierDistance::kL1}) {
     auto fx = Fourier(distance);
     EnvironmentModelOptions o;
-    o.e_max = distance == FourierDistance::kL2 ? 0.35 : 0.9;
-    o.top_k = 4;
-    o.forgetting = ForgettingMode::kActive;
-    o.forget_min_missed_passes = 0;
-    o.beta_for = 0.6;
-    o.d_for_m = 1.5;
-    o.pass_gap_frames = 0;
-    o.index_dims = 5;
-    o.index_max_bounded_fraction = 1.0;  // keep the index whatever it saves
+    o.retrieval.e_max = distance == FourierDistance::kL2 ? 0.35 : 0.9;
+    o.retrieval.top_k = 4;
+    o.forgetting.mode = ForgettingMode::kActive;
+    o.forgetting.forget_min_missed_passes = 0;
+    o.forgetting.beta_for = 0.6;
+    o.forgetting.d_for_m = 1.5;
+    o.forgetting.pass_gap_frames = 0;
+    o.index.index_dims = 5;
+    o.index.index_max_bounded_fraction = 1.0;  // keep the index whatever it saves
     EnvironmentModelOptions plain = o;
-    plain.index_min_views = 0;
-    o.index_min_views = 30;
+    plain.index.index_min_views = 0;
+    o.index.index_min_views = 30;
     EnvironmentModel indexed(o, fx), exhaustive(plain, fx);
     ASSERT_TRUE(indexed.IndexSupported());
     VectorSource src(kBands * kCoefficients, distance == FourierDistance::kL2 ? 17 : 18);
@@ -330,10 +330,10 @@ TEST(EnvironmentModelIndex, IdenticalToExhaustiveThroughUpdatesAndSaveLoad) {
 TEST(EnvironmentModelIndex, Deterministic) {
   auto fx = Fourier(FourierDistance::kL2);
   EnvironmentModelOptions o;
-  o.e_max = 0.35;
-  o.index_min_views = 50;
-  o.index_dims = 4;
-  o.index_max_bounded_fraction = 1.0;
+  o.retrieval.e_max = 0.35;
+  o.index.index_min_views = 50;
+  o.index.index_dims = 4;
+  o.index.index_max_bounded_fraction = 1.0;
   auto build = [&] {
     auto m = std::make_unique<EnvironmentModel>(o, fx);
     VectorSource src(kBands * kCoefficients, 4);
@@ -353,8 +353,8 @@ TEST(EnvironmentModelIndex, Deterministic) {
   for (int t = 0; t < 50; ++t) {
     const std::vector<float> q = src.Next();
     std::vector<std::size_t> ca, cb;
-    a->view_index().Candidates(q.data(), o.e_max, &ca);
-    b->view_index().Candidates(q.data(), o.e_max, &cb);
+    a->view_index().Candidates(q.data(), o.retrieval.e_max, &ca);
+    b->view_index().Candidates(q.data(), o.retrieval.e_max, &cb);
     EXPECT_EQ(ca, cb);
   }
 }
@@ -364,9 +364,9 @@ TEST(EnvironmentModelIndex, Deterministic) {
 TEST(EnvironmentModelIndex, ThresholdAndOptions) {
   auto fx = Fourier(FourierDistance::kL2);
   EnvironmentModelOptions o;
-  o.index_min_views = 40;
-  o.index_dims = 100;  // clamped to the 12 features
-  o.index_max_bounded_fraction = 1.0;
+  o.index.index_min_views = 40;
+  o.index.index_dims = 100;  // clamped to the 12 features
+  o.index.index_max_bounded_fraction = 1.0;
   EnvironmentModel m(o, fx);
   VectorSource src(kBands * kCoefficients, 8);
   std::mt19937 rng(8);
@@ -386,12 +386,12 @@ TEST(EnvironmentModelIndex, ThresholdAndOptions) {
   // exercised by the randomised test above. Here the options:
   for (const auto& [field, set] :
        std::vector<std::pair<std::string, std::function<void(EnvironmentModelOptions&)>>>{
-           {"index_min_views", [](EnvironmentModelOptions& x) { x.index_min_views = -1; }},
-           {"index_dims", [](EnvironmentModelOptions& x) { x.index_dims = 0; }},
+           {"index_min_views", [](EnvironmentModelOptions& x) { x.index.index_min_views = -1; }},
+           {"index_dims", [](EnvironmentModelOptions& x) { x.index.index_dims = 0; }},
            {"index_max_bounded_fraction",
-            [](EnvironmentModelOptions& x) { x.index_max_bounded_fraction = 0; }},
+            [](EnvironmentModelOptions& x) { x.index.index_max_bounded_fraction = 0; }},
            {"index_max_bounded_fraction",
-            [](EnvironmentModelOptions& x) { x.index_max_bounded_fraction = 1.5; }}}) {
+            [](EnvironmentModelOptions& x) { x.index.index_max_bounded_fraction = 1.5; }}}) {
     EnvironmentModelOptions bad;
     set(bad);
     try {
@@ -402,7 +402,7 @@ TEST(EnvironmentModelIndex, ThresholdAndOptions) {
     }
   }
   EnvironmentModelOptions off;
-  off.index_min_views = 0;
+  off.index.index_min_views = 0;
   EnvironmentModel never(off, fx);
   for (int i = 0; i < 60; ++i) never.AddView(MakeFourier(src.Next(), rng), {c}, ViewStats{});
   EXPECT_FALSE(never.IndexActive());
@@ -417,10 +417,10 @@ TEST(EnvironmentModelIndex, KeptOnlyWhereItPays) {
   auto fx = Fourier(FourierDistance::kL2);
   for (const double e_max : {0.05, 1.5}) {
     EnvironmentModelOptions o;
-    o.e_max = e_max;
-    o.index_min_views = 500;
-    o.index_dims = 8;
-    o.index_max_bounded_fraction = 0.6;
+    o.retrieval.e_max = e_max;
+    o.index.index_min_views = 500;
+    o.index.index_dims = 8;
+    o.index.index_max_bounded_fraction = 0.6;
     EnvironmentModel m(o, fx);
     VectorSource src(kBands * kCoefficients, 12);
     std::mt19937 rng(12);
@@ -476,10 +476,10 @@ TEST(EnvironmentModelIndex, NonMetricDistancesFallBackToTheScan) {
     h.distance = distance;
     auto fx = std::make_shared<ColorHistogram>(h);
     EnvironmentModelOptions o;
-    o.e_max = 0.3;
-    o.index_min_views = 20;
-    o.index_dims = 6;
-    o.index_max_bounded_fraction = 1.0;
+    o.retrieval.e_max = 0.3;
+    o.index.index_min_views = 20;
+    o.index.index_dims = 6;
+    o.index.index_max_bounded_fraction = 1.0;
     EnvironmentModel m(o, fx);
     const bool bounded = distance == HistogramDistance::kL1 || distance == HistogramDistance::kL2;
     EXPECT_EQ(m.IndexSupported(), bounded) << ToString(distance);
@@ -502,7 +502,7 @@ TEST(EnvironmentModelIndex, NonMetricDistancesFallBackToTheScan) {
   }
   auto fake = testing::MakeFakeExtractor(6);
   EnvironmentModelOptions o;
-  o.index_min_views = 1;
+  o.index.index_min_views = 1;
   EnvironmentModel m(o, fake);
   EXPECT_FALSE(m.IndexSupported());
   ViewComponent c;

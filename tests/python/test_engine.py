@@ -142,12 +142,17 @@ class OptionsTest(unittest.TestCase):
     def test_dict_yaml_and_file_agree(self):
         # The same options from a dict, YAML text and a YAML file; to_dict round trips.
         d = {"update_delay_frames": 5, "threads": 1,
-             "model": {"forgetting": "passive", "e_max": 0.4},
+             "model": {"forgetting": {"mode": "passive"}, "retrieval": {"e_max": 0.4}},
              "descriptor": {"fourier": {"bands": 3}},
              "initial_pose": np.array([1.0, 2.0, 0.5])}
         a = omnicml.EngineOptions(d)
         self.assertEqual(a.to_dict()["update_delay_frames"], 5)
-        self.assertEqual(a.to_dict()["model"]["forgetting"], "passive")
+        self.assertEqual(a.to_dict()["model"]["forgetting"]["mode"], "passive")
+        # The former flat model keys still load (with a deprecation warning on stderr).
+        self.assertEqual(omnicml.EngineOptions({"update_delay_frames": 5, "threads": 1,
+                                                "model": {"forgetting": "passive", "e_max": 0.4},
+                                                "descriptor": {"fourier": {"bands": 3}},
+                                                "initial_pose": np.array([1.0, 2.0, 0.5])}), a)
         self.assertEqual(a.to_dict()["descriptor"]["fourier"]["bands"], 3)
         self.assertEqual(a.to_dict()["initial_pose"], [1.0, 2.0, 0.5])
         b = omnicml.EngineOptions.from_yaml_text(a.to_yaml())
@@ -163,7 +168,7 @@ class OptionsTest(unittest.TestCase):
         self.assertEqual(a.updated({"threads": 2}).to_dict()["threads"], 2)
         self.assertEqual(omnicml.default_options()["update_delay_frames"],
                          omnicml.EngineOptions().to_dict()["update_delay_frames"])
-        self.assertTrue(math.isfinite(omnicml.default_options()["model"]["e_max"]))
+        self.assertTrue(math.isfinite(omnicml.default_options()["model"]["retrieval"]["e_max"]))
 
 
 if __name__ == "__main__":

@@ -9,6 +9,7 @@
 //     v.Enum("forgetting", o.forgetting, {ForgettingMode::kActive, ...});  // by ToString(E)
 //     v.NamedEnum("output", o.output, {{ImageKind::kRawRing, "raw_ring"}, ...});
 //     v.Section("motion", o.motion);                      // nested struct (its VisitFields)
+//     v.Renamed("e_max", "retrieval.e_max", o.retrieval.e_max);  // former key: read, not written
 //     v.template Converted<Rep>("kernels", o.kernels, to_rep, from_rep);  // other shapes
 //   }
 //
@@ -26,6 +27,9 @@
 // Errors are omnicml::Error "<source>:<line>: ..." naming the key with its section path
 // ("tracker.motion.a1"): YAML syntax, duplicate key, unknown key, wrong type or shape,
 // out-of-range integer, unknown enum name, and (after a load) the struct's Validate().
+// A key given under a former name (Renamed, RenamedEnum) is read into its field and
+// reported by one warning line on stderr per section ("<source>:<line>: warning: ...");
+// such keys are never written, and a binary (complete) read does not require them.
 // A partial read (YAML) keeps the value of absent keys; a complete read (binary) requires
 // every field.
 //
@@ -234,6 +238,11 @@ class TreeWriter {
     VisitFields(w, sub);
     Add(key, std::move(m));
   }
+  template <class T>
+  void Renamed(const char* /*old_key*/, const char* /*new_path*/, T& /*field*/) {}
+  template <class E>
+  void RenamedEnum(const char* /*old_key*/, const char* /*new_path*/, E& /*field*/,
+                   std::initializer_list<E> /*values*/) {}
 
  private:
   void Add(const char* key, OptionValue v) { map_->members.emplace_back(key, std::move(v)); }
@@ -251,9 +260,12 @@ class TreeReader {
   }
   template <class E>
   void Enum(const char* key, E& field, std::initializer_list<E> values) {
-    const OptionValue* n = Take(key);
-    if (n == nullptr) return;
-    const std::string path = JoinPath(prefix_, key);
+    if (const OptionValue* n = Take(key)) EnumValue(n, JoinPath(prefix_, key), field, values);
+  }
+  // Sets field to the value of `values` named by *n; throws naming `path` otherwise.
+  template <class E>
+  void EnumValue(const OptionValue* n, const std::string& path, E& field,
+                 std::initializer_list<E> values) {
     const std::string name = ParseString(*n, src_, path);
     std::string names;
     for (E e : values) {
@@ -302,11 +314,32 @@ class TreeReader {
     VisitFields(r, sub);
     r.Finish();
   }
-  // Throws for the first key no field claimed (and, for a complete read, was missing).
+  // A former key: read into `field` when present and not a map (a map under that key is
+  // a section of the same name, read by Section), noted for the deprecation warning.
+  template <class T>
+  void Renamed(const char* old_key, const char* new_path, T& field) {
+    if (const OptionValue* n = TakeRenamed(old_key, new_path)) {
+      FromValue(*n, src_, JoinPath(prefix_, old_key), field);
+    }
+  }
+  template <class E>
+  void RenamedEnum(const char* old_key, const char* new_path, E& field,
+                   std::initializer_list<E> values) {
+    if (const OptionValue* n = TakeRenamed(old_key, new_path)) {
+      EnumValue(n, JoinPath(prefix_, old_key), field, values);
+    }
+  }
+  // Throws for the first key no field claimed (and, for a complete read, was missing);
+  // prints the deprecation warning for keys read under a former name.
   void Finish() const;
 
  private:
   const OptionValue* Take(const char* key);
+  // The scalar or list under a former key, claimed; nullptr when absent or a map.
+  const OptionValue* TakeRenamed(const char* old_key, const char* new_path);
+  // Former keys read, with their new paths (relative to this section).
+  std::vector<std::pair<std::string, std::string>> renamed_;
+  int renamed_line_ = 0;
   const OptionValue& map_;
   const OptionSource& src_;
   std::string prefix_;
@@ -351,6 +384,11 @@ class Randomizer {
   void Section(const char* /*key*/, S& sub) {
     VisitFields(*this, sub);
   }
+  template <class T>
+  void Renamed(const char* /*old_key*/, const char* /*new_path*/, T& /*field*/) {}
+  template <class E>
+  void RenamedEnum(const char* /*old_key*/, const char* /*new_path*/, E& /*field*/,
+                   std::initializer_list<E> /*values*/) {}
 
  private:
   double Uniform(double lo, double hi) { return std::uniform_real_distribution<double>(lo, hi)(rng_); }

@@ -1,5 +1,5 @@
-// Approximate candidate index for radius search over the views' feature vectors (issue 19,
-// docs/design.md "Place retrieval at scale", "Approximate retrieval").
+// Approximate candidate index for radius search over the views' feature vectors
+// (docs/design.md "Place retrieval at scale", "Approximate retrieval").
 //
 // A hierarchical navigable small-world graph [Malkov, Yashunin 2018] over the feature
 // rows, L2 distance, from hnswlib 0.6.2 (Debian libhnswlib-dev, header-only; used only in
@@ -26,8 +26,8 @@
 // Thread-safety: thread-compatible. Nearest is const and may run concurrently (hnswlib's
 // visited-list pool is locked); Insert/Remove/Reset/Clear/assignment need exclusive
 // access.
-#ifndef OMNICML_ANN_INDEX_H_
-#define OMNICML_ANN_INDEX_H_
+#ifndef OMNICML_MAPPING_ANN_INDEX_H_
+#define OMNICML_MAPPING_ANN_INDEX_H_
 
 #include <cstddef>
 #include <cstdint>
@@ -86,4 +86,4 @@ class AnnIndex {
 
 }  // namespace omnicml
 
-#endif  // OMNICML_ANN_INDEX_H_
+#endif  // OMNICML_MAPPING_ANN_INDEX_H_

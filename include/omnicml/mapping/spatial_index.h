@@ -11,8 +11,8 @@
 // of insertions and removals.
 //
 // Thread-safety: thread-compatible (concurrent const queries are fine).
-#ifndef OMNICML_SPATIAL_INDEX_H_
-#define OMNICML_SPATIAL_INDEX_H_
+#ifndef OMNICML_MAPPING_SPATIAL_INDEX_H_
+#define OMNICML_MAPPING_SPATIAL_INDEX_H_
 
 #include <cstddef>
 #include <cstdint>
@@ -74,4 +74,4 @@ class SpatialIndex {
 
 }  // namespace omnicml
 
-#endif  // OMNICML_SPATIAL_INDEX_H_
+#endif  // OMNICML_MAPPING_SPATIAL_INDEX_H_

@@ -1,5 +1,5 @@
-// Candidate index for exact radius search over the views' feature vectors (issue 19,
-// docs/design.md "Place retrieval at scale").
+// Candidate index for exact radius search over the views' feature vectors
+// (docs/design.md "Place retrieval at scale").
 //
 // The question EnvironmentModel asks is a radius query: every stored vector x_i with
 // E(y, x_i) < e_max. This index answers the cheaper question "which x_i can possibly be
@@ -55,11 +55,12 @@
 // the median split broken by id).
 //
 // Thread-safety: thread-compatible; Candidates is const and keeps no scratch state.
-#ifndef OMNICML_VIEW_INDEX_H_
-#define OMNICML_VIEW_INDEX_H_
+#ifndef OMNICML_MAPPING_VIEW_INDEX_H_
+#define OMNICML_MAPPING_VIEW_INDEX_H_
 
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <vector>
 
 #include <Eigen/Core>
@@ -156,6 +157,10 @@ class ViewIndex {
   std::size_t TailSlot(std::size_t t) const { return tree_slots_ + t; }
   // Slot of a live id, or SIZE_MAX.
   std::size_t FindSlot(std::uint64_t id) const;
+  // Calls scan(begin, end) for the slots of every leaf whose box is not pruned for the
+  // query codes q under `limit` (sum of squared code gaps), depth-first.
+  void VisitLeaves(const std::int16_t* q, std::int64_t limit,
+                   const std::function<void(std::size_t, std::size_t)>& scan) const;
 
   std::size_t feature_size_ = 0;
   int dims_ = 0;
@@ -189,4 +194,4 @@ class ViewIndex {
 
 }  // namespace omnicml
 
-#endif  // OMNICML_VIEW_INDEX_H_
+#endif  // OMNICML_MAPPING_VIEW_INDEX_H_

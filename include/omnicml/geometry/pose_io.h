@@ -1,8 +1,9 @@
 // Binary encoding of poses and 3x3 matrices in the engine file (docs/map_format.md: `Pose`
-// = 3 f64 x, y, phi; `Mat3` = 9 f64 row-major), shared by engine_io.cc and the pose
-// graph's section (pose_graph.cc). Doubles bit for bit. Private to src/engine.
-#ifndef OMNICML_ENGINE_INTERNAL_POSE_IO_H_
-#define OMNICML_ENGINE_INTERNAL_POSE_IO_H_
+// = 3 f64 x, y, phi; `Mat3` = 9 f64 row-major), shared by the environment model's
+// section (mapping/environment_model_io.cc), engine_io.cc and the pose graph's section
+// (pose_graph.cc). Doubles bit for bit.
+#ifndef OMNICML_GEOMETRY_POSE_IO_H_
+#define OMNICML_GEOMETRY_POSE_IO_H_
 
 #include <Eigen/Core>
 
@@ -35,4 +36,4 @@ inline Eigen::Matrix3d ReadMatrix3(BinaryReader& in, const char* what) {
 
 }  // namespace omnicml::internal
 
-#endif  // OMNICML_ENGINE_INTERNAL_POSE_IO_H_
+#endif  // OMNICML_GEOMETRY_POSE_IO_H_

@@ -1,5 +1,5 @@
 // Subcommands of the single `omnicml` binary register themselves here, one source file
-// each (apps/cmd_<name>.cc), listed in their module's cmake file via omnicml_add_command.
+// each (apps/cmd_<name>.cc), listed in the omnicml_cli sources of apps/CMakeLists.txt.
 //
 //   static const omnicml::app::CommandRegistration kRegistration{
 //       "describe", [](CLI::App& app) {

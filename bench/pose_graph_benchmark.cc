@@ -1,4 +1,4 @@
-// Per-frame cost of the global pose graph (engine/pose_graph.h, issue 15) at 10k views:
+// Per-frame cost of the global pose graph (engine/pose_graph.h) at 10k views:
 // what CmlEngine does for one anchor frame with options.pose_graph.enabled — the frame's
 // odometry and node, a loop closure every closure_every_frames (default 10) frames and,
 // when due (optimize_every_frames, default 50), the windowed optimisation (window_nodes

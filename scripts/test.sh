@@ -8,7 +8,7 @@ cd "$build_dir"
 ctest --output-on-failure -j "${OMNICML_JOBS:-$(nproc)}" "$@"
 cd - >/dev/null
 
-# Bounded fuzzing (issue 17, fuzz/README.md): every libFuzzer harness for
+# Bounded fuzzing (fuzz/README.md): every libFuzzer harness for
 # OMNICML_FUZZ_SECONDS (default 10; 0 skips) after a clang ASan+UBSan build in build-fuzz/;
 # scripts/fuzz.sh installs Debian's clang and libclang-rt-14-dev when missing (measured: a
 # cold clang build of the harnesses 276 s, the eight 10-s runs about 90 s). Any finding fails.

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Issue 18: the [UN] cross-sequence experiment (`omnicml topo`) over every ordered
+# The [UN] cross-sequence experiment (`omnicml topo`) over every ordered
 # train/test pair of 3 simulated days, seeds 1-3, on home_store (285 frames a day, one
 # lap, datasets/places/home_store_areas.yaml) and institute (180 frames a day,
 # datasets/places/institute_rooms.yaml), with the localizer's defaults. Prints per world

@@ -7,8 +7,8 @@
 //
 // Every conversion failure throws omnicml::Error (Python: omnicml.Error) saying which
 // argument and what is wrong. Functions here are called with the GIL held.
-#ifndef OMNICML_PYTHON_CONVERT_H_
-#define OMNICML_PYTHON_CONVERT_H_
+#ifndef OMNICML_PYTHON_SRC_CONVERT_H_
+#define OMNICML_PYTHON_SRC_CONVERT_H_
 
 #include <string>
 
@@ -52,4 +52,4 @@ void BindExperiments(py::module_& m);
 
 }  // namespace omnicml::python
 
-#endif  // OMNICML_PYTHON_CONVERT_H_
+#endif  // OMNICML_PYTHON_SRC_CONVERT_H_

@@ -12,7 +12,7 @@
 #include "omnicml/logs/log_format.h"
 #include "omnicml/sim/simulator.h"
 #include "omnicml/sim/world.h"
-#include "omnicml/unwrap/frame.h"
+#include "omnicml/sensor/frame.h"
 
 namespace omnicml::python {
 namespace {

@@ -1,4 +1,4 @@
-// CLI tests of issue 20 ("bounded in every dimension, failing early, leaving nothing
+// CLI tests of the input limits ("bounded in every dimension, failing early, leaving nothing
 // half-done") and of the `--config` round trips of `simulate`, `mcl` and `topo`: absurd
 // sizes, unwritable or misplaced outputs, symbolic-link loops, directories where files
 // belong and values that would break a run later all give exit code 2 with one line

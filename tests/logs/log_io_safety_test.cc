@@ -1,4 +1,4 @@
-// Input/output safety of logs (issue 20): readers accept only regular files with bounded
+// Input/output safety of logs: readers accept only regular files with bounded
 // lines, and the writer's staging directory never outlives a failed or killed writer.
 #include <sys/stat.h>
 #include <sys/wait.h>

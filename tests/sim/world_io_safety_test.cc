@@ -1,4 +1,4 @@
-// World file input safety (issue 20): only regular files of bounded size are read.
+// World file input safety: only regular files of bounded size are read.
 #include <sys/stat.h>
 
 #include <filesystem>

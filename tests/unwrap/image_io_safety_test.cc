@@ -1,4 +1,4 @@
-// Image and calibration input safety (issue 20): only regular files, the declared size
+// Image and calibration input safety: only regular files, the declared size
 // checked before decoding, and one-line errors without libpng printing its own line.
 #include <sys/stat.h>
 

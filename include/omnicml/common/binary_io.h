@@ -12,8 +12,8 @@
 // allocated, so a corrupted length cannot make the reader allocate gigabytes.
 //
 // Both classes are plain values, thread-compatible (one thread per object).
-#ifndef OMNICML_BINARY_IO_H_
-#define OMNICML_BINARY_IO_H_
+#ifndef OMNICML_COMMON_BINARY_IO_H_
+#define OMNICML_COMMON_BINARY_IO_H_
 
 #include <bit>
 #include <cstddef>
@@ -159,4 +159,4 @@ class BinaryReader {
 
 }  // namespace omnicml
 
-#endif  // OMNICML_BINARY_IO_H_
+#endif  // OMNICML_COMMON_BINARY_IO_H_

@@ -4,8 +4,8 @@
 // configuration) throw omnicml::Error with a message that says what is wrong and where
 // (file, line, field). Broken invariants throw omnicml::InternalError via OMNICML_CHECK.
 // Applications map Error to exit code 2 and InternalError to exit code 1.
-#ifndef OMNICML_COMMON_H_
-#define OMNICML_COMMON_H_
+#ifndef OMNICML_COMMON_COMMON_H_
+#define OMNICML_COMMON_COMMON_H_
 
 #include <numbers>
 #include <sstream>
@@ -71,4 +71,4 @@ class CheckFailer {
 };
 }  // namespace omnicml::internal
 
-#endif  // OMNICML_COMMON_H_
+#endif  // OMNICML_COMMON_COMMON_H_

@@ -10,7 +10,7 @@
 // six are joined (6 * bins floats). The raw-pointer distances treat the vector as one
 // histogram: for per-band figures call them on each `bins`-long slice.
 //
-// Illumination options (issue 18; all off = [UN] as published). A light that multiplies
+// Illumination options (all off = [UN] as published). A light that multiplies
 // a pixel's R, G, B by one factor k leaves its hue, its normalised r, g, b and its HSV
 // saturation (max - min) / max unchanged, but not its HLS lightness L nor (above
 // mid-grey) its HLS saturation. In 8-bit images the invariance holds only where the
@@ -35,8 +35,8 @@
 // All are symmetric, >= 0 and zero only for h = k (for non-negative inputs).
 //
 // Thread-safety: immutable after construction; Compute may run on any number of threads.
-#ifndef OMNICML_COLOR_HISTOGRAM_H_
-#define OMNICML_COLOR_HISTOGRAM_H_
+#ifndef OMNICML_DESCRIPTORS_COLOR_HISTOGRAM_H_
+#define OMNICML_DESCRIPTORS_COLOR_HISTOGRAM_H_
 
 #include <cstddef>
 #include <optional>
@@ -143,4 +143,4 @@ class ColorHistogram final : public DescriptorExtractor {
 
 }  // namespace omnicml
 
-#endif  // OMNICML_COLOR_HISTOGRAM_H_
+#endif  // OMNICML_DESCRIPTORS_COLOR_HISTOGRAM_H_

@@ -9,8 +9,8 @@
 // A DescriptorExtractor computes descriptors from panoramas (see omni_unwrapper.h for
 // the panorama convention) and compares them. Extractors are immutable after
 // construction and safe to use from several threads at once.
-#ifndef OMNICML_DESCRIPTOR_H_
-#define OMNICML_DESCRIPTOR_H_
+#ifndef OMNICML_DESCRIPTORS_DESCRIPTOR_H_
+#define OMNICML_DESCRIPTORS_DESCRIPTOR_H_
 
 #include <complex>
 #include <cstdint>
@@ -120,4 +120,4 @@ cv::Mat MakeSyntheticPanorama(int width, int height, std::uint32_t seed);
 
 }  // namespace omnicml
 
-#endif  // OMNICML_DESCRIPTOR_H_
+#endif  // OMNICML_DESCRIPTORS_DESCRIPTOR_H_

@@ -1,7 +1,7 @@
 // Builds the configured descriptor extractor, so the engine, the baselines and the CLI
 // choose a descriptor by configuration only (docs/design.md "Descriptors").
-#ifndef OMNICML_DESCRIPTOR_FACTORY_H_
-#define OMNICML_DESCRIPTOR_FACTORY_H_
+#ifndef OMNICML_DESCRIPTORS_DESCRIPTOR_FACTORY_H_
+#define OMNICML_DESCRIPTORS_DESCRIPTOR_FACTORY_H_
 
 #include <memory>
 
@@ -41,4 +41,4 @@ std::unique_ptr<DescriptorExtractor> MakeDescriptorExtractor(const DescriptorOpt
 
 }  // namespace omnicml
 
-#endif  // OMNICML_DESCRIPTOR_FACTORY_H_
+#endif  // OMNICML_DESCRIPTORS_DESCRIPTOR_FACTORY_H_

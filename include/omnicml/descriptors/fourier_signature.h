@@ -45,8 +45,8 @@
 // number of threads. Code elsewhere in the process that calls the FFTW planner
 // concurrently must not do so outside this module's mutex (no other module does).
 // Plans use FFTW_ESTIMATE, so results are bit-identical from run to run.
-#ifndef OMNICML_FOURIER_SIGNATURE_H_
-#define OMNICML_FOURIER_SIGNATURE_H_
+#ifndef OMNICML_DESCRIPTORS_FOURIER_SIGNATURE_H_
+#define OMNICML_DESCRIPTORS_FOURIER_SIGNATURE_H_
 
 #include <cstddef>
 #include <optional>
@@ -137,4 +137,4 @@ class FourierSignature final : public DescriptorExtractor {
 
 }  // namespace omnicml
 
-#endif  // OMNICML_FOURIER_SIGNATURE_H_
+#endif  // OMNICML_DESCRIPTORS_FOURIER_SIGNATURE_H_

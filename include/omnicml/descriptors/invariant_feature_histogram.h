@@ -25,8 +25,8 @@
 // so the same image and seed give the same descriptor.
 //
 // Thread-safety: immutable after construction; Compute may run on any number of threads.
-#ifndef OMNICML_INVARIANT_FEATURE_HISTOGRAM_H_
-#define OMNICML_INVARIANT_FEATURE_HISTOGRAM_H_
+#ifndef OMNICML_DESCRIPTORS_INVARIANT_FEATURE_HISTOGRAM_H_
+#define OMNICML_DESCRIPTORS_INVARIANT_FEATURE_HISTOGRAM_H_
 
 #include <array>
 #include <cstddef>
@@ -70,7 +70,7 @@ struct IfhOptions {
   // by a factor nearly constant along each column (as for FourierOptions::
   // normalize_columns); the division removes it. Invariant to a column roll, so the
   // descriptor keeps its rotation invariance. Used by `omnicml mcl
-  // --ifh-normalize-columns` (issue 18: institute, whose lights switch between days).
+  // --ifh-normalize-columns` (for worlds whose lights switch between days, e.g. institute).
   bool normalize_columns = false;
 
   // Throws omnicml::Error naming the field when a value is out of range.
@@ -142,4 +142,4 @@ class InvariantFeatureHistogram final : public DescriptorExtractor {
 
 }  // namespace omnicml
 
-#endif  // OMNICML_INVARIANT_FEATURE_HISTOGRAM_H_
+#endif  // OMNICML_DESCRIPTORS_INVARIANT_FEATURE_HISTOGRAM_H_

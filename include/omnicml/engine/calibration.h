@@ -20,7 +20,7 @@
 #include <vector>
 
 #include "omnicml/engine/cml_engine.h"
-#include "omnicml/unwrap/frame.h"
+#include "omnicml/sensor/frame.h"
 
 namespace omnicml {
 

@@ -42,8 +42,8 @@
 // Thread-safety: thread-compatible (one thread calls the engine). With threads >= 2 the
 // engine owns one worker thread that applies map updates during ProcessFrame; between
 // calls the worker is idle, so model() and SaveEngine may read the state.
-#ifndef OMNICML_CML_ENGINE_H_
-#define OMNICML_CML_ENGINE_H_
+#ifndef OMNICML_ENGINE_CML_ENGINE_H_
+#define OMNICML_ENGINE_CML_ENGINE_H_
 
 #include <chrono>
 #include <cstdint>
@@ -58,7 +58,7 @@
 #include "omnicml/descriptors/descriptor.h"
 #include "omnicml/descriptors/descriptor_factory.h"
 #include "omnicml/mapping/environment_model.h"
-#include "omnicml/unwrap/frame.h"
+#include "omnicml/sensor/frame.h"
 #include "omnicml/geometry/gaussian_mixture.h"
 #include "omnicml/engine/map_updater.h"
 #include "omnicml/engine/pose_graph.h"
@@ -69,7 +69,7 @@
 
 namespace omnicml {
 
-// Pose-gated matching (issue 19; an engine-level addition to [G]): while p(x_t) is one
+// Pose-gated matching (an engine-level addition to [G]): while p(x_t) is one
 // Gaussian (confident tracking), p(x|y) is computed from the views that have a component
 // inside the gate of the propagated prior p(x|u) only, so the exact descriptor distance
 // is computed for the views near the robot instead of for the whole map. A match outside
@@ -369,7 +369,7 @@ class CmlEngine {
   // threads >= 2) takes over the queued updates in order; its applied-updates count
   // restarts at 0, as after LoadEngine. Results do not depend on threads.
   void SetThreads(int threads);
-  // options().model.forgetting := mode, for the map's next updates (e.g. learn day 1 in
+  // options().model.forgetting.mode := mode, for the map's next updates (e.g. learn day 1 in
   // kActive, then freeze the map with kStatic). Queued updates apply under the new mode.
   void SetForgettingMode(ForgettingMode mode);
 
@@ -425,4 +425,4 @@ class CmlEngine {
 
 }  // namespace omnicml
 
-#endif  // OMNICML_CML_ENGINE_H_
+#endif  // OMNICML_ENGINE_CML_ENGINE_H_

@@ -28,8 +28,8 @@
 // truncated, checksum mismatch, malformed payload).
 //
 // Thread-safety: call between ProcessFrame calls, from the engine's thread.
-#ifndef OMNICML_ENGINE_IO_H_
-#define OMNICML_ENGINE_IO_H_
+#ifndef OMNICML_ENGINE_ENGINE_IO_H_
+#define OMNICML_ENGINE_ENGINE_IO_H_
 
 #include <cstdint>
 #include <memory>
@@ -48,18 +48,21 @@ namespace omnicml {
 // 6: the bounded event log: option model.max_events; the model section (version 3) holds
 //    the number of events logged, per-session event counts and the ring of recent events.
 // 7: options model.index_min_views, model.index_max_bounded_fraction and model.index_dims
-//    (place retrieval, issue 19); the global pose graph (issue 15): options section
+//    (place retrieval); the global pose graph: options section
 //    pose_graph; after the model, the graph's nodes, closures, recent frame odometry and
 //    its state (pose_graph.h Write). Files of version 6 are rejected with both versions
 //    named (re-run to rebuild them).
-// 8: option section gated_matching (pose-gated matching, issue 19).
+// 8: option section gated_matching (pose-gated matching).
 // 9: options model.ann_min_views, ann_m, ann_ef_construction, ann_ef, ann_k (approximate
-//    retrieval, issue 19; the graph is rebuilt on load, not stored); descriptor.color's
-//    illumination options (issue 18).
+//    retrieval; the graph is rebuilt on load, not stored); descriptor.color's
+//    illumination options.
 // 10: option model.merge_precision_weighted. 11: option model.look_back_frames and the
 //    model section's version 4 (its recent updates).
-// 12: option model.forget_unconfirmed_views (issue 14).
-// 13: option descriptor.ifh.normalize_columns (issue 18).
+// 12: option model.forget_unconfirmed_views.
+// 13: option descriptor.ifh.normalize_columns.
+// The model's options keep these flat names in the file (model.e_max, model.forgetting,
+// ...) although YAML and C++ group them in sections (environment_model_options.h
+// FlatModelOptionsValue), so files of every version keep their bytes and load as before.
 inline constexpr std::uint32_t kEngineFormatVersion = 13;
 // The 8 magic bytes (including the terminating NUL).
 inline constexpr char kEngineMagic[8] = {'O', 'M', 'N', 'I', 'C', 'M', 'L', '\0'};
@@ -82,4 +85,4 @@ CmlEngineOptions ReadEngineOptions(BinaryReader& in);
 
 }  // namespace omnicml
 
-#endif  // OMNICML_ENGINE_IO_H_
+#endif  // OMNICML_ENGINE_ENGINE_IO_H_

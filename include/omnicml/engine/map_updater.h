@@ -30,8 +30,8 @@
 // not be called concurrently with anything else reading the model — the engine only
 // reads the model after WaitUntilApplied. If the apply function throws, the exception is
 // captured and rethrown by the next WaitUntilApplied / Flush on the engine's thread.
-#ifndef OMNICML_MAP_UPDATER_H_
-#define OMNICML_MAP_UPDATER_H_
+#ifndef OMNICML_ENGINE_MAP_UPDATER_H_
+#define OMNICML_ENGINE_MAP_UPDATER_H_
 
 #include <condition_variable>
 #include <cstdint>
@@ -155,4 +155,4 @@ class MapUpdater {
 
 }  // namespace omnicml
 
-#endif  // OMNICML_MAP_UPDATER_H_
+#endif  // OMNICML_ENGINE_MAP_UPDATER_H_

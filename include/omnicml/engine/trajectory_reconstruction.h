@@ -20,8 +20,8 @@
 //
 // Deterministic: a single-threaded solver with fixed options, so the same input gives
 // the same bits on every run and machine build. Pure function; thread-compatible.
-#ifndef OMNICML_TRAJECTORY_RECONSTRUCTION_H_
-#define OMNICML_TRAJECTORY_RECONSTRUCTION_H_
+#ifndef OMNICML_ENGINE_TRAJECTORY_RECONSTRUCTION_H_
+#define OMNICML_ENGINE_TRAJECTORY_RECONSTRUCTION_H_
 
 #include <optional>
 #include <vector>
@@ -92,4 +92,4 @@ ReconstructionResult ReconstructTrajectory(const std::optional<Gaussian>& start,
 
 }  // namespace omnicml
 
-#endif  // OMNICML_TRAJECTORY_RECONSTRUCTION_H_
+#endif  // OMNICML_ENGINE_TRAJECTORY_RECONSTRUCTION_H_

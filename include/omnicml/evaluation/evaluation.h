@@ -29,8 +29,8 @@
 // of the run; they are counted separately (frames_skipped).
 //
 // All functions are pure; thread-compatible.
-#ifndef OMNICML_EVALUATION_H_
-#define OMNICML_EVALUATION_H_
+#ifndef OMNICML_EVALUATION_EVALUATION_H_
+#define OMNICML_EVALUATION_EVALUATION_H_
 
 #include <cstdint>
 #include <filesystem>
@@ -277,4 +277,4 @@ std::string RenderEvaluationHtml(const EvaluationResult& result, const FramesTab
 
 }  // namespace omnicml
 
-#endif  // OMNICML_EVALUATION_H_
+#endif  // OMNICML_EVALUATION_EVALUATION_H_

@@ -1,4 +1,4 @@
-// Change detection scored against the simulator's ground truth (issue 15): the map's
+// Change detection scored against the simulator's ground truth: the map's
 // health by area (report/map_export.h ComputeMapHealth: a cell is "changed" when the
 // latest session saw appearance evidence there, "new" when all its views are from the
 // latest session) compared, day by day, with the places the world's day events changed.

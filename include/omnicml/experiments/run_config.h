@@ -3,24 +3,26 @@
 // configuration, command-line overrides, and the run's input (logs or a simulated world).
 //
 // YAML layout: keys equal member names; nested options structs are nested maps. Every
-// key is optional (absent keys keep their default). Example:
+// key is optional (absent keys keep their default). An excerpt with the defaults (the
+// full list: `omnicml run` writes every key to RUNDIR/config.yaml):
 //
-//   update_delay_frames: 3
-//   threads: 2
+//   update_delay_frames: 8
+//   threads: 1                                    # 2: map updates on a worker thread
 //   initial_pose: [0, 0, 0]                       # x_m, y_m, phi_rad
 //   initial_covariance: [[0.01, 0, 0], [0, 0.01, 0], [0, 0, 0.001]]
 //   descriptor:
 //     kind: fourier                               # fourier | ifh | color
 //     fourier: {bands: 4, coefficients: 16, distance: l2, normalize_bands: true,
 //               normalize_columns: true}
-//     ifh: {kernels: [[[0, 0], [0, 1]], [[0, 3], [4, 0]]], angles: 8, bins: 16, scales: [1],
-//           color: true, sample_fraction: 1, seed: 42, normalize_columns: false}
 //     color: {bins: 32, filter_width: 5, normalized_rgb: false, distance: jeffrey}
 //   tracker: {gamma: 3, w_min: 0.001, delta: 1, max_components: 50, unimodal_min_weight: 0.05,
 //             min_covariance_eigenvalue: 1e-10, motion: {a1: 0.05, a2: 0.01, a3: 0.05, a4: 0.01}}
-//   model: {e_max: ..., top_k: 0, beta: 0.1, d_max: 3, d_for_m: 2, beta_for: 0.1, d_gain_m: 0.2,
-//           w_min: 0.01, merge_delta: 1, heading_sigma_no_rotation_rad: 3.14159,
-//           forgetting: active, spatial_cell_m: 1, log_component_events: false}
+//   model:
+//     retrieval: {e_max: 0.45, top_k: 8, heading_sigma_no_rotation_rad: 3.141592653589793}
+//     update: {beta: 0.2, d_max: 3, w_min: 0.01, merge_delta: 1, look_back_frames: 50}
+//     forgetting: {mode: active, d_for_m: 0.5, beta_for: 0.7, d_gain_m: 1, footprint_gate: 2}
+//     index: {spatial_cell_m: 1, index_min_views: 1000, ann_min_views: 50000}
+//     events: {log_component_events: false, max_events: 10000}
 //   reconstruction: {min_translation_variance_m2: 1e-6, min_rotation_variance_rad2: 1e-6,
 //                    max_iterations: 100, function_tolerance: 1e-12, compute_covariances: true}
 //
@@ -32,8 +34,8 @@
 // round-trip form, so ParseEngineOptionsYaml(EngineOptionsToYaml(o)) == o bit for bit.
 //
 // Pure functions; thread-safe.
-#ifndef OMNICML_RUN_CONFIG_H_
-#define OMNICML_RUN_CONFIG_H_
+#ifndef OMNICML_EXPERIMENTS_RUN_CONFIG_H_
+#define OMNICML_EXPERIMENTS_RUN_CONFIG_H_
 
 #include <cstdint>
 #include <memory>
@@ -42,7 +44,7 @@
 #include <vector>
 
 #include "omnicml/engine/cml_engine.h"
-#include "omnicml/unwrap/frame.h"
+#include "omnicml/sensor/frame.h"
 
 namespace omnicml {
 
@@ -93,10 +95,9 @@ struct RunInput {
   std::uint64_t seed = 1;               // simulator seed (world only)
   // Simulated images (world only; --sim-image): kRawRing renders the panorama, then the
   // catadioptric ring the engine unwraps (exercises the unwrapper); kPanorama hands the
-  // engine the rendered panorama with sensor noise, no ring and no unwrap (issue 19:
-  // about 2x faster per frame; the pixels differ by the ring's resampling, and mean
-  // errors were 2-5 % higher on institute and home_store, seeds 1-3: docs/experiments.md
-  // "Simulator speed (issue 19)").
+  // engine the rendered panorama with sensor noise, no ring and no unwrap (faster; the
+  // pixels differ by the ring's resampling, so the errors differ a little: docs/results.md
+  // "Simulator speed").
   ImageKind sim_image = ImageKind::kRawRing;
   // World only: render the frames on a thread of their own, up to a few frames ahead of
   // the engine (PrefetchFrames); the frames are the same bytes either way.
@@ -159,4 +160,4 @@ struct RunSettings {
 
 }  // namespace omnicml
 
-#endif  // OMNICML_RUN_CONFIG_H_
+#endif  // OMNICML_EXPERIMENTS_RUN_CONFIG_H_

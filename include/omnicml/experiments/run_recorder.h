@@ -5,7 +5,7 @@
 //   frames.csv       one row per frame (schema in evaluation.h), written as frames come
 //   events.csv       every map event of the run (run_report.h WriteEventsCsvRow), written
 //                    as the run goes (RecordEvents), so it is complete although the
-//                    model keeps only its most recent model.max_events events
+//                    model keeps only its most recent model.events.max_events events
 //   config.yaml, days.csv, report.html
 //                    written at Commit from the engine's final state (run_report.h)
 //   trajectory.tum   the strongest estimate, TUM (stamp x y z qx qy qz qw; z = 0, yaw
@@ -28,8 +28,8 @@
 // partial output remains.
 //
 // Thread-compatible: one thread drives the recorder.
-#ifndef OMNICML_RUN_RECORDER_H_
-#define OMNICML_RUN_RECORDER_H_
+#ifndef OMNICML_EXPERIMENTS_RUN_RECORDER_H_
+#define OMNICML_EXPERIMENTS_RUN_RECORDER_H_
 
 #include <cstdint>
 #include <filesystem>
@@ -43,7 +43,7 @@
 #include "omnicml/engine/cml_engine.h"
 #include "omnicml/evaluation/evaluation.h"
 #include "omnicml/report/report.h"
-#include "omnicml/unwrap/frame.h"
+#include "omnicml/sensor/frame.h"
 
 namespace omnicml {
 
@@ -166,4 +166,4 @@ RunSummary RunEngineOverSource(CmlEngine& engine, FrameSource& source, RunRecord
 
 }  // namespace omnicml
 
-#endif  // OMNICML_RUN_RECORDER_H_
+#endif  // OMNICML_EXPERIMENTS_RUN_RECORDER_H_

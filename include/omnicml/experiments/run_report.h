@@ -53,7 +53,7 @@ void WriteRunDaysCsv(std::ostream& out, const std::vector<FrameRecord>& records,
 // events.csv: header "type,frame,session,view_id,component_id,x_m,y_m,phi_rad,weight,reason"
 // and one row per event, doubles in shortest round-trip form, reasons quoted when they
 // hold a comma, quote or newline. WriteEventsCsv writes the events the model still holds
-// (its ring, model.max_events); the run recorder streams every event with the header
+// (its ring, model.events.max_events); the run recorder streams every event with the header
 // and row functions as the run goes.
 void WriteEventsCsv(std::ostream& out, const EnvironmentModel& model);
 void WriteEventsCsvHeader(std::ostream& out);

@@ -5,8 +5,8 @@
 // wrapped wherever they enter a distance, a mean or a merge (docs/design.md "State and
 // Gaussians"): two components either side of +-pi merge to a mean near pi, not 0.
 // Plain value types; no shared state; thread-compatible.
-#ifndef OMNICML_GAUSSIAN_MIXTURE_H_
-#define OMNICML_GAUSSIAN_MIXTURE_H_
+#ifndef OMNICML_GEOMETRY_GAUSSIAN_MIXTURE_H_
+#define OMNICML_GEOMETRY_GAUSSIAN_MIXTURE_H_
 
 #include <span>
 #include <string>
@@ -72,4 +72,4 @@ int StrongestComponent(const Mixture& m);
 
 }  // namespace omnicml
 
-#endif  // OMNICML_GAUSSIAN_MIXTURE_H_
+#endif  // OMNICML_GEOMETRY_GAUSSIAN_MIXTURE_H_

@@ -4,8 +4,8 @@
 // poses wraps its angle component (PoseDifference) before it enters a distance, a mean
 // or a merge. Names carry frames: `map_T_robot` is the robot's pose in the map frame,
 // `odom_T_robot` its pose in the odometry frame.
-#ifndef OMNICML_POSE_H_
-#define OMNICML_POSE_H_
+#ifndef OMNICML_GEOMETRY_POSE_H_
+#define OMNICML_GEOMETRY_POSE_H_
 
 #include <Eigen/Core>
 
@@ -44,4 +44,4 @@ Pose2 ApplyIncrement(const Pose2& pose, const OdometryIncrement& u);
 
 }  // namespace omnicml
 
-#endif  // OMNICML_POSE_H_
+#endif  // OMNICML_GEOMETRY_POSE_H_

@@ -38,15 +38,15 @@
 // increment perturbed as in Thrun et al.'s sample_motion_model_odometry with the
 // variances of docs/design.md "Motion model" (SampleOdometryIncrement below). The odometry
 // frame starts at the first frame's ground truth pose.
-#ifndef OMNICML_ANTWORLD_H_
-#define OMNICML_ANTWORLD_H_
+#ifndef OMNICML_LOGS_ANTWORLD_H_
+#define OMNICML_LOGS_ANTWORLD_H_
 
 #include <cstdint>
 #include <random>
 #include <string>
 #include <vector>
 
-#include "omnicml/unwrap/frame.h"
+#include "omnicml/sensor/frame.h"
 #include "omnicml/geometry/pose.h"
 #include "omnicml/tracking/tracker.h"
 
@@ -144,4 +144,4 @@ std::int64_t ImportAntWorld(const std::string& csv, const std::string& out_dir,
 
 }  // namespace omnicml
 
-#endif  // OMNICML_ANTWORLD_H_
+#endif  // OMNICML_LOGS_ANTWORLD_H_

@@ -31,8 +31,8 @@
 // Errors: every problem in the input is an omnicml::Error whose message starts with
 // "<file>:<line>: " (the file is the full path of the session.yaml or frames.csv; for a
 // bad image it is the frames.csv row that names it, and the image path follows).
-#ifndef OMNICML_LOG_FORMAT_H_
-#define OMNICML_LOG_FORMAT_H_
+#ifndef OMNICML_LOGS_LOG_FORMAT_H_
+#define OMNICML_LOGS_LOG_FORMAT_H_
 
 #include <cstdint>
 #include <fstream>
@@ -42,7 +42,7 @@
 #include <vector>
 
 #include "omnicml/common/file_io.h"
-#include "omnicml/unwrap/frame.h"
+#include "omnicml/sensor/frame.h"
 
 namespace omnicml {
 
@@ -220,4 +220,4 @@ std::string FormatRoundTrip(double value);
 
 }  // namespace omnicml
 
-#endif  // OMNICML_LOG_FORMAT_H_
+#endif  // OMNICML_LOGS_LOG_FORMAT_H_

@@ -31,8 +31,8 @@
 // to cover the picture), a legend and a metre scale bar; x to the right, y up.
 //
 // Pure functions of their inputs; thread-safe.
-#ifndef OMNICML_MAP_EXPORT_H_
-#define OMNICML_MAP_EXPORT_H_
+#ifndef OMNICML_REPORT_MAP_EXPORT_H_
+#define OMNICML_REPORT_MAP_EXPORT_H_
 
 #include <cstdint>
 #include <filesystem>
@@ -134,8 +134,8 @@ struct MapHealthOptions {
   // A cell without evidence of its own is changed when at least this many of its 8
   // neighbouring cells have some (a change seen from there is usually in view from here
   // too: on store_large a restocked or moved shelf alters the panorama over several
-  // cells). 0 disables; 0..8. Since 2026-11-24 (docs/experiments.md, issue 15: chosen
-  // on seeds 1-3 among spatial rules, confirmed on seeds 4-5).
+  // cells). 0 disables; 0..8. Chosen on seeds 1-3 among spatial rules, confirmed on
+  // seeds 4-5 (docs/results.md).
   int min_changed_neighbours = 2;
 };
 enum class CellHealth { kOk, kStale, kChanged, kNew };
@@ -184,4 +184,4 @@ std::string InspectText(const CmlEngine& engine, const MapHealthOptions& options
 
 }  // namespace omnicml
 
-#endif  // OMNICML_MAP_EXPORT_H_
+#endif  // OMNICML_REPORT_MAP_EXPORT_H_

@@ -3,8 +3,8 @@
 // WriteFileAtomic from omnicml/common/file_io.h (included here for existing users).
 //
 // HtmlReport is thread-compatible (one thread at a time per object).
-#ifndef OMNICML_REPORT_H_
-#define OMNICML_REPORT_H_
+#ifndef OMNICML_REPORT_REPORT_H_
+#define OMNICML_REPORT_REPORT_H_
 
 #include <string>
 #include <vector>
@@ -43,4 +43,4 @@ class HtmlReport {
 
 }  // namespace omnicml
 
-#endif  // OMNICML_REPORT_H_
+#endif  // OMNICML_REPORT_REPORT_H_

@@ -8,8 +8,8 @@
 // unless set explicitly; an empty plot renders axes and the text "no data".
 //
 // Plain value type; thread-compatible.
-#ifndef OMNICML_SVG_PLOT_H_
-#define OMNICML_SVG_PLOT_H_
+#ifndef OMNICML_REPORT_SVG_PLOT_H_
+#define OMNICML_REPORT_SVG_PLOT_H_
 
 #include <string>
 #include <vector>
@@ -80,4 +80,4 @@ class SvgPlot {
 
 }  // namespace omnicml
 
-#endif  // OMNICML_SVG_PLOT_H_
+#endif  // OMNICML_REPORT_SVG_PLOT_H_

@@ -21,8 +21,8 @@
 // Lifecycle: construct from a World, SetState() whenever events changed the world
 // state, then render. Render* methods are const and safe to call from several threads
 // at once; SetState is not (no rendering may run meanwhile).
-#ifndef OMNICML_RENDERER_H_
-#define OMNICML_RENDERER_H_
+#ifndef OMNICML_SIM_RENDERER_H_
+#define OMNICML_SIM_RENDERER_H_
 
 #include <cstdint>
 #include <memory>
@@ -99,4 +99,4 @@ cv::Mat DrawFloorPlan(const World& world, const WorldState& state,
 
 }  // namespace omnicml
 
-#endif  // OMNICML_RENDERER_H_
+#endif  // OMNICML_SIM_RENDERER_H_

@@ -19,8 +19,8 @@
 // and per-frame sub-seeds, so the same options give the same frames byte for byte,
 // whatever else the process does. Frames are produced on the fly; memory does not grow
 // with the number of frames.
-#ifndef OMNICML_SIMULATOR_H_
-#define OMNICML_SIMULATOR_H_
+#ifndef OMNICML_SIM_SIMULATOR_H_
+#define OMNICML_SIM_SIMULATOR_H_
 
 #include <cstdint>
 #include <memory>
@@ -31,7 +31,7 @@
 #include <opencv2/core.hpp>
 
 #include "omnicml/logs/antworld.h"
-#include "omnicml/unwrap/frame.h"
+#include "omnicml/sensor/frame.h"
 #include "omnicml/geometry/pose.h"
 #include "omnicml/sim/renderer.h"
 #include "omnicml/tracking/tracker.h"
@@ -161,4 +161,4 @@ class SimulatedFrameSource : public FrameSource {
 
 }  // namespace omnicml
 
-#endif  // OMNICML_SIMULATOR_H_
+#endif  // OMNICML_SIM_SIMULATOR_H_

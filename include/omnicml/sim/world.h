@@ -11,8 +11,8 @@
 //
 // Coordinates: the map frame, x to the right and y up on the floor plan, metres; the
 // floor is z = 0. Everything here is a plain value type: thread-compatible.
-#ifndef OMNICML_WORLD_H_
-#define OMNICML_WORLD_H_
+#ifndef OMNICML_SIM_WORLD_H_
+#define OMNICML_SIM_WORLD_H_
 
 #include <array>
 #include <cstdint>
@@ -249,4 +249,4 @@ std::uint64_t MixSeed(std::uint64_t a, std::uint64_t b);
 
 }  // namespace omnicml
 
-#endif  // OMNICML_WORLD_H_
+#endif  // OMNICML_SIM_WORLD_H_

@@ -5,8 +5,8 @@
 //
 // All functions are pure (inputs -> outputs); MixtureTracker keeps the current p(x_t)
 // and is thread-compatible (one thread at a time).
-#ifndef OMNICML_TRACKER_H_
-#define OMNICML_TRACKER_H_
+#ifndef OMNICML_TRACKING_TRACKER_H_
+#define OMNICML_TRACKING_TRACKER_H_
 
 #include <optional>
 #include <string>
@@ -146,4 +146,4 @@ class MixtureTracker {
 
 }  // namespace omnicml
 
-#endif  // OMNICML_TRACKER_H_
+#endif  // OMNICML_TRACKING_TRACKER_H_

@@ -9,8 +9,8 @@
 //
 // OmniUnwrapper computes its sampling maps once at construction (cv::remap, bilinear)
 // and is then immutable: Unwrap and Render are safe to call from several threads.
-#ifndef OMNICML_OMNI_UNWRAPPER_H_
-#define OMNICML_OMNI_UNWRAPPER_H_
+#ifndef OMNICML_UNWRAP_OMNI_UNWRAPPER_H_
+#define OMNICML_UNWRAP_OMNI_UNWRAPPER_H_
 
 #include <string>
 
@@ -142,4 +142,4 @@ void WriteImage(const std::string& path, const cv::Mat& image);
 
 }  // namespace omnicml
 
-#endif  // OMNICML_OMNI_UNWRAPPER_H_
+#endif  // OMNICML_UNWRAP_OMNI_UNWRAPPER_H_

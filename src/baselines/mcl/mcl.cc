@@ -212,7 +212,7 @@ int MonteCarloLocalizer::InjectionCount(double mean_likelihood, double max_likel
                                         double best_likelihood) {
   if (options_.injection == MclInjection::kEveryStep) return options_.random_samples_per_step;
   if (options_.injection == MclInjection::kWhenLost) {
-    // Issue 18: inconsistent = even the cloud's best particle explains the query much
+    // Lost detection: inconsistent = even the cloud's best particle explains the query much
     // worse than a particle at the best retrieved reference would; lost after
     // lost_after_steps of those in a row. The best particle, not the mean: during an
     // aliasing episode the true place's references still rank within top_k, so some
@@ -335,7 +335,7 @@ double MonteCarloLocalizer::Likelihood(const Pose2& pose, const std::vector<doub
       d = std::abs(psi) <= options_.heading_gate_half_width_rad ? 1.0 : 0.0;
     }
     k += d;
-    double gate = 1.0;  // issue 18: the heading the panoramas imply for reference j
+    double gate = 1.0;  // the heading the panoramas imply for reference j
     if (!implied.empty() && std::isfinite(implied[j]) &&
         std::abs(WrapAngle(pose.z() - implied[j])) > options_.relative_heading_half_width_rad) {
       gate = 0.0;

@@ -1,7 +1,7 @@
 // Private helpers shared by the descriptor extractors: input checks and the tight
 // distance loops the environment model runs over thousands of stored descriptors.
-#ifndef OMNICML_INTERNAL_DESCRIPTOR_UTIL_H_
-#define OMNICML_INTERNAL_DESCRIPTOR_UTIL_H_
+#ifndef OMNICML_DESCRIPTORS_INTERNAL_DESCRIPTOR_UTIL_H_
+#define OMNICML_DESCRIPTORS_INTERNAL_DESCRIPTOR_UTIL_H_
 
 #include <cmath>
 #include <cstddef>
@@ -106,4 +106,4 @@ inline IntersectionSums SumMinimum(const float* a, const float* b, std::size_t n
 
 }  // namespace omnicml::internal
 
-#endif  // OMNICML_INTERNAL_DESCRIPTOR_UTIL_H_
+#endif  // OMNICML_DESCRIPTORS_INTERNAL_DESCRIPTOR_UTIL_H_

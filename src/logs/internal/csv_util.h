@@ -1,6 +1,6 @@
 // Small CSV helpers shared by the log reader and the AntWorld reader (private).
-#ifndef OMNICML_INTERNAL_CSV_UTIL_H_
-#define OMNICML_INTERNAL_CSV_UTIL_H_
+#ifndef OMNICML_LOGS_INTERNAL_CSV_UTIL_H_
+#define OMNICML_LOGS_INTERNAL_CSV_UTIL_H_
 
 #include <charconv>
 #include <cmath>
@@ -55,4 +55,4 @@ inline std::optional<double> ParseFiniteDouble(std::string_view field) {
 
 }  // namespace omnicml::internal
 
-#endif  // OMNICML_INTERNAL_CSV_UTIL_H_
+#endif  // OMNICML_LOGS_INTERNAL_CSV_UTIL_H_

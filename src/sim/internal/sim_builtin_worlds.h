@@ -1,7 +1,7 @@
 // The built-in world files, compiled into the library by cmake/modules/sim.cmake (the
 // definition is generated into the build tree from datasets/worlds/*.yaml). Private.
-#ifndef OMNICML_INTERNAL_SIM_BUILTIN_WORLDS_H_
-#define OMNICML_INTERNAL_SIM_BUILTIN_WORLDS_H_
+#ifndef OMNICML_SIM_INTERNAL_SIM_BUILTIN_WORLDS_H_
+#define OMNICML_SIM_INTERNAL_SIM_BUILTIN_WORLDS_H_
 
 #include <vector>
 
@@ -17,4 +17,4 @@ const std::vector<BuiltinWorldText>& BuiltinWorldTexts();
 
 }  // namespace omnicml::internal
 
-#endif  // OMNICML_INTERNAL_SIM_BUILTIN_WORLDS_H_
+#endif  // OMNICML_SIM_INTERNAL_SIM_BUILTIN_WORLDS_H_

@@ -4,8 +4,8 @@
 // contributes the geometric residual |p - c| - r (pixels) under a robust loss. Several
 // point sets can share one centre (concentric circles: the inner and outer boundary of a
 // catadioptric ring). Single-threaded and deterministic.
-#ifndef OMNICML_INTERNAL_CIRCLE_FIT_H_
-#define OMNICML_INTERNAL_CIRCLE_FIT_H_
+#ifndef OMNICML_UNWRAP_INTERNAL_CIRCLE_FIT_H_
+#define OMNICML_UNWRAP_INTERNAL_CIRCLE_FIT_H_
 
 #include <vector>
 
@@ -40,4 +40,4 @@ CircleFitReport FitConcentricCircles(const std::vector<std::vector<cv::Point2d>>
 
 }  // namespace omnicml::internal
 
-#endif  // OMNICML_INTERNAL_CIRCLE_FIT_H_
+#endif  // OMNICML_UNWRAP_INTERNAL_CIRCLE_FIT_H_

@@ -239,7 +239,7 @@ TEST(Mcl, GlobalInitIsFreeAndDeterministic) {
   EXPECT_EQ(a.particles().back().pose, b.particles().back().pose);
 }
 
-// ------------------------------------------------------------------ issue 18: aliasing
+// ------------------------------------------------------------------ aliasing
 
 // A point-symmetric pair in the open room: reference A at (3, 5) heading 0 and its mirror
 // B at (7, 5) heading pi see the same panorama in their own frames (same IFH, same
@@ -317,7 +317,7 @@ std::vector<double> StandStill(MonteCarloLocalizer& mcl, const Pose2& start, con
   return err;
 }
 
-// Issue 18, the aliasing episode in miniature: the robot stays at A while retrieval
+// The aliasing episode in miniature: the robot stays at A while retrieval
 // ranks the mirror B first (xi_B = 1, xi_A ~ 0.96). [W]'s filter, whose retrieval keeps
 // only the best reference (as home_store's top 10 did during an episode), gives the true
 // cloud the floor; its steady uniform injection lands at B and takes over. The default
@@ -472,7 +472,7 @@ TEST(Mcl, TrackingErrorBoundedOnSimulatedLog) {
   EXPECT_LT(max_head, 0.35);
 }
 
-// Issue 18: the default filter (top_k 30, injection only when lost, relative heading)
+// The default filter (top_k 30, injection only when lost, relative heading)
 // tracks every seed from the known start without jumping and within [W]'s accuracy.
 TEST(Mcl, DefaultFilterTracksEverySeed) {
   for (std::uint64_t seed : {1u, 2u, 5u}) {
@@ -528,7 +528,7 @@ TEST(Mcl, ReadsRawRingSessions) {
   }
 }
 
-// Issue 18: a filter that never injects random samples does not jump to the aliased
+// A filter that never injects random samples does not jump to the aliased
 // (mirror) end of the point-symmetric store, on every seed, even where retrieval aliases
 // for many frames in a row (seeds 2, 5); [W]'s steady injection jumps 20-24 m there.
 TEST(Mcl, TrackingWithoutInjectionNeverJumpsOnAnySeed) {

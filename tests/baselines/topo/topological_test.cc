@@ -595,9 +595,9 @@ TEST(TopologicalLocalizer, SimulatedCrossDayMostlyCorrect) {
   }
 }
 
-// Issue 18: institute with the repository's room places (datasets/places/
+// Institute with the repository's room places (datasets/places/
 // institute_rooms.yaml, the corridor one place as in [UN]), train day 1, test day 2, on
-// several seeds (short laps): confident answers are rarely wrong (issue 18 target:
+// several seeds (short laps): confident answers are rarely wrong (target:
 // <= 1 %, i.e. at most one of the 90 frames; 0 on each seed with the defaults).
 TEST(TopologicalLocalizer, InstituteRoomsRarelyConfidentWrongOnSeveralSeeds) {
   const AdjacencyMap map =

@@ -21,7 +21,7 @@
 //      rotation-invariant descriptor). prior = prior_fraction * mean of the non-zero xi_j.
 //      A particle in a non-free cell gets weight 0; every weight is at least
 //      min_likelihood (so the set never degenerates to all zeros).
-//      Issue 18 (beyond [W], relative_heading, default): the panoramas' relative heading
+//      Beyond [W] (relative_heading, default): the panoramas' relative heading
 //      (Fourier signature) gives the robot heading each retrieved reference implies,
 //      phi_j + RelativeHeading(y_t, y_j); in (7) xi_j counts only for particles within
 //      relative_heading_half_width_rad of it (K_i unchanged).
@@ -31,10 +31,10 @@
 //      num_particles - m particles, plus m injected samples (MclInjection). [W] injects
 //      m = random_samples_per_step uniformly over the free cells every step (kEveryStep),
 //      which lets the filter recover from kidnapping; kAugmented is Augmented MCL
-//      (Probabilistic Robotics, Table 8.3); kWhenLost (default, issue 18) injects only
+//      (Probabilistic Robotics, Table 8.3); kWhenLost (default, beyond [W]) injects only
 //      while a lost detector fires, a share of the samples in the visibility areas of the
 //      retrieved references with their implied heading (sensor resetting).
-//      Issue 18, measured on home_store (docs/baselines_results.md): with kEveryStep and
+//      Measured on home_store (docs/baselines_results.md): with kEveryStep and
 //      top_k 10, known-start tracking jumps 20-24 m to the mirror end of the store when
 //      retrieval aliases for 10-25 frames in a row (the true place's references drop to
 //      ranks 2-15, so xi = 0 there and the true cloud sits at the floor; injected
@@ -56,8 +56,8 @@
 // Determinism: every random draw comes from one std::mt19937_64 seeded with
 // MclOptions::seed; the same inputs give the same particles bit for bit.
 // Thread-compatible: one thread drives a localizer.
-#ifndef OMNICML_MCL_H_
-#define OMNICML_MCL_H_
+#ifndef OMNICML_BASELINES_MCL_MCL_H_
+#define OMNICML_BASELINES_MCL_MCL_H_
 
 #include <cstdint>
 #include <memory>
@@ -69,7 +69,7 @@
 #include "omnicml/common/common.h"
 #include "omnicml/descriptors/descriptor.h"
 #include "omnicml/descriptors/descriptor_factory.h"
-#include "omnicml/unwrap/frame.h"
+#include "omnicml/sensor/frame.h"
 #include "omnicml/baselines/mcl/occupancy_grid.h"
 #include "omnicml/geometry/pose.h"
 #include "omnicml/tracking/tracker.h"
@@ -83,7 +83,7 @@ enum class MclInjection {
   // Augmented MCL (Thrun et al., Probabilistic Robotics, Table 8.3): num_particles *
   // max(0, 1 - w_fast / w_slow) samples, at most max_injection_fraction * num_particles.
   kAugmented,
-  // Issue 18 (beyond [W]): only while the lost detector says the cloud is lost, i.e. the
+  // Beyond [W]: only while the lost detector says the cloud is lost, i.e. the
   // cloud's mean likelihood has been below lost_likelihood_ratio times the likelihood at
   // the best retrieved reference for lost_after_steps consecutive steps; then
   // lost_injection_fraction * num_particles samples per step.
@@ -93,7 +93,7 @@ enum class MclInjection {
 struct MclOptions {
   // Number of particles (>= 10). [W] used 5000.
   int num_particles = 5000;
-  // Which injection rule; see MclInjection. Default kWhenLost (issue 18: [W]'s kEveryStep
+  // Which injection rule; see MclInjection. Default kWhenLost ([W]'s kEveryStep
   // jumps to the mirror end of home_store on 3 of 5 seeds and 5-7 m on the other two,
   // docs/baselines_results.md).
   MclInjection injection = MclInjection::kWhenLost;
@@ -122,7 +122,7 @@ struct MclOptions {
   // relative_heading: sensor resetting, Lenser & Veloso 2000); the rest uniform over the
   // free cells. In [0, 1].
   double injection_near_retrieved_fraction = 0.8;
-  // Issue 18 (beyond [W]): relative heading from the panoramas. A Fourier signature
+  // Beyond [W]: relative heading from the panoramas. A Fourier signature
   // (MakeMclHeadingExtractor) of every reference and query gives RelativeHeading(y_t, y_j),
   // so reference j implies the robot heading phi_j + RelativeHeading(y_t, y_j). In eq. (7)
   // a covering reference then counts xi_j only for particles whose heading is within
@@ -141,7 +141,7 @@ struct MclOptions {
   // With true, d(psi) = 1 for every heading (omni views).
   bool heading_independent = true;
   // Retrieval: the k most similar references get xi_j > 0 (0 = all references). [W]:
-  // 10. Issue 18: 30, because during an aliasing episode on home_store the references at
+  // 10. Here 30, because during an aliasing episode on home_store the references at
   // the true place rank 2-15 with xi only ~10 % below the mirror's (seed 2, steps
   // 104-129); with 10 they drop to xi = 0 and the true cloud to the floor.
   int top_k = 30;
@@ -154,8 +154,8 @@ struct MclOptions {
   double axis_offset_rad = 0.0;
   // Visibility areas of the references. The ray and distance limits are generous: in an
   // aisle the wall on an omni view's axis may be 20 m away, and the area is kept near
-  // the reference by max_distance_from_reference_m instead. That cut-off was 2.5 m until
-  // issue 18; 0.75 m (about two reference spacings on home_store) bounds the tracking
+  // the reference by max_distance_from_reference_m instead. That cut-off was 2.5 m
+  // before; 0.75 m (about two reference spacings on home_store) bounds the tracking
   // error: home_store seeds 1-5, max position error worst 1.9 m with 2.5 m, 1.2 m with
   // 1.0 m, 0.79 m with 0.75 m (docs/baselines_results.md).
   // Since this session the cut-off follows the data: with
@@ -452,4 +452,4 @@ int StepsToConverge(const std::vector<MclStepRecord>& records, int from, double 
 
 }  // namespace omnicml
 
-#endif  // OMNICML_MCL_H_
+#endif  // OMNICML_BASELINES_MCL_MCL_H_

@@ -19,8 +19,8 @@
 // map_saver does.
 //
 // Thread-safety: a plain value type; const methods may run concurrently.
-#ifndef OMNICML_OCCUPANCY_GRID_H_
-#define OMNICML_OCCUPANCY_GRID_H_
+#ifndef OMNICML_BASELINES_MCL_OCCUPANCY_GRID_H_
+#define OMNICML_BASELINES_MCL_OCCUPANCY_GRID_H_
 
 #include <cstdint>
 #include <optional>
@@ -167,4 +167,4 @@ std::vector<int> VisibilityArea(const OccupancyGrid& grid, const Eigen::Vector2d
 
 }  // namespace omnicml
 
-#endif  // OMNICML_OCCUPANCY_GRID_H_
+#endif  // OMNICML_BASELINES_MCL_OCCUPANCY_GRID_H_

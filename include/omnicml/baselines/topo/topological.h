@@ -17,7 +17,7 @@
 //      different places -> kConfused; they all name place p -> the overall confidence is
 //      the sum of their C_b, and the image is classified as p (kConfident) only if it
 //      reaches the action threshold (0.1 in [UN]); below it the result is kUncertain.
-//      Default since issue 18 (TopologicalOptions::max_dissenting_bands,
+//      Default beyond [UN] (TopologicalOptions::max_dissenting_bands,
 //      light_dependent_bands): one band may dissent when it is less sure than the
 //      agreeing bands on average (its C_b is subtracted), and L's dissent is always
 //      outvoted; UlrichNourbakhshOptions() restores unanimity and [UN]'s bands.
@@ -37,8 +37,8 @@
 //
 // Thread-safety: AdjacencyMap is an immutable value; TopologicalLocalizer is not
 // thread-safe (Localize changes the belief); const methods may run concurrently.
-#ifndef OMNICML_TOPOLOGICAL_H_
-#define OMNICML_TOPOLOGICAL_H_
+#ifndef OMNICML_BASELINES_TOPO_TOPOLOGICAL_H_
+#define OMNICML_BASELINES_TOPO_TOPOLOGICAL_H_
 
 #include <array>
 #include <cstdint>
@@ -52,7 +52,7 @@
 #include "omnicml/descriptors/descriptor.h"
 #include "omnicml/geometry/pose.h"
 #include "omnicml/sim/simulator.h"
-#include "omnicml/unwrap/frame.h"
+#include "omnicml/sensor/frame.h"
 
 namespace omnicml {
 
@@ -117,12 +117,12 @@ AdjacencyMap PlacesFromRoute(const RoutePath& route, double place_length_m);
 enum class PlaceState { kConfident, kUncertain, kConfused };
 std::string ToString(PlaceState state);  // confident|uncertain|confused
 
-// The localizer's histogram defaults (issue 18, docs/experiments.md "[UN] ..."): [UN]'s
+// The localizer's histogram defaults (docs/experiments.md "[UN] ..."): [UN]'s
 // six bands with the normalised r, g, b (chromaticity: unchanged when a room's lights
 // change its brightness) and 64 bins per band (near-grey walls put most chromaticity
 // values within a few hundredths of 1/3). Chosen among bins {32, 64} on home_store and
 // institute, seeds 1-3, all day pairs, one setting for both worlds. HSV saturation and
-// relative luminance instead of HLS S and L (issue 18, "Topological under illumination
+// relative luminance instead of HLS S and L ("Topological under illumination
 // change"): S is then unchanged by a light, L by a light over the whole image.
 inline ColorHistogramOptions TopologicalHistogramDefaults() {
   ColorHistogramOptions o;
@@ -139,7 +139,7 @@ struct TopologicalOptions {
   // Describe averages blocks of this many x this many pixels (cv::INTER_AREA) before the
   // histograms; 1 = off. Averaging n^2 pixels divides the sensor noise by n, which
   // otherwise scatters the hue and chromaticity of the dark near-grey pixels of a room
-  // whose lights are off (issue 18: with 4, institute's hue band names another place in
+  // whose lights are off (with 4, institute's hue band names another place in
   // 10 % instead of 59 % of the frames of rooms whose lights changed between the days).
   // Chosen among {1, 4, 8}. Not in [UN]. 1..16.
   int average_block_px = 4;
@@ -155,9 +155,9 @@ struct TopologicalOptions {
   // the overall confidence is then the agreeing bands' C_b (light-dependent ones
   // included) minus the light-independent dissenters'. One band's histogram can be
   // changed by what changes between days (a light, a restocked shelf, a curtain) while
-  // the others still agree (issue 18). 0..5.
+  // the others still agree. 0..5.
   int max_dissenting_bands = 1;
-  // Per band (H, L, S, r, g, b): whether its histogram changes with the light (issue 18:
+  // Per band (H, L, S, r, g, b): whether its histogram changes with the light (
   // L, even relative to the image's median, since a light switches only part of a
   // panorama). Such a band's dissent counts towards max_dissenting_bands but is
   // outvoted whatever its confidence (it is not compared with the agreeing bands nor
@@ -189,7 +189,7 @@ struct TopologicalOptions {
   void Validate() const;
 };
 
-// [UN]'s bands and vote as published, on the defaults before issue 18's illumination
+// [UN]'s bands and vote as published, on the defaults before the illumination
 // work (the "before" rows of docs/experiments.md): HLS L and S, unanimity; 64 bins,
 // normalised r, g, b and 4 x 4 block averages as the defaults. As YAML (--config):
 // histogram: {hsv_saturation: false, relative_luminance: false}, max_dissenting_bands: 0.
@@ -383,4 +383,4 @@ std::string TopologicalSummaryTable(const TopologicalCounts& counts, const std::
 
 }  // namespace omnicml
 
-#endif  // OMNICML_TOPOLOGICAL_H_
+#endif  // OMNICML_BASELINES_TOPO_TOPOLOGICAL_H_

@@ -1,7 +1,7 @@
 // Frames, sessions and the streaming frame source shared by log readers, the simulator
 // and the engine (docs/design.md "Data flow", "Logs", "Sessions").
-#ifndef OMNICML_FRAME_H_
-#define OMNICML_FRAME_H_
+#ifndef OMNICML_SENSOR_FRAME_H_
+#define OMNICML_SENSOR_FRAME_H_
 
 #include <cstdint>
 #include <memory>
@@ -73,4 +73,4 @@ class FrameSource {
 
 }  // namespace omnicml
 
-#endif  // OMNICML_FRAME_H_
+#endif  // OMNICML_SENSOR_FRAME_H_

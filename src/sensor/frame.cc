@@ -1,4 +1,4 @@
-#include "omnicml/unwrap/frame.h"
+#include "omnicml/sensor/frame.h"
 
 #include "omnicml/common/common.h"
 

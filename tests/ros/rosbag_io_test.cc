@@ -175,7 +175,7 @@ TEST(RosbagIo, RoundTripKeepsTheLog) {
 // angles of odometry differ in their last bits after the quaternion encoding).
 TEST(RosbagIo, EngineOnTheImportedLogMatchesTheOriginal) {
   TempDir tmp;
-  SimulateLog(tmp / "log", 2, 40);
+  SimulateLog(tmp / "log", 2, 20);
   ExportRosbag((tmp / "log").string(), (tmp / "x.bag").string());
   RosbagImportOptions io;
   io.image_topic = "/omnicml/image";

@@ -5,7 +5,7 @@
 # Defines OMNICML_HAVE_ROS and, when found, plain lists (absolute paths, so that the module
 # libraries stay exportable):
 #   OMNICML_ROS_BAG_INCLUDE_DIRS, OMNICML_ROS_BAG_LIBRARIES    rosbag::Bag/View, messages
-#   OMNICML_ROS_NODE_INCLUDE_DIRS, OMNICML_ROS_NODE_LIBRARIES  roscpp and tf2_ros
+#   OMNICML_ROS_NODE_INCLUDE_DIRS, OMNICML_ROS_NODE_LIBRARIES  roscpp
 set(OMNICML_HAVE_ROS OFF)
 find_path(OMNICML_ROSBAG_INCLUDE_DIR rosbag/bag.h)
 find_path(OMNICML_ROS_MSGS_INCLUDE_DIR NAMES sensor_msgs/Image.h nav_msgs/Odometry.h
@@ -18,7 +18,7 @@ find_library(OMNICML_ROSTIME_LIB rostime)
 find_library(OMNICML_ROS_CPP_COMMON_LIB cpp_common)
 find_library(OMNICML_CONSOLE_BRIDGE_LIB console_bridge)
 find_library(OMNICML_BOOST_FILESYSTEM_LIB boost_filesystem)
-pkg_check_modules(OMNICML_ROSCPP QUIET roscpp tf2_ros)
+pkg_check_modules(OMNICML_ROSCPP QUIET roscpp)
 foreach(_dir pluginlib class_loader ament_index_cpp rcpputils rcutils)
   if(EXISTS /usr/include/${_dir}/${_dir})
     list(APPEND _omnicml_ros_nested_includes /usr/include/${_dir})
@@ -33,7 +33,7 @@ foreach(_v OMNICML_ROSBAG_INCLUDE_DIR OMNICML_ROS_MSGS_INCLUDE_DIR OMNICML_ROSBA
   endif()
 endforeach()
 if(NOT OMNICML_ROSCPP_FOUND)
-  list(APPEND _missing "roscpp/tf2_ros (pkg-config)")
+  list(APPEND _missing "roscpp (pkg-config)")
 endif()
 if(_missing)
   message(STATUS "ROS 1 not found (${_missing}): rosbag import/export and omnicml_node are not "

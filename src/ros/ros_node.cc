@@ -206,7 +206,10 @@ RosNode::RosNode() : impl_(std::make_unique<Impl>()) {
                        p.queue_size, " frames)", p.map_in.empty() ? "" : ", map " + p.map_in));
 }
 
-RosNode::~RosNode() = default;
+RosNode::~RosNode() {
+  // The worker publishes through the transport: stop it before the transport goes.
+  if (impl_ && impl_->live) impl_->live->Stop(false);
+}
 
 void RosNode::InitRos(int& argc, char** argv, const std::string& name) {
   ros1::InitNode(argc, argv, name);

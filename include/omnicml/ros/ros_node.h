@@ -10,10 +10,11 @@
 //               a session written by `omnicml export rosbag`; begins that session)
 //   publishes   ~pose (geometry_msgs/PoseWithCovarianceStamped, map frame: the strongest
 //               component of p(x_t) and its covariance, as `omnicml run` reports it),
-//               /tf map_frame -> odom_frame, ~hypotheses (geometry_msgs/PoseArray: the
-//               components of p(x_t)), ~reference_views (visualization_msgs/MarkerArray:
-//               one sphere per view component, red (weight 0) to green (weight 1), every
-//               ~views_every_frames frames), ~dropped_frames (std_msgs/Int64, when it grows)
+//               /tf (tf2_msgs/TFMessage) map_frame -> odom_frame, ~hypotheses
+//               (geometry_msgs/PoseArray: the components of p(x_t)), ~reference_views
+//               (visualization_msgs/MarkerArray: one sphere per view component, red (weight 0) to
+//               green (weight 1), every ~views_every_frames frames), ~dropped_frames
+//               (std_msgs/Int64, when it grows)
 //   services    ~save_map, ~new_session, ~forgetting_active, ~forgetting_passive,
 //               ~forgetting_static (std_srvs/Trigger)
 // Parameters: see RosNodeParameters.

@@ -47,18 +47,18 @@
 namespace omnicml {
 
 struct RosbagExportOptions {
-  std::string image_topic = "/omnicml/image";
-  bool compressed = false;  // CompressedImage (PNG) instead of Image
-  std::string odom_topic = "/odom";
-  bool odom_tf = true;  // also publish odom_frame -> base_frame on /tf
-  std::string truth_topic = "/omnicml/ground_truth";
-  std::string session_topic = "/omnicml/session";
-  std::string map_frame = "map";
-  std::string odom_frame = "odom";
-  std::string base_frame = "base_link";
-  std::string camera_frame = "omni_camera";
-  bool overwrite = false;  // replace an existing bag
-  void Validate() const;   // throws omnicml::Error naming the field
+  std::string image_topic = "/omnicml/image";         // images (Image or CompressedImage)
+  bool compressed = false;                            // CompressedImage (PNG) instead of Image
+  std::string odom_topic = "/odom";                   // nav_msgs/Odometry
+  bool odom_tf = true;                                // also odom_frame -> base_frame on /tf
+  std::string truth_topic = "/omnicml/ground_truth";  // geometry_msgs/PoseStamped, map frame
+  std::string session_topic = "/omnicml/session";     // std_msgs/String per session
+  std::string map_frame = "map";                      // frame of the ground truth
+  std::string odom_frame = "odom";                    // parent frame of the odometry
+  std::string base_frame = "base_link";               // the robot (odometry child frame)
+  std::string camera_frame = "omni_camera";           // frame_id of the images
+  bool overwrite = false;                             // replace an existing bag
+  void Validate() const;                              // throws omnicml::Error naming the field
 };
 
 struct RosbagExportSummary {

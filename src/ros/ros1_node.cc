@@ -245,6 +245,9 @@ bool CallTrigger(const std::string& service, double timeout_s, std::string* mess
     ros::init(remappings, "omnicml_trigger_client",
               ros::init_options::AnonymousName | ros::init_options::NoSigintHandler);
   }
+  // roscpp shuts the node down when its last NodeHandle goes; keep one for later calls.
+  static const ros::NodeHandle* const keep_alive = new ros::NodeHandle();
+  (void)keep_alive;
   if (!ros::service::waitForService(service, ros::Duration(timeout_s))) {
     *message = service + ": not available within " + std::to_string(timeout_s) + " s";
     return false;

@@ -4,8 +4,9 @@
 // (mean and max within 1e-6 m: the run is the same computation, the bag's quaternions
 // change odometry angles in their last bits), every frame must get a pose, the
 // ~save_map service and the save on shutdown must write a map that loads back with the
-// offline run's views. Processes run in their own process groups, are given a time
-// limit and are killed as groups at the end. Skipped when rosmaster is not installed.
+// offline run's views, and ~forgetting_static must reach the engine. Processes run in their own
+// process groups, are given a time limit and are killed as groups at the end. Skipped when
+// rosmaster is not installed.
 #include <arpa/inet.h>
 #include <fcntl.h>
 #include <netinet/in.h>
@@ -178,7 +179,7 @@ Errors NodeErrors(const fs::path& poses_csv, const fs::path& log, double offset_
 }
 
 // The node localizes a played bag exactly as the offline run does, answers ~save_map and
-// saves on shutdown; both maps load back with the offline run's views.
+// ~forgetting_static and saves on shutdown; both maps load back with the offline run's views.
 TEST(RosNode, LocalizesAPlayedBagLikeTheOfflineRun) {
   if (!OnPath("rosmaster"))
     GTEST_SKIP() << "SKIPPED: rosmaster is not installed (Debian python3-rosmaster; "
@@ -227,6 +228,8 @@ TEST(RosNode, LocalizesAPlayedBagLikeTheOfflineRun) {
   EXPECT_TRUE(ros1::CallTrigger("/omnicml_node/save_map", 10.0, &message)) << message;
   EXPECT_EQ(LoadEngine(map.string())->model().NumViews(), offline_views);
   fs::remove(map);
+  // ~forgetting_static reaches the engine: the map saved on shutdown carries the mode.
+  EXPECT_TRUE(ros1::CallTrigger("/omnicml_node/forgetting_static", 10.0, &message)) << message;
   ros1::Shutdown();
 
   node.Signal(SIGINT);
@@ -240,6 +243,7 @@ TEST(RosNode, LocalizesAPlayedBagLikeTheOfflineRun) {
   const std::unique_ptr<CmlEngine> saved = LoadEngine(map.string());  // saved on shutdown
   EXPECT_EQ(saved->model().NumViews(), offline_views);
   EXPECT_EQ(saved->counters().frames, offline.frames);
+  EXPECT_EQ(saved->options().model.forgetting, ForgettingMode::kStatic);
   std::cout << "offline: " << offline.frames << " frames, mean error " << offline.mean_m
             << " m, max " << offline.max_m << " m; node: " << live.frames << " poses, mean "
             << live.mean_m << " m, max " << live.max_m << " m\n";

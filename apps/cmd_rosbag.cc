@@ -85,6 +85,9 @@ void AddImport(CLI::App& app) {
                   "Later sessions' start: known | continue | global")
       ->check(CLI::IsMember({"known", "continue", "global"}))
       ->capture_default_str();
+  cmd->add_option("--session-topic", o.session_topic,
+                  "Sessions written by export rosbag (std_msgs/String); \"\" ignores them")
+      ->capture_default_str();
   cmd->add_flag("--overwrite", o.overwrite, "Replace an existing log");
   cmd->callback([args] {
     args->options.first_start = SessionStartModeFromString(args->first_start);

@@ -7,7 +7,8 @@
 # per camera and rate: frames received, processed, dropped, latency p50/p99 (ms) and the
 # engine's own time per frame p50 (ms).
 #   scripts/ros_latency.sh [FRAMES] [RATES...]      defaults: 300 frames, 10 30 60 Hz
-# Environment: OMNICML_BUILD_DIR (default build).
+# Environment: OMNICML_BUILD_DIR (default build); OMNICML_ROS_COMPRESSED=1 sends the images
+# as sensor_msgs/CompressedImage (PNG) instead of raw Image messages.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 build="${OMNICML_BUILD_DIR:-build}"
@@ -43,12 +44,18 @@ sed -e 's/panorama_height_px: 120/panorama_height_px: 150/' -e 's/ring_width_px:
 "$build/omnicml" simulate --world "$work/pano.yaml" --days 1 --frames-per-day "$frames" --panorama \
   --out "$work/pano" >/dev/null
 "$build/omnicml" simulate --world "$work/ring.yaml" --days 1 --frames-per-day "$frames" --out "$work/ring" >/dev/null
-for cam in pano ring; do "$build/omnicml" export rosbag "$work/$cam" --out "$work/$cam.bag" >/dev/null; done
+compressed=()
+node_compressed=false
+if [ "${OMNICML_ROS_COMPRESSED:-0}" = 1 ]; then compressed=(--compressed); node_compressed=true; fi
+for cam in pano ring; do
+  "$build/omnicml" export rosbag "$work/$cam" --out "$work/$cam.bag" "${compressed[@]}" >/dev/null
+done
 
 for cam in pano ring; do
   for rate in "${rates[@]}"; do
     csv="$work/latency_${cam}_$rate.csv"
-    setsid "$build/omnicml_node" __name:=omnicml_node _latency_csv:="$csv" >"$work/node.txt" 2>&1 &
+    setsid "$build/omnicml_node" __name:=omnicml_node _latency_csv:="$csv" _compressed:="$node_compressed" \
+      >"$work/node.txt" 2>&1 &
     node=$!
     pids+=("$node")
     "$build/omnicml_ros_play" "$work/$cam.bag" --rate "$rate" --timeout 30 >"$work/play.txt"

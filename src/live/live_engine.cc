@@ -50,6 +50,11 @@ bool LiveEngine::AddImage(double stamp_s, cv::Mat image) {
   return Enqueue({stamp_s, std::move(image), std::nullopt, std::chrono::steady_clock::now()});
 }
 
+bool LiveEngine::AddEncodedImage(double stamp_s, std::function<cv::Mat()> decode) {
+  return Enqueue(
+      {stamp_s, cv::Mat(), std::nullopt, std::chrono::steady_clock::now(), std::move(decode)});
+}
+
 bool LiveEngine::AddFrame(double stamp_s, cv::Mat image, const Pose2& odom_T_robot) {
   return Enqueue({stamp_s, std::move(image), odom_T_robot, std::chrono::steady_clock::now()});
 }
@@ -199,6 +204,7 @@ void LiveEngine::BeginSessionNow(SessionInfo info, const cv::Mat& image) {
 void LiveEngine::Process(QueuedFrame queued, bool odometry_held) {
   const auto t_start = std::chrono::steady_clock::now();
   try {
+    if (queued.decode) queued.image = queued.decode();
     // Sessions: an explicit one, the first, or one begun by a gap in the stamps.
     if (pending_session_) {
       SessionInfo info = std::move(*pending_session_);

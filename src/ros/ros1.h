@@ -126,8 +126,10 @@ struct NodeTopics {
 };
 
 struct NodeHandlers {
-  std::function<void(double stamp_s, cv::Mat image)> on_image;
-  std::function<void(const std::string& error)> on_bad_image;
+  // An image message: `decode` converts it to CV_8UC1/CV_8UC3 (throws std::runtime_error
+  // naming topic, seq and the problem); call it where the image is used, so that images
+  // dropped before use are never decoded.
+  std::function<void(double stamp_s, std::function<cv::Mat()> decode)> on_image;
   std::function<void(double stamp_s, const PlanarPose& odom_T_robot)> on_odometry;
   std::function<void(const std::string& text)> on_session;
   // Services; each returns (success, message).

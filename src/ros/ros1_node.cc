@@ -83,22 +83,27 @@ struct NodeTransport::Impl {
   std::vector<ros::ServiceServer> services;
 
   void OnImage(const sensor_msgs::ImageConstPtr& m) {
-    try {
-      handlers.on_image(
-          m->header.stamp.toSec(),
-          ImageFromRaw(m->encoding, m->width, m->height, m->step, m->is_bigendian != 0, m->data));
-    } catch (const std::runtime_error& e) {
-      handlers.on_bad_image(topics.image_topic + ": image seq " + std::to_string(m->header.seq) +
-                            ": " + e.what());
-    }
+    const std::string where =
+        topics.image_topic + ": image seq " + std::to_string(m->header.seq) + ": ";
+    handlers.on_image(m->header.stamp.toSec(), [m, where] {
+      try {
+        return ImageFromRaw(m->encoding, m->width, m->height, m->step, m->is_bigendian != 0,
+                            m->data);
+      } catch (const std::runtime_error& e) {
+        throw std::runtime_error(where + e.what());
+      }
+    });
   }
   void OnCompressed(const sensor_msgs::CompressedImageConstPtr& m) {
-    try {
-      handlers.on_image(m->header.stamp.toSec(), ImageFromCompressed(m->format, m->data));
-    } catch (const std::runtime_error& e) {
-      handlers.on_bad_image(topics.image_topic + ": image seq " + std::to_string(m->header.seq) +
-                            ": " + e.what());
-    }
+    const std::string where =
+        topics.image_topic + ": image seq " + std::to_string(m->header.seq) + ": ";
+    handlers.on_image(m->header.stamp.toSec(), [m, where] {
+      try {
+        return ImageFromCompressed(m->format, m->data);
+      } catch (const std::runtime_error& e) {
+        throw std::runtime_error(where + e.what());
+      }
+    });
   }
   void OnOdom(const nav_msgs::OdometryConstPtr& m) {
     handlers.on_odometry(m->header.stamp.toSec(), FromPoseMsg(m->pose.pose));

@@ -173,8 +173,9 @@ RosNode::RosNode() : impl_(std::make_unique<Impl>()) {
   topics.map_frame = p.map_frame;
   topics.odom_frame = p.odom_frame;
   ros1::NodeHandlers h;
-  h.on_image = [&s](double stamp_s, cv::Mat image) { s.live->AddImage(stamp_s, std::move(image)); };
-  h.on_bad_image = [](const std::string& e) { ros1::LogWarnThrottled(5.0, "omnicml: " + e); };
+  h.on_image = [&s](double stamp_s, std::function<cv::Mat()> decode) {
+    s.live->AddEncodedImage(stamp_s, std::move(decode));
+  };
   h.on_odometry = [&s](double stamp_s, const ros1::PlanarPose& pose) {
     if (!s.live->AddOdometry(stamp_s, MakePose(pose.x_m, pose.y_m, pose.phi_rad)))
       ros1::LogWarnThrottled(

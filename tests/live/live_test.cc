@@ -9,6 +9,7 @@
 
 #include <gtest/gtest.h>
 
+#include "omnicml/common/common.h"
 #include "omnicml/engine/engine_io.h"
 #include "omnicml/live/live_engine.h"
 #include "omnicml/live/odometry_buffer.h"
@@ -153,6 +154,49 @@ TEST(LiveEngine, DropsTheOldestFrameWhenTheQueueIsFull) {
   EXPECT_EQ(outputs[1].dropped_frames, 6);
 }
 
+// Encoded images are decoded by the worker, and only those it processes: with a busy
+// worker and a queue of one frame, the dropped ones are never decoded.
+TEST(LiveEngine, DecodesOnlyTheFramesItProcesses) {
+  std::vector<SessionInfo> sessions;
+  const std::vector<Frame> frames = SimulatedFrames(1, 6, &sessions);
+  std::mutex mutex;
+  std::condition_variable cv;
+  bool in_callback = false, release = false;
+  std::atomic<int> decoded{0};
+  LiveEngine live(std::make_unique<CmlEngine>(CmlEngineOptions{}), {}, sessions[0], sessions[0],
+                  {[&](const LiveOutput&) {
+                     std::unique_lock<std::mutex> lock(mutex);
+                     in_callback = true;
+                     cv.notify_all();
+                     cv.wait(lock, [&] { return release; });
+                   },
+                   {},
+                   {}});
+  for (const Frame& f : frames) live.AddOdometry(f.stamp_s, f.odom_T_robot);
+  auto decoder = [&](const cv::Mat& image) {
+    return [&decoded, image] {
+      ++decoded;
+      return image;
+    };
+  };
+  live.AddEncodedImage(frames[0].stamp_s, decoder(frames[0].image));
+  {
+    std::unique_lock<std::mutex> lock(mutex);
+    cv.wait(lock, [&] { return in_callback; });
+  }
+  for (std::size_t k = 1; k < frames.size(); ++k)
+    live.AddEncodedImage(frames[k].stamp_s, decoder(frames[k].image));
+  {
+    std::lock_guard<std::mutex> lock(mutex);
+    release = true;
+  }
+  cv.notify_all();
+  live.Stop(true);
+  EXPECT_EQ(live.stats().processed_frames, 2);
+  EXPECT_EQ(live.stats().dropped_frames, 4);
+  EXPECT_EQ(decoded.load(), 2);
+}
+
 // An image arriving before its odometry waits for it and gets the interpolated pose.
 TEST(LiveEngine, InterpolatesOdometryArrivingAfterTheImage) {
   std::vector<SessionInfo> sessions;
@@ -217,8 +261,8 @@ TEST(LiveEngine, SessionsCommandsAndSave) {
   std::filesystem::remove(path);
 }
 
-// A frame that the engine rejects (wrong size for the session camera) is reported and
-// counted, and the engine goes on with the next frame.
+// A frame that the engine rejects (wrong size for the session camera) or that does not
+// decode is reported and counted, and the engine goes on with the next frame.
 TEST(LiveEngine, ReportsAFailedFrameAndGoesOn) {
   std::vector<SessionInfo> sessions;
   const std::vector<Frame> frames = SimulatedFrames(1, 2, &sessions);
@@ -234,11 +278,14 @@ TEST(LiveEngine, ReportsAFailedFrameAndGoesOn) {
   live.AddFrame(frames[0].stamp_s, frames[0].image, frames[0].odom_T_robot);
   live.AddFrame(frames[0].stamp_s + 0.01, cv::Mat(7, 9, CV_8UC1, cv::Scalar(3)),
                 frames[0].odom_T_robot);
+  live.AddOdometry(frames[0].stamp_s + 0.02, frames[0].odom_T_robot);
+  live.AddEncodedImage(frames[0].stamp_s + 0.02, []() -> cv::Mat { throw Error("undecodable"); });
   live.AddFrame(frames[1].stamp_s, frames[1].image, frames[1].odom_T_robot);
   live.Stop(true);
   EXPECT_EQ(outputs, 2);
-  ASSERT_EQ(errors.size(), 1u);
-  EXPECT_EQ(live.stats().failed_frames, 1);
+  ASSERT_EQ(errors.size(), 2u);
+  EXPECT_NE(errors[1].find("undecodable"), std::string::npos);
+  EXPECT_EQ(live.stats().failed_frames, 2);
 }
 
 }  // namespace

@@ -132,6 +132,11 @@ class LiveEngine {
   // stamped stamp_s. The Mat is shared, not copied. Returns false when a waiting frame was
   // dropped to make room. After Stop, frames are ignored (false).
   bool AddImage(double stamp_s, cv::Mat image);
+  // An image still encoded (a compressed or raw message): `decode` runs on the worker
+  // when the frame is taken from the queue, so frames dropped from a full queue cost no
+  // decoding. `decode` may throw (std::exception): the frame then fails like a frame the
+  // engine rejects (error callback, failed_frames).
+  bool AddEncodedImage(double stamp_s, std::function<cv::Mat()> decode);
   // An image with its odometry already known (no interpolation, no waiting).
   bool AddFrame(double stamp_s, cv::Mat image, const Pose2& odom_T_robot);
 
@@ -157,6 +162,7 @@ class LiveEngine {
     cv::Mat image;
     std::optional<Pose2> odom_T_robot;
     std::chrono::steady_clock::time_point received;
+    std::function<cv::Mat()> decode = {};  // set: image is decoded by the worker
   };
   struct Command {
     std::function<void()> run;

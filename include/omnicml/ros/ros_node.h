@@ -1,8 +1,8 @@
 // The ROS 1 layer of omnicml_node over LiveEngine (live/live_engine.h): message
 // conversion, publishers, parameters and services. Everything the engine does runs on the
-// LiveEngine's worker thread; the subscriber callbacks only enqueue, and the services run
-// on their own callback queue and thread, so neither a slow frame nor a map save ever
-// blocks the spinner that receives images and odometry.
+// LiveEngine's worker thread (images are decoded there too); the subscriber callbacks only
+// enqueue, and the services run on their own callback queue and thread, so neither a slow
+// frame nor a map save ever blocks the spinner that receives images and odometry.
 //
 // Topics (names relative to the node's private namespace "~" unless absolute):
 //   subscribes  image_topic (sensor_msgs/Image, or CompressedImage with ~compressed),

@@ -105,11 +105,12 @@ const CommandRegistration kRegistration{
     "export", [](CLI::App& app) {
       CLI::App* cmd = app.add_subcommand("export", "Export a learned map as JSON, CSV, SVG or PNG");
       auto flags = std::make_shared<ExportFlags>();
-      cmd->add_option("map", flags->map, "Map (engine) file written by omnicml run --map-out")
-          ->required();
+      // Not ->required(): `export rosbag LOG --out BAG` (cmd_rosbag.cc) is a subcommand of
+      // export; without one, map and --out are checked in the callback.
+      cmd->add_option("map", flags->map, "Map (engine) file written by omnicml run --map-out");
       cmd->add_option("--format", flags->format,
                       "json | csv | svg | png (default: from the --out extension)");
-      cmd->add_option("--out", flags->out, "Output file")->required();
+      cmd->add_option("--out", flags->out, "Output file");
       cmd->add_option("--trajectory", flags->trajectory,
                       "TUM trajectory drawn under the map (svg, png)");
       cmd->add_option("--run", flags->run,
@@ -128,7 +129,12 @@ const CommandRegistration kRegistration{
       cmd->add_flag("--no-events", flags->no_events, "JSON: leave out the event log");
       cmd->add_option("--width", flags->width_px, "Picture width in pixels (svg, png)")
           ->capture_default_str();
-      cmd->callback([flags] { Export(*flags); });
+      cmd->callback([flags, cmd] {
+        if (!cmd->get_subcommands().empty()) return;
+        if (flags->map.empty()) throw CLI::RequiredError("map");
+        if (flags->out.empty()) throw CLI::RequiredError("--out");
+        Export(*flags);
+      });
     }};
 
 }  // namespace

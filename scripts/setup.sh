@@ -8,7 +8,10 @@ cd "$(dirname "$0")/.."
 
 packages=(build-essential cmake ninja-build pkg-config libeigen3-dev libopencv-dev libfftw3-dev
   libceres-dev libhnswlib-dev libgtest-dev libgmock-dev libbenchmark-dev libcli11-dev libyaml-cpp-dev
-  nlohmann-json3-dev pybind11-dev python3-dev python3-numpy snakemake libjemalloc-dev)
+  nlohmann-json3-dev pybind11-dev python3-dev python3-numpy snakemake libjemalloc-dev
+  # ROS 1 (Debian's): rosbag import/export, omnicml_node and its test's master (rosmaster).
+  libroscpp-dev librosbag-storage-dev libstd-msgs-dev libsensor-msgs-dev libnav-msgs-dev
+  libgeometry-msgs-dev libvisualization-msgs-dev libtf2-msgs-dev libstd-srvs-dev python3-rosmaster)
 # shellcheck source=lib/packages.sh
 source scripts/lib/packages.sh
 install_missing setup "${packages[@]}"

@@ -14,7 +14,11 @@
 #include "omnicml/experiments/run_experiment.h"
 #include "omnicml/experiments/run_recorder.h"
 #include "omnicml/experiments/run_report.h"
+#include "omnicml/engine/engine_io.h"
+#include "omnicml/experiments/floor_plan.h"
+#include "omnicml/experiments/replay.h"
 #include "omnicml/experiments/survey.h"
+#include "omnicml/report/map_export.h"
 #include "omnicml/report/report.h"
 #include "omnicml/report/svg_plot.h"
 
@@ -99,6 +103,24 @@ std::vector<double> MovingAverage(const std::vector<double>& v, int window) {
   return out;
 }
 
+// The final map of a mode over its trajectory, views removed during the run marked
+// (from the mode's events.csv, complete although the model keeps only recent events).
+std::string ModeMapSvg(const CmlEngine& engine, const std::vector<FrameRecord>& records,
+                       const std::filesystem::path& events_csv, const std::string& input) {
+  MapPictureOptions pic;
+  pic.width_px = 520;
+  pic.floor_plan = FloorPlanForRunInput(input);
+  std::vector<Pose2> trajectory;
+  for (const FrameRecord& r : records) {
+    if (r.has_truth) pic.ground_truth.push_back(r.truth);
+    if (r.has_estimate) trajectory.push_back(r.estimate);
+  }
+  for (const MapEvent& e : ReadEventsCsv(events_csv)) {
+    if (e.type == MapEventType::kViewRemoved) pic.removed_m.push_back(e.position.head<2>());
+  }
+  return MapToSvg(engine.model(), trajectory, pic);
+}
+
 std::string RenderCompareReport(const std::string& input,
                                 const std::vector<CompareModeResult>& results,
                                 const std::vector<std::int64_t>& steps,
@@ -113,7 +135,11 @@ std::string RenderCompareReport(const std::string& input,
   report.AddHeading("Reference views at steps, errors");
   report.AddParagraph(
       "Errors are over the localized frames (frames with an estimate); coverage% = localized "
-      "/ frames over the run, min_day_coverage% = the lowest coverage of a day.");
+      "/ frames over the run, min_day_coverage% = the lowest coverage of a day. views@s = "
+      "reference views in the map right after frame s, while the map updates of the last "
+      "update_delay_frames frames are still queued; views_end = after the run's end, queued "
+      "updates applied: the saved map (and the sum of days.csv's views_inserted minus "
+      "views_removed). days.csv's views_at_end is views@ the day's last frame.");
   report.AddTable(TableHeader(steps), TableRows(results, steps));
 
   report.AddHeading(
@@ -170,9 +196,31 @@ std::string RenderCompareReport(const std::string& input,
     errors.AddLine(r.mode, x, MovingAverage(err, 50));
     hist.AddHistogram(r.mode, edges, HistogramCounts(err, edges), true);
   }
+  if (!results.empty()) {
+    // Dead reckoning is the same in every mode (same frames): one grey line, the bar to beat.
+    std::vector<double> x, odo;
+    for (const auto& rec : results.front().records) {
+      x.push_back(static_cast<double>(rec.global_frame + 1));
+      odo.push_back(rec.odometry_error_m);
+    }
+    errors.AddSeries({"odometry only", x, MovingAverage(odo, 50), SvgPlot::SeriesStyle::kLine,
+                      "#999999"});
+    AddDayMarkers(&growth, results.front().records, 1);
+    AddDayMarkers(&errors, results.front().records, 1);
+  }
   report.AddSvg(growth.Render());
   report.AddSvg(errors.Render());
   report.AddSvg(hist.Render());
+  report.AddHeading("Maps at the end");
+  report.AddParagraph(
+      "Each mode's final map over its estimated trajectory (ground truth in grey); red crosses "
+      "mark where views were removed during the run (events.csv of the mode's directory: "
+      "which, when and why). The interactive replay.html shows them appear and go frame by "
+      "frame.");
+  for (const auto& r : results) {
+    report.AddRawHtml("<div class=\"plot\"><h3>" + XmlEscape(r.mode) + "</h3>" + r.map_svg +
+                      "</div>");
+  }
   report.AddHeading("Table as printed");
   report.AddPreformatted(table_text);
   return report.Render();
@@ -219,6 +267,8 @@ CompareExperimentResult RunCompareExperiment(const CompareExperimentOptions& opt
       options.jobs > 0 ? options.jobs : static_cast<int>(std::thread::hardware_concurrency()), 1,
       static_cast<int>(modes.size()));
   std::vector<char> dir_made(modes.size(), 0);
+  CheckOutputDirectory(options.map_out_dir, "--map-out");
+  std::vector<std::vector<std::uint8_t>> map_bytes(modes.size());
   try {
     auto run_mode = [&](std::size_t index) {
       const ForgettingMode mode = modes[index];
@@ -269,6 +319,9 @@ CompareExperimentResult RunCompareExperiment(const CompareExperimentOptions& opt
       result.wall_s = summary.wall_s;
       result.final_views = static_cast<int>(engine.model().NumViews());
       result.final_components = static_cast<int>(engine.model().NumComponents());
+      result.map_svg = ModeMapSvg(engine, recorder.records(), ro.run_dir / "events.csv",
+                                  f.input.Describe());
+      if (!options.map_out_dir.empty()) map_bytes[index] = EncodeEngine(engine);
       return result;
     };
     std::vector<CompareModeResult> results(modes.size());
@@ -311,7 +364,16 @@ CompareExperimentResult RunCompareExperiment(const CompareExperimentOptions& opt
       if (!e.days.empty())
         head << " (days " << e.days.front().session + 1 << "-" << e.days.back().session + 1 << ")";
       head << ", localized frames only (coverage%)\n";
+      head << "# views@s: views after frame s (updates of the last update_delay_frames frames "
+              "still queued); views_end: at the end, queued updates applied (the saved map)\n";
       out.table_text = head.str() + FormatCompareTable(results, steps);
+    }
+    if (!options.map_out_dir.empty()) {
+      std::filesystem::create_directories(options.map_out_dir);
+      for (std::size_t i = 0; i < modes.size(); ++i) {
+        WriteFileAtomic(std::filesystem::path(options.map_out_dir) / (ToString(modes[i]) + ".omap"),
+                        map_bytes[i]);
+      }
     }
     WriteFileAtomic(out_dir / "table.txt", out.table_text);
     WriteFileAtomic(out_dir / "report.html",

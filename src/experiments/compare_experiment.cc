@@ -108,7 +108,7 @@ std::vector<double> MovingAverage(const std::vector<double>& v, int window) {
 std::string ModeMapSvg(const CmlEngine& engine, const std::vector<FrameRecord>& records,
                        const std::filesystem::path& events_csv, const std::string& input) {
   MapPictureOptions pic;
-  pic.width_px = 520;
+  pic.width_px = 900;
   pic.floor_plan = FloorPlanForRunInput(input);
   std::vector<Pose2> trajectory;
   for (const FrameRecord& r : records) {
@@ -169,8 +169,8 @@ std::string RenderCompareReport(const std::string& input,
 
   report.AddHeading("Plots");
   SvgPlot growth("Map growth", "step (frame)", "reference views", 960, 320);
-  SvgPlot errors("Position error (moving average over 50 frames)", "step (frame)", "error [m]", 960,
-                 320);
+  SvgPlot errors("Position error (moving average over 50 frames; odometry only may leave the axis)",
+                 "step (frame)", "error [m]", 960, 320);
   SvgPlot hist("Position error histogram", "error [m]", "frames", 640, 320);
   // Common bins over all modes.
   std::vector<double> all;
@@ -185,6 +185,7 @@ std::string RenderCompareReport(const std::string& input,
   const double hi = finite.empty() ? 1.0 : std::max(1e-3, Quantile(finite, 0.99));
   std::vector<double> edges;
   for (int i = 0; i <= 25; ++i) edges.push_back(hi * i / 25);
+  double modes_max = 0;  // the error axis fits the modes; dead reckoning may leave it
   for (const auto& r : results) {
     std::vector<double> x, views, err;
     for (const auto& rec : r.records) {
@@ -193,7 +194,11 @@ std::string RenderCompareReport(const std::string& input,
       err.push_back(rec.position_error_m);
     }
     growth.AddLine(r.mode, x, views);
-    errors.AddLine(r.mode, x, MovingAverage(err, 50));
+    const std::vector<double> smooth = MovingAverage(err, 50);
+    for (double v : smooth) {
+      if (std::isfinite(v)) modes_max = std::max(modes_max, v);
+    }
+    errors.AddLine(r.mode, x, smooth);
     hist.AddHistogram(r.mode, edges, HistogramCounts(err, edges), true);
   }
   if (!results.empty()) {
@@ -205,6 +210,7 @@ std::string RenderCompareReport(const std::string& input,
     }
     errors.AddSeries({"odometry only", x, MovingAverage(odo, 50), SvgPlot::SeriesStyle::kLine,
                       "#999999"});
+    if (modes_max > 0) errors.SetYRange(0, 1.25 * modes_max);
     AddDayMarkers(&growth, results.front().records, 1);
     AddDayMarkers(&errors, results.front().records, 1);
   }
@@ -217,8 +223,12 @@ std::string RenderCompareReport(const std::string& input,
       "mark where views were removed during the run (events.csv of the mode's directory: "
       "which, when and why). The interactive replay.html shows them appear and go frame by "
       "frame.");
+  // Drawn at 900 px (legend and scale bar stay readable), shown two to a row: the
+  // viewBox scales each picture to its half of the page.
+  report.AddRawHtml("<style>.mode-map{display:inline-block;width:49%;vertical-align:top}"
+                    ".mode-map svg{width:100%;height:auto}</style>");
   for (const auto& r : results) {
-    report.AddRawHtml("<div class=\"plot\"><h3>" + XmlEscape(r.mode) + "</h3>" + r.map_svg +
+    report.AddRawHtml("<div class=\"mode-map\"><h3>" + XmlEscape(r.mode) + "</h3>" + r.map_svg +
                       "</div>");
   }
   report.AddHeading("Table as printed");

@@ -236,8 +236,8 @@ h1{font-size:1.2em;margin:0.2em 0}
 .panel{border:1px solid #ddd;padding:4px}
 .panel h2{font-size:1em;margin:0 0 2px 0}
 .panel .counts{font-size:0.8em;color:#444;font-variant-numeric:tabular-nums}
-#legend{font-size:0.8em;color:#444;margin:4px 0}
-#legend span{margin-right:1.2em;white-space:nowrap}
+#legend{font-size:0.8em;color:#444;margin:4px 0;display:flex;flex-wrap:wrap;gap:2px 1.2em}
+#legend span{white-space:nowrap}
 #chart{border:1px solid #ddd;cursor:crosshair;margin-top:6px}
 #note{font-size:0.8em;color:#666}
 )CSS";
@@ -287,8 +287,10 @@ constexpr std::string_view kScript = R"JS(
   const pad = 0.03 * Math.max(hi[0] - lo[0], hi[1] - lo[1], 1);
   lo = [lo[0] - pad, lo[1] - pad]; hi = [hi[0] + pad, hi[1] + pad];
   const avail = Math.max(320, Math.min(900, (window.innerWidth - 60) / Math.min(runs.length, 3) - 16));
-  const scale = avail / (hi[0] - lo[0]);
-  const mapW = Math.round(avail), mapH = Math.round(Math.min(900, (hi[1] - lo[1]) * scale));
+  // The maps share the window with the plots below: their height is bounded too.
+  const maxH = Math.max(260, window.innerHeight - 440);
+  const scale = Math.min(avail / (hi[0] - lo[0]), maxH / (hi[1] - lo[1]));
+  const mapW = Math.round((hi[0] - lo[0]) * scale), mapH = Math.round((hi[1] - lo[1]) * scale);
   const X = (x) => (x - lo[0]) * scale, Y = (y) => mapH - (y - lo[1]) * scale;
 
   // Panels.
@@ -306,6 +308,7 @@ constexpr std::string_view kScript = R"JS(
     const counts = document.createElement("div");
     counts.className = "counts";
     div.append(h, c, counts);
+    div.style.width = Math.max(mapW, 240) + "px";  // the counts wrap under the map
     panels.append(div);
     r.canvas = c; r.ctx = c.getContext("2d"); r.countsDiv = counts;
     r.color = runColors[k % runColors.length];
@@ -358,12 +361,6 @@ constexpr std::string_view kScript = R"JS(
     ctx.beginPath(); ctx.moveTo(L, 0); ctx.lineTo(-L * 0.6, L * 0.5); ctx.lineTo(-L * 0.6, -L * 0.5);
     ctx.closePath(); ctx.fillStyle = color; ctx.fill(); ctx.restore();
   }
-  function cross(ctx, x, y, color) {
-    const px = X(x), py = Y(y);
-    ctx.strokeStyle = color; ctx.lineWidth = 2;
-    ctx.beginPath(); ctx.moveTo(px - 4, py - 4); ctx.lineTo(px + 4, py + 4);
-    ctx.moveTo(px - 4, py + 4); ctx.lineTo(px + 4, py - 4); ctx.stroke();
-  }
 
   const state = { index: 0, frame: base.f[0], session: base.s[0], redraws: 0, runs: [] };
   window.replayState = state;
@@ -381,6 +378,16 @@ constexpr std::string_view kScript = R"JS(
       if (frame - W.f[k] < flashFrames) ringed[v] = 1;
     }
     let alive = 0, weakened = 0, removedRecent = 0, removedTotal = 0;
+    // One path per style (new or not x four shades by components lost; rings; crosses):
+    // a few fill/stroke calls per redraw however many views there are.
+    const dots = [new Path2D(), new Path2D(), new Path2D(), new Path2D(), new Path2D(),
+                  new Path2D(), new Path2D(), new Path2D()];
+    const rings = new Path2D(), crossActive = new Path2D(), crossOther = new Path2D();
+    const addCross = (p, x, y) => {
+      const px = X(x), py = Y(y);
+      p.moveTo(px - 4, py - 4); p.lineTo(px + 4, py + 4);
+      p.moveTo(px - 4, py + 4); p.lineTo(px + 4, py - 4);
+    };
     for (let v = 0; v < V.x.length; v++) {
       const born = V.born[v], died = V.died[v];
       if (born > frame) continue;
@@ -388,22 +395,29 @@ constexpr std::string_view kScript = R"JS(
         removedTotal++;
         if (frame - died < flashFrames) {
           removedRecent++;
-          cross(ctx, V.x[v], V.y[v], V.why[v] === 1 ? "#c0102a" : "#7b3294");
+          addCross(V.why[v] === 1 ? crossActive : crossOther, V.x[v], V.y[v]);
         }
         continue;
       }
       alive++;
-      const a = Math.max(0.25, 1 - 0.25 * lost[v]);
-      ctx.globalAlpha = a;
-      ctx.fillStyle = frame - born < flashFrames ? "#1a9850" : "#2166ac";
-      ctx.beginPath(); ctx.arc(X(V.x[v]), Y(V.y[v]), 2.6, 0, 2 * Math.PI); ctx.fill();
-      ctx.globalAlpha = 1;
+      const px = X(V.x[v]), py = Y(V.y[v]);
+      const p = dots[(frame - born < flashFrames ? 4 : 0) + Math.min(3, lost[v])];
+      p.moveTo(px + 2.6, py); p.arc(px, py, 2.6, 0, 2 * Math.PI);
       if (ringed[v]) {
         weakened++;
-        ctx.strokeStyle = "#f28e2b"; ctx.lineWidth = 1.5;
-        ctx.beginPath(); ctx.arc(X(V.x[v]), Y(V.y[v]), 5.5, 0, 2 * Math.PI); ctx.stroke();
+        rings.moveTo(px + 5.5, py); rings.arc(px, py, 5.5, 0, 2 * Math.PI);
       }
     }
+    for (let k = 0; k < 8; k++) {
+      ctx.globalAlpha = 1 - 0.25 * (k % 4);
+      ctx.fillStyle = k < 4 ? "#2166ac" : "#1a9850";
+      ctx.fill(dots[k]);
+    }
+    ctx.globalAlpha = 1;
+    ctx.strokeStyle = "#f28e2b"; ctx.lineWidth = 1.5; ctx.stroke(rings);
+    ctx.lineWidth = 2;
+    ctx.strokeStyle = "#c0102a"; ctx.stroke(crossActive);
+    ctx.strokeStyle = "#7b3294"; ctx.stroke(crossOther);
     let estimate = false;
     if (i >= 0) {
       path(ctx, f.tx, f.ty, i, "#222", 1, 0.45);
@@ -436,7 +450,7 @@ constexpr std::string_view kScript = R"JS(
 
   // Plots below: map size and error over the run, day boundaries, a cursor.
   const chart = document.getElementById("chart");
-  chart.width = Math.max(600, Math.min(1800, window.innerWidth - 40));
+  chart.width = Math.max(600, Math.min(1800, window.innerWidth - 60));
   chart.height = 330;
   const cctx = chart.getContext("2d");
   const chartLayer = document.createElement("canvas");

@@ -41,6 +41,7 @@ std::string RenderStripPlot(const std::vector<StripGroup>& groups,
   const bool any = std::isfinite(lo);
   if (!any) lo = 0, hi = 1;
   lo = std::min(lo, 0.0);
+  hi += 0.05 * (hi - lo);  // headroom: the top dot and its worst mark stay off the frame
   std::vector<double> ticks = NiceTicks(lo, hi, 5);
   if (!ticks.empty()) lo = std::min(lo, ticks.front()), hi = std::max(hi, ticks.back());
   if (hi - lo <= 0) hi = lo + 1;

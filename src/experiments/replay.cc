@@ -656,6 +656,23 @@ std::string ReadInputLine(const fs::path& run_dir) {
   return "";
 }
 
+// The value of the first "forgetting:" key of RUNDIR/config.yaml ("" when absent).
+std::string ReadForgetting(const fs::path& run_dir) {
+  const fs::path config = run_dir / "config.yaml";
+  std::error_code ec;
+  if (!fs::is_regular_file(config, ec)) return "";
+  LineReader in(config, "config");
+  std::string line;
+  while (in.Next(&line)) {
+    const std::size_t key = line.find("forgetting:");
+    if (key == std::string::npos || line.find_first_not_of(' ') != key) continue;
+    std::string value = line.substr(key + 11);
+    value.erase(0, value.find_first_not_of(' '));
+    return value.substr(0, value.find_first_of(" #"));
+  }
+  return "";
+}
+
 ReplayRun ReadRun(const fs::path& run_dir, std::string name) {
   ReplayRun run;
   run.name = std::move(name);
@@ -685,7 +702,10 @@ fs::path WriteReplay(const fs::path& dir, ReplayOptions options) {
     throw Error(StrCat("'", dir.string(),
                        "' is neither a run directory (frames.csv) nor a compare directory"));
   if (options.input.empty()) options.input = ReadInputLine(config_dir);
-  if (runs.size() == 1 && runs.front().name.empty()) runs.front().name = "run";
+  if (runs.size() == 1 && runs.front().name.empty()) {
+    const std::string mode = ReadForgetting(config_dir);
+    runs.front().name = mode.empty() ? "run" : "run (" + mode + " forgetting)";
+  }
   if (options.title == ReplayOptions{}.title)
     options.title = StrCat("omnicml replay: ", fs::absolute(dir).lexically_normal().string());
   if (options.floor_plan.empty() && !options.input.empty())

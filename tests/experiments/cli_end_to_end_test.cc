@@ -338,6 +338,15 @@ TEST_F(CliEndToEnd, CompareRunsTheThreeModes) {
   EXPECT_NE(r.output.find("views@25"), std::string::npos);
   EXPECT_NE(r.output.find("odom_err_m"), std::string::npos);
   EXPECT_TRUE(fs::is_regular_file(out / "report.html"));
+  // The report: the odometry-only line and day boundaries on the error plot, and the
+  // three modes' maps (growth, error, histogram and 3 map pictures = 6 drawings).
+  const std::string report = slurp(out / "report.html");
+  EXPECT_NE(report.find("odometry only"), std::string::npos);
+  EXPECT_NE(report.find(">day 2</text>"), std::string::npos);
+  std::size_t drawings = 0;
+  for (std::size_t p = report.find("<svg"); p != std::string::npos; p = report.find("<svg", p + 1))
+    ++drawings;
+  EXPECT_EQ(drawings, 6u);
   // Static freezes the map after day 1: its view count never changes on day 2.
   const FramesTable st = ReadFramesCsv(out / "static" / "frames.csv");
   int first_day2_views = -1;

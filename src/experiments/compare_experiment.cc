@@ -5,18 +5,19 @@
 #include <cstdlib>
 #include <exception>
 #include <filesystem>
+#include <map>
 #include <memory>
 #include <sstream>
 #include <thread>
 
 #include "omnicml/common/common.h"
 #include "omnicml/common/limits.h"
-#include "omnicml/experiments/run_experiment.h"
-#include "omnicml/experiments/run_recorder.h"
-#include "omnicml/experiments/run_report.h"
 #include "omnicml/engine/engine_io.h"
 #include "omnicml/experiments/floor_plan.h"
 #include "omnicml/experiments/replay.h"
+#include "omnicml/experiments/run_experiment.h"
+#include "omnicml/experiments/run_recorder.h"
+#include "omnicml/experiments/run_report.h"
 #include "omnicml/experiments/survey.h"
 #include "omnicml/report/map_export.h"
 #include "omnicml/report/report.h"
@@ -104,9 +105,11 @@ std::vector<double> MovingAverage(const std::vector<double>& v, int window) {
 }
 
 // The final map of a mode over its trajectory, views removed during the run marked
-// (from the mode's events.csv, complete although the model keeps only recent events).
+// (from the mode's events.csv, complete although the model keeps only recent events),
+// and the removals counted per session: (by active forgetting, otherwise).
 std::string ModeMapSvg(const CmlEngine& engine, const std::vector<FrameRecord>& records,
-                       const std::filesystem::path& events_csv, const std::string& input) {
+                       const std::filesystem::path& events_csv, const std::string& input,
+                       std::map<int, std::pair<int, int>>* removed_by_session) {
   MapPictureOptions pic;
   pic.width_px = 900;
   pic.floor_plan = FloorPlanForRunInput(input);
@@ -115,8 +118,16 @@ std::string ModeMapSvg(const CmlEngine& engine, const std::vector<FrameRecord>& 
     if (r.has_truth) pic.ground_truth.push_back(r.truth);
     if (r.has_estimate) trajectory.push_back(r.estimate);
   }
+  std::map<std::uint64_t, bool> last_loss_active;  // view -> its latest component removal
   for (const MapEvent& e : ReadEventsCsv(events_csv)) {
-    if (e.type == MapEventType::kViewRemoved) pic.removed_m.push_back(e.position.head<2>());
+    if (e.type == MapEventType::kComponentRemoved) {
+      last_loss_active[e.view_id] = e.reason == kActiveForgettingReason;
+    } else if (e.type == MapEventType::kViewRemoved) {
+      pic.removed_m.push_back(e.position.head<2>());
+      const bool active = e.reason == kActiveForgettingReason || last_loss_active[e.view_id];
+      auto& [by_active, otherwise] = (*removed_by_session)[e.session];
+      (active ? by_active : otherwise) += 1;
+    }
   }
   return MapToSvg(engine.model(), trajectory, pic);
 }
@@ -167,6 +178,31 @@ std::string RenderCompareReport(const std::string& input,
   }
   report.AddTable(header, rows);
 
+  report.AddHeading("Views removed per day: by active forgetting / otherwise");
+  report.AddParagraph(
+      "From each mode's events.csv: a view removed by active forgetting lost its last "
+      "component by rule (18)-(19) (its place was expected in view but did not match); "
+      "otherwise by passive forgetting (17), a weight below w_min or a merge. Where: the red "
+      "crosses on the maps below; when, frame by frame: replay.html.");
+  std::vector<std::vector<std::string>> removed_rows;
+  std::vector<int> sessions;  // every day of the run, survey days included
+  if (!results.empty()) {
+    for (const FrameRecord& rec : results.front().records) {
+      if (sessions.empty() || sessions.back() != rec.session) sessions.push_back(rec.session);
+    }
+  }
+  for (int session : sessions) {
+    std::vector<std::string> row = {std::to_string(session + 1)};
+    for (const auto& r : results) {
+      const auto it = r.views_removed_by_session.find(session);
+      row.push_back(it == r.views_removed_by_session.end()
+                        ? "0 / 0"
+                        : StrCat(it->second.first, " / ", it->second.second));
+    }
+    removed_rows.push_back(row);
+  }
+  report.AddTable(header, removed_rows);
+
   report.AddHeading("Plots");
   SvgPlot growth("Map growth", "step (frame)", "reference views", 960, 320);
   SvgPlot errors("Position error (moving average over 50 frames; odometry only may leave the axis)",
@@ -208,8 +244,8 @@ std::string RenderCompareReport(const std::string& input,
       x.push_back(static_cast<double>(rec.global_frame + 1));
       odo.push_back(rec.odometry_error_m);
     }
-    errors.AddSeries({"odometry only", x, MovingAverage(odo, 50), SvgPlot::SeriesStyle::kLine,
-                      "#999999"});
+    errors.AddSeries(
+        {"odometry only", x, MovingAverage(odo, 50), SvgPlot::SeriesStyle::kLine, "#999999"});
     if (modes_max > 0) errors.SetYRange(0, 1.25 * modes_max);
     AddDayMarkers(&growth, results.front().records, 1);
     AddDayMarkers(&errors, results.front().records, 1);
@@ -225,8 +261,9 @@ std::string RenderCompareReport(const std::string& input,
       "frame.");
   // Drawn at 900 px (legend and scale bar stay readable), shown two to a row: the
   // viewBox scales each picture to its half of the page.
-  report.AddRawHtml("<style>.mode-map{display:inline-block;width:49%;vertical-align:top}"
-                    ".mode-map svg{width:100%;height:auto}</style>");
+  report.AddRawHtml(
+      "<style>.mode-map{display:inline-block;width:49%;vertical-align:top}"
+      ".mode-map svg{width:100%;height:auto}</style>");
   for (const auto& r : results) {
     report.AddRawHtml("<div class=\"mode-map\"><h3>" + XmlEscape(r.mode) + "</h3>" + r.map_svg +
                       "</div>");
@@ -330,7 +367,7 @@ CompareExperimentResult RunCompareExperiment(const CompareExperimentOptions& opt
       result.final_views = static_cast<int>(engine.model().NumViews());
       result.final_components = static_cast<int>(engine.model().NumComponents());
       result.map_svg = ModeMapSvg(engine, recorder.records(), ro.run_dir / "events.csv",
-                                  f.input.Describe());
+                                  f.input.Describe(), &result.views_removed_by_session);
       if (!options.map_out_dir.empty()) map_bytes[index] = EncodeEngine(engine);
       return result;
     };

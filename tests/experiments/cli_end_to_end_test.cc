@@ -343,6 +343,8 @@ TEST_F(CliEndToEnd, CompareRunsTheThreeModes) {
   const std::string report = slurp(out / "report.html");
   EXPECT_NE(report.find("odometry only"), std::string::npos);
   EXPECT_NE(report.find(">day 2</text>"), std::string::npos);
+  EXPECT_NE(report.find("Views removed per day: by active forgetting / otherwise"),
+            std::string::npos);
   std::size_t drawings = 0;
   for (std::size_t p = report.find("<svg"); p != std::string::npos; p = report.find("<svg", p + 1))
     ++drawings;

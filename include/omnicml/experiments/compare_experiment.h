@@ -27,7 +27,9 @@
 #define OMNICML_EXPERIMENTS_COMPARE_EXPERIMENT_H_
 
 #include <cstdint>
+#include <map>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "omnicml/evaluation/evaluation.h"
@@ -67,6 +69,10 @@ struct CompareModeResult {
   // SVG picture of the mode's final map over its estimated trajectory (map_export.h),
   // with the places where views were removed marked; for the report.
   std::string map_svg;
+  // Views removed during each session (engine session index, from events.csv): by
+  // active forgetting (its last component went by (18)-(19)) and otherwise (passive
+  // forgetting, weight below w_min, merges). Sessions without removals are absent.
+  std::map<int, std::pair<int, int>> views_removed_by_session;
 };
 
 struct CompareExperimentResult {

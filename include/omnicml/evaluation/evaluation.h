@@ -265,7 +265,7 @@ std::string FormatTextTable(const std::vector<std::string>& header,
                             bool left_align_first = false);
 
 // Text table: one line per day (frames, localized frames, coverage %, skipped frames,
-// mean/median/p95/max position error over the localized frames, heading error,
+// mean/RMSE/median/p95/max position error over the localized frames, heading error,
 // odometry-only mean, change of the mean from the previous day), then the run, the
 // run's position NEES (consistency of the estimates' covariances) when the frames carry
 // covariances, then (with_histogram) the position histogram as counts per bin and day.

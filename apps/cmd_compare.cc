@@ -2,7 +2,7 @@
 // same input under passive, active and static forgetting, in parallel with --jobs > 1
 // (same results as one after the other); prints the table of reference views at the
 // given steps with the errors and writes RUNDIR/{passive,active,static}/, table.txt and
-// report.html.
+// report.html, replay.html (experiments/replay.h); --map-out DIR saves each mode's map.
 #include <iostream>
 #include <memory>
 #include <string>
@@ -12,6 +12,7 @@
 #include "cli_common.h"
 #include "command_registry.h"
 #include "omnicml/experiments/compare_experiment.h"
+#include "omnicml/experiments/replay.h"
 
 namespace omnicml::app {
 namespace {
@@ -32,9 +33,16 @@ const CommandRegistration kRegistration{
              "Modes run in parallel (0 = one per core, at most 3); results do not depend on it")
           ->capture_default_str()
           ->check(CLI::Range(0, 64));
+      cmd->add_option("--map-out", options->map_out_dir,
+                      "Directory receiving each mode's final engine/map as <mode>.omap "
+                      "(loadable with run --map-in, export, inspect)");
       cmd->callback([options, steps] {
         options->steps = ParseSteps(*steps);
-        std::cout << FormatCompareExperimentResult(RunCompareExperiment(*options));
+        const CompareExperimentResult result = RunCompareExperiment(*options);
+        std::cout << FormatCompareExperimentResult(result);
+        std::cout << "replay: " << WriteReplay(result.out_dir).string() << "\n";
+        if (!options->map_out_dir.empty())
+          std::cout << "maps: " << options->map_out_dir << "/{passive,active,static}.omap\n";
       });
     }};
 

@@ -1,5 +1,5 @@
 // `omnicml run`: CML over a multi-day log or a simulated world, the map carried from day
-// to day; writes a run directory and optionally the map and a TUM trajectory
+// to day; writes a run directory (with replay.html, experiments/replay.h) and optionally the map and a TUM trajectory
 // (experiments/run_experiment.h). The input and option flags are shared with
 // `omnicml compare` (cli_common.h).
 #include <iostream>
@@ -9,6 +9,7 @@
 
 #include "cli_common.h"
 #include "command_registry.h"
+#include "omnicml/experiments/replay.h"
 #include "omnicml/experiments/run_experiment.h"
 
 namespace omnicml::app {
@@ -29,6 +30,7 @@ const CommandRegistration kRegistration{
       cmd->callback([options] {
         const RunExperimentResult result = RunExperiment(*options);
         std::cout << FormatRunExperimentResult(*options, result);
+        std::cout << "replay: " << WriteReplay(result.run_dir).string() << "\n";
       });
     }};
 

@@ -11,7 +11,9 @@ packages=(build-essential cmake ninja-build pkg-config libeigen3-dev libopencv-d
   nlohmann-json3-dev pybind11-dev python3-dev python3-numpy snakemake libjemalloc-dev
   # ROS 1 (Debian's): rosbag import/export, omnicml_node and its test's master (rosmaster).
   libroscpp-dev librosbag-storage-dev libstd-msgs-dev libsensor-msgs-dev libnav-msgs-dev
-  libgeometry-msgs-dev libvisualization-msgs-dev libtf2-msgs-dev libstd-srvs-dev python3-rosmaster)
+  libgeometry-msgs-dev libvisualization-msgs-dev libtf2-msgs-dev libstd-srvs-dev python3-rosmaster
+  # The replay's browser test: headless Chromium driven over the DevTools protocol.
+  chromium python3-websocket)
 # shellcheck source=lib/packages.sh
 source scripts/lib/packages.sh
 install_missing setup "${packages[@]}"

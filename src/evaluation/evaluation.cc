@@ -1,4 +1,5 @@
 #include "omnicml/evaluation/evaluation.h"
+#include "omnicml/evaluation/trajectory_metrics.h"
 
 #include <algorithm>
 #include <cmath>
@@ -430,9 +431,10 @@ ErrorStats ComputeStats(std::vector<double> values) {
   s.count = static_cast<int>(values.size());
   if (values.empty()) return s;
   std::sort(values.begin(), values.end());
-  double sum = 0;
-  for (double v : values) sum += v;
+  double sum = 0, sum_sq = 0;
+  for (double v : values) sum += v, sum_sq += v * v;
   s.mean = sum / static_cast<double>(values.size());
+  s.rmse = std::sqrt(sum_sq / static_cast<double>(values.size()));
   s.median = Quantile(values, 0.5);
   s.p95 = Quantile(values, 0.95);
   s.max = values.back();
@@ -572,6 +574,7 @@ std::vector<std::string> DayRow(const DayEvaluation& d, const DayEvaluation* pre
           std::to_string(d.frames_skipped),
           Fixed(d.unimodal_fraction * 100, 1),
           Fixed(d.position_m.mean, 3),
+          Fixed(d.position_m.rmse, 3),
           Fixed(d.position_m.median, 3),
           Fixed(d.position_m.p95, 3),
           Fixed(d.position_m.max, 3),
@@ -585,7 +588,7 @@ std::vector<std::string> DayRow(const DayEvaluation& d, const DayEvaluation* pre
 const std::vector<std::string>& DayHeader() {
   static const std::vector<std::string> kHeader = {
       "day",    "frames",   "localized",     "coverage%",    "skipped",     "unimodal%",
-      "mean_m", "median_m", "p95_m",         "max_m",        "head_mean_deg", "head_p95_deg",
+      "mean_m", "rmse_m", "median_m", "p95_m",         "max_m",        "head_mean_deg", "head_p95_deg",
       "odom_mean_m", "d_mean_m", "views"};
   return kHeader;
 }
@@ -721,9 +724,38 @@ std::string RenderPositionHistogramSvg(const EvaluationResult& result, const std
   return plot.Render();
 }
 
+std::vector<std::pair<std::int64_t, int>> DayStarts(const std::vector<FrameRecord>& records) {
+  std::vector<std::pair<std::int64_t, int>> out;
+  for (std::size_t i = 1; i < records.size(); ++i) {
+    if (records[i].session != records[i - 1].session)
+      out.emplace_back(records[i].global_frame, records[i].session);
+  }
+  return out;
+}
+
+void AddDayMarkers(SvgPlot* plot, const std::vector<FrameRecord>& records, double x_offset) {
+  for (const auto& [frame, session] : DayStarts(records))
+    plot->AddVerticalMarker(x_offset + static_cast<double>(frame), StrCat("day ", session + 1));
+}
+
 std::string RenderEvaluationHtml(const EvaluationResult& result, const FramesTable& table,
-                                 const std::string& title) {
+                                 const std::string& title, const TrajectoryMetrics* metrics) {
   HtmlReport report(title);
+  if (metrics != nullptr) {
+    report.AddHeading("Trajectory error as evo reports it (APE, RPE)");
+    report.AddParagraph(
+        "APE: position error after the alignment below, over " +
+        std::to_string(metrics->frames_evaluated) + " of " + std::to_string(metrics->frames) +
+        " frames (localized with ground truth); RMSE is evo_ape's headline figure. RPE: "
+        "relative error over pairs of frames " +
+        Fixed(metrics->rpe_delta_m, 2) +
+        " m of ground-truth path apart (evo_rpe --delta_unit m), pairs within a day: " +
+        std::to_string(metrics->rpe_pairs) + " pairs, drift " + Fixed(metrics->drift_percent, 2) +
+        " % (translation RMSE per metre), " + Fixed(metrics->rotation_drift_deg_per_m, 3) +
+        " deg/m.");
+    const auto [header, rows] = TrajectoryMetricsTable(*metrics);
+    report.AddTable(header, rows);
+  }
   report.AddParagraph(
       "Alignment of the estimate to ground truth: " + ToString(result.alignment) +
       ". Errors of the strongest hypothesis over the localized frames (frames with an "
@@ -762,9 +794,11 @@ std::string RenderEvaluationHtml(const EvaluationResult& result, const FramesTab
   SvgPlot over_time("Position error over the run", "frame", "error [m]", 960, 320);
   over_time.AddLine("estimate", x, err);
   over_time.AddLine("odometry only", x, odo);
+  AddDayMarkers(&over_time, records);
   report.AddSvg(over_time.Render());
   SvgPlot map_plot("Map size", "frame", "reference views", 960, 260);
   map_plot.AddLine("views", x, views);
+  AddDayMarkers(&map_plot, records);
   report.AddSvg(map_plot.Render());
   report.AddHeading("Text summary");
   report.AddPreformatted(FormatEvaluation(result));

@@ -5,16 +5,21 @@
 #include <cstdlib>
 #include <exception>
 #include <filesystem>
+#include <map>
 #include <memory>
 #include <sstream>
 #include <thread>
 
 #include "omnicml/common/common.h"
 #include "omnicml/common/limits.h"
+#include "omnicml/engine/engine_io.h"
+#include "omnicml/experiments/floor_plan.h"
+#include "omnicml/experiments/replay.h"
 #include "omnicml/experiments/run_experiment.h"
 #include "omnicml/experiments/run_recorder.h"
 #include "omnicml/experiments/run_report.h"
 #include "omnicml/experiments/survey.h"
+#include "omnicml/report/map_export.h"
 #include "omnicml/report/report.h"
 #include "omnicml/report/svg_plot.h"
 
@@ -99,6 +104,34 @@ std::vector<double> MovingAverage(const std::vector<double>& v, int window) {
   return out;
 }
 
+// The final map of a mode over its trajectory, views removed during the run marked
+// (from the mode's events.csv, complete although the model keeps only recent events),
+// and the removals counted per session: (by active forgetting, otherwise).
+std::string ModeMapSvg(const CmlEngine& engine, const std::vector<FrameRecord>& records,
+                       const std::filesystem::path& events_csv, const std::string& input,
+                       std::map<int, std::pair<int, int>>* removed_by_session) {
+  MapPictureOptions pic;
+  pic.width_px = 900;
+  pic.floor_plan = FloorPlanForRunInput(input);
+  std::vector<Pose2> trajectory;
+  for (const FrameRecord& r : records) {
+    if (r.has_truth) pic.ground_truth.push_back(r.truth);
+    if (r.has_estimate) trajectory.push_back(r.estimate);
+  }
+  std::map<std::uint64_t, bool> last_loss_active;  // view -> its latest component removal
+  for (const MapEvent& e : ReadEventsCsv(events_csv)) {
+    if (e.type == MapEventType::kComponentRemoved) {
+      last_loss_active[e.view_id] = e.reason == kActiveForgettingReason;
+    } else if (e.type == MapEventType::kViewRemoved) {
+      pic.removed_m.push_back(e.position.head<2>());
+      const bool active = e.reason == kActiveForgettingReason || last_loss_active[e.view_id];
+      auto& [by_active, otherwise] = (*removed_by_session)[e.session];
+      (active ? by_active : otherwise) += 1;
+    }
+  }
+  return MapToSvg(engine.model(), trajectory, pic);
+}
+
 std::string RenderCompareReport(const std::string& input,
                                 const std::vector<CompareModeResult>& results,
                                 const std::vector<std::int64_t>& steps,
@@ -113,7 +146,11 @@ std::string RenderCompareReport(const std::string& input,
   report.AddHeading("Reference views at steps, errors");
   report.AddParagraph(
       "Errors are over the localized frames (frames with an estimate); coverage% = localized "
-      "/ frames over the run, min_day_coverage% = the lowest coverage of a day.");
+      "/ frames over the run, min_day_coverage% = the lowest coverage of a day. views@s = "
+      "reference views in the map right after frame s, while the map updates of the last "
+      "update_delay_frames frames are still queued; views_end = after the run's end, queued "
+      "updates applied: the saved map (and the sum of days.csv's views_inserted minus "
+      "views_removed). days.csv's views_at_end is views@ the day's last frame.");
   report.AddTable(TableHeader(steps), TableRows(results, steps));
 
   report.AddHeading(
@@ -141,10 +178,35 @@ std::string RenderCompareReport(const std::string& input,
   }
   report.AddTable(header, rows);
 
+  report.AddHeading("Views removed per day: by active forgetting / otherwise");
+  report.AddParagraph(
+      "From each mode's events.csv: a view removed by active forgetting lost its last "
+      "component by rule (18)-(19) (its place was expected in view but did not match); "
+      "otherwise by passive forgetting (17), a weight below w_min or a merge. Where: the red "
+      "crosses on the maps below; when, frame by frame: replay.html.");
+  std::vector<std::vector<std::string>> removed_rows;
+  std::vector<int> sessions;  // every day of the run, survey days included
+  if (!results.empty()) {
+    for (const FrameRecord& rec : results.front().records) {
+      if (sessions.empty() || sessions.back() != rec.session) sessions.push_back(rec.session);
+    }
+  }
+  for (int session : sessions) {
+    std::vector<std::string> row = {std::to_string(session + 1)};
+    for (const auto& r : results) {
+      const auto it = r.views_removed_by_session.find(session);
+      row.push_back(it == r.views_removed_by_session.end()
+                        ? "0 / 0"
+                        : StrCat(it->second.first, " / ", it->second.second));
+    }
+    removed_rows.push_back(row);
+  }
+  report.AddTable(header, removed_rows);
+
   report.AddHeading("Plots");
   SvgPlot growth("Map growth", "step (frame)", "reference views", 960, 320);
-  SvgPlot errors("Position error (moving average over 50 frames)", "step (frame)", "error [m]", 960,
-                 320);
+  SvgPlot errors("Position error (moving average over 50 frames; odometry only may leave the axis)",
+                 "step (frame)", "error [m]", 960, 320);
   SvgPlot hist("Position error histogram", "error [m]", "frames", 640, 320);
   // Common bins over all modes.
   std::vector<double> all;
@@ -159,6 +221,7 @@ std::string RenderCompareReport(const std::string& input,
   const double hi = finite.empty() ? 1.0 : std::max(1e-3, Quantile(finite, 0.99));
   std::vector<double> edges;
   for (int i = 0; i <= 25; ++i) edges.push_back(hi * i / 25);
+  double modes_max = 0;  // the error axis fits the modes; dead reckoning may leave it
   for (const auto& r : results) {
     std::vector<double> x, views, err;
     for (const auto& rec : r.records) {
@@ -167,12 +230,44 @@ std::string RenderCompareReport(const std::string& input,
       err.push_back(rec.position_error_m);
     }
     growth.AddLine(r.mode, x, views);
-    errors.AddLine(r.mode, x, MovingAverage(err, 50));
+    const std::vector<double> smooth = MovingAverage(err, 50);
+    for (double v : smooth) {
+      if (std::isfinite(v)) modes_max = std::max(modes_max, v);
+    }
+    errors.AddLine(r.mode, x, smooth);
     hist.AddHistogram(r.mode, edges, HistogramCounts(err, edges), true);
+  }
+  if (!results.empty()) {
+    // Dead reckoning is the same in every mode (same frames): one grey line, the bar to beat.
+    std::vector<double> x, odo;
+    for (const auto& rec : results.front().records) {
+      x.push_back(static_cast<double>(rec.global_frame + 1));
+      odo.push_back(rec.odometry_error_m);
+    }
+    errors.AddSeries(
+        {"odometry only", x, MovingAverage(odo, 50), SvgPlot::SeriesStyle::kLine, "#999999"});
+    if (modes_max > 0) errors.SetYRange(0, 1.25 * modes_max);
+    AddDayMarkers(&growth, results.front().records, 1);
+    AddDayMarkers(&errors, results.front().records, 1);
   }
   report.AddSvg(growth.Render());
   report.AddSvg(errors.Render());
   report.AddSvg(hist.Render());
+  report.AddHeading("Maps at the end");
+  report.AddParagraph(
+      "Each mode's final map over its estimated trajectory (ground truth in grey); red crosses "
+      "mark where views were removed during the run (events.csv of the mode's directory: "
+      "which, when and why). The interactive replay.html shows them appear and go frame by "
+      "frame.");
+  // Drawn at 900 px (legend and scale bar stay readable), shown two to a row: the
+  // viewBox scales each picture to its half of the page.
+  report.AddRawHtml(
+      "<style>.mode-map{display:inline-block;width:49%;vertical-align:top}"
+      ".mode-map svg{width:100%;height:auto}</style>");
+  for (const auto& r : results) {
+    report.AddRawHtml("<div class=\"mode-map\"><h3>" + XmlEscape(r.mode) + "</h3>" + r.map_svg +
+                      "</div>");
+  }
   report.AddHeading("Table as printed");
   report.AddPreformatted(table_text);
   return report.Render();
@@ -219,6 +314,8 @@ CompareExperimentResult RunCompareExperiment(const CompareExperimentOptions& opt
       options.jobs > 0 ? options.jobs : static_cast<int>(std::thread::hardware_concurrency()), 1,
       static_cast<int>(modes.size()));
   std::vector<char> dir_made(modes.size(), 0);
+  CheckOutputDirectory(options.map_out_dir, "--map-out");
+  std::vector<std::vector<std::uint8_t>> map_bytes(modes.size());
   try {
     auto run_mode = [&](std::size_t index) {
       const ForgettingMode mode = modes[index];
@@ -269,6 +366,9 @@ CompareExperimentResult RunCompareExperiment(const CompareExperimentOptions& opt
       result.wall_s = summary.wall_s;
       result.final_views = static_cast<int>(engine.model().NumViews());
       result.final_components = static_cast<int>(engine.model().NumComponents());
+      result.map_svg = ModeMapSvg(engine, recorder.records(), ro.run_dir / "events.csv",
+                                  f.input.Describe(), &result.views_removed_by_session);
+      if (!options.map_out_dir.empty()) map_bytes[index] = EncodeEngine(engine);
       return result;
     };
     std::vector<CompareModeResult> results(modes.size());
@@ -311,7 +411,16 @@ CompareExperimentResult RunCompareExperiment(const CompareExperimentOptions& opt
       if (!e.days.empty())
         head << " (days " << e.days.front().session + 1 << "-" << e.days.back().session + 1 << ")";
       head << ", localized frames only (coverage%)\n";
+      head << "# views@s: views after frame s (updates of the last update_delay_frames frames "
+              "still queued); views_end: at the end, queued updates applied (the saved map)\n";
       out.table_text = head.str() + FormatCompareTable(results, steps);
+    }
+    if (!options.map_out_dir.empty()) {
+      std::filesystem::create_directories(options.map_out_dir);
+      for (std::size_t i = 0; i < modes.size(); ++i) {
+        WriteFileAtomic(std::filesystem::path(options.map_out_dir) / (ToString(modes[i]) + ".omap"),
+                        map_bytes[i]);
+      }
     }
     WriteFileAtomic(out_dir / "table.txt", out.table_text);
     WriteFileAtomic(out_dir / "report.html",

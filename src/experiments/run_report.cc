@@ -160,10 +160,12 @@ std::string RenderRunReport(const std::string& title, const std::string& input,
   SvgPlot err_plot("Position error", "frame", "error [m]", 960, 300);
   err_plot.AddLine("estimate (strongest)", x, err);
   err_plot.AddLine("odometry only", x, odo);
+  AddDayMarkers(&err_plot, records);
   report.AddSvg(err_plot.Render());
   SvgPlot map_plot("Map growth", "frame", "count", 960, 260);
   map_plot.AddLine("reference views", x, views);
   map_plot.AddLine("components", x, comps);
+  AddDayMarkers(&map_plot, records);
   report.AddSvg(map_plot.Render());
   report.AddSvg(RenderPositionHistogramSvg(eval));
 

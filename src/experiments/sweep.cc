@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <functional>
 #include <map>
 #include <set>
 #include <sstream>
@@ -14,6 +15,7 @@
 #include "omnicml/common/file_io.h"
 #include "omnicml/evaluation/evaluation.h"
 #include "omnicml/report/report.h"
+#include "omnicml/report/strip_plot.h"
 #include "omnicml/report/svg_plot.h"
 #include "omnicml/sim/world.h"
 
@@ -175,6 +177,94 @@ SweepRow RowFromRunDir(const fs::path& run_dir) {
     row.components = table.records.back().map_components;
   }
   return row;
+}
+
+// The forgetting mode in RUNDIR/config.yaml (the key `forgetting` at any depth), "" when
+// the file or the key is missing.
+std::string ForgettingOfRun(const fs::path& run_dir) {
+  std::error_code ec;
+  if (!fs::is_regular_file(run_dir / "config.yaml", ec)) return "";
+  YAML::Node root;
+  try {
+    root = YAML::Load(ReadTextFile(run_dir / "config.yaml", 1 << 20));
+  } catch (const YAML::Exception&) {
+    return "";
+  }
+  std::function<std::string(const YAML::Node&)> find = [&](const YAML::Node& n) -> std::string {
+    if (!n.IsMap()) return "";
+    for (const auto& kv : n) {
+      if (kv.first.as<std::string>() == "forgetting" && kv.second.IsScalar())
+        return kv.second.as<std::string>();
+      const std::string inner = find(kv.second);
+      if (!inner.empty()) return inner;
+    }
+    return "";
+  };
+  return find(root);
+}
+
+// Strip plots of the rows grouped by input and option values other than forgetting,
+// then by forgetting mode; seeds as points, mean and worst marked.
+void AddGroupedPlots(HtmlReport* report, const std::vector<SweepRow>& rows) {
+  struct Group {
+    std::string label;
+    std::string mode;
+    std::vector<const SweepRow*> rows;
+  };
+  std::vector<Group> groups;
+  for (const SweepRow& r : rows) {
+    if (r.status == "missing") continue;
+    std::string label = r.input;
+    for (const auto& [flag, value] : r.options) {
+      if (flag != "forgetting") label += " " + flag + "=" + value;
+    }
+    label += " | " + (r.mode.empty() ? std::string("-") : r.mode);
+    auto it = std::find_if(groups.begin(), groups.end(),
+                           [&](const Group& g) { return g.label == label; });
+    if (it == groups.end()) {
+      groups.push_back({label, r.mode, {}});
+      it = groups.end() - 1;
+    }
+    it->rows.push_back(&r);
+  }
+  if (groups.empty()) return;
+  auto mode_color = [](const std::string& mode) -> std::string {
+    if (mode == "passive") return SeriesColor(0);
+    if (mode == "active") return SeriesColor(1);
+    if (mode == "static") return SeriesColor(2);
+    return SeriesColor(3);
+  };
+  auto plot = [&](const std::string& title, const std::string& y_label, bool worst_is_max,
+                  double (*value)(const SweepRow&)) {
+    std::vector<StripGroup> strips;
+    for (const Group& g : groups) {
+      StripGroup s;
+      s.label = g.label;
+      s.color = mode_color(g.mode);
+      for (const SweepRow* r : g.rows) {
+        s.values.push_back(value(*r));
+        s.point_labels.push_back(StrCat("seed ", r->seed, ": ", FormatTick(value(*r))));
+      }
+      strips.push_back(std::move(s));
+    }
+    StripPlotOptions o;
+    o.title = title;
+    o.y_label = y_label;
+    o.worst_is_max = worst_is_max;
+    o.width_px = std::max(520, 110 + 90 * static_cast<int>(groups.size()));
+    report->AddSvg(RenderStripPlot(strips, o));
+  };
+  report->AddHeading("By option value and forgetting mode");
+  report->AddParagraph(
+      "One column per input, option values (other than forgetting) and forgetting mode; a dot "
+      "per seed (hover for its seed), the black bar the mean over seeds, the red diamond the "
+      "worst seed. Errors are over the localized frames: read them with the coverage.");
+  plot("Mean position error (localized frames)", "error [m]", true,
+       [](const SweepRow& r) { return r.error_mean_m; });
+  plot("Coverage (localized / frames)", "coverage [%]", false,
+       [](const SweepRow& r) { return r.coverage * 100; });
+  plot("Reference views at the end", "views", true,
+       [](const SweepRow& r) { return static_cast<double>(r.views); });
 }
 
 }  // namespace
@@ -484,7 +574,8 @@ std::vector<SweepRow> CollectSweep(const fs::path& dir) {
     for (const auto& [mode, path] : runs) {
       SweepRow row = RowFromRunDir(path);
       row.job = base.job;
-      row.mode = mode;
+      // compare: the mode's subdirectory; run: the forgetting mode the run used.
+      row.mode = mode.empty() ? ForgettingOfRun(path) : mode;
       row.status = complete ? "complete" : "incomplete";
       row.input = base.input;
       row.seed = base.seed;
@@ -503,8 +594,9 @@ std::vector<SweepRow> CollectSweep(const fs::path& dir) {
                        {"command", j.value("command", std::string())},
                        {"jobs", std::to_string(j.at("jobs").size())},
                        {"run directories complete", StrCat(complete, " of ", rows.size())}});
+  AddGroupedPlots(&report, rows);
   report.AddHeading("Runs");
-  std::vector<std::string> header = {"job", "mode", "status"};
+  std::vector<std::string> header = {"job", "mode", "seed", "status"};
   for (const auto& [flag, value] : rows.empty() ? decltype(rows.front().options){}
                                                 : rows.front().options)
     header.push_back(flag);
@@ -512,10 +604,9 @@ std::vector<SweepRow> CollectSweep(const fs::path& dir) {
                         "odometry m", "views", "time s", "peak MB"})
     header.push_back(h);
   std::vector<std::vector<std::string>> table;
-  std::vector<double> x, err, views;
   for (std::size_t i = 0; i < rows.size(); ++i) {
     const SweepRow& r = rows[i];
-    std::vector<std::string> cells = {r.job, r.mode, r.status};
+    std::vector<std::string> cells = {r.job, r.mode, std::to_string(r.seed), r.status};
     for (const auto& [flag, value] : r.options) cells.push_back(value);
     if (r.status != "missing") {
       for (const std::string& c :
@@ -524,21 +615,10 @@ std::vector<SweepRow> CollectSweep(const fs::path& dir) {
             Fixed(r.odometry_mean_m, 3), std::to_string(r.views), Fixed(r.wall_s, 1),
             Fixed(r.peak_rss_mb, 0)})
         cells.push_back(c);
-      x.push_back(static_cast<double>(i + 1));
-      err.push_back(r.error_mean_m);
-      views.push_back(r.views);
     }
     table.push_back(std::move(cells));
   }
   report.AddTable(header, table);
-  if (!x.empty()) {
-    SvgPlot plot("Mean position error per run (rows of the table)", "row", "error [m]", 900, 280);
-    plot.AddScatter("mean error", x, err);
-    report.AddSvg(plot.Render());
-    SvgPlot map_plot("Reference views at the end per run", "row", "views", 900, 240);
-    map_plot.AddScatter("views", x, views);
-    report.AddSvg(map_plot.Render());
-  }
   WriteFileAtomic(dir / "summary.html", report.Render());
   return rows;
 }

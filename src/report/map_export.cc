@@ -148,6 +148,7 @@ constexpr const char* kShelfEdge = "#a0a0a0";
 constexpr const char* kBoxFill = "#e8dcc8";
 constexpr const char* kTruthColor = "#222222";
 constexpr const char* kEstimateColor = "#d55e00";
+constexpr const char* kRemovedColor = "#c0102a";
 
 Scene BuildMapScene(const EnvironmentModel& model, const std::vector<Pose2>& trajectory,
                     const MapPictureOptions& options) {
@@ -176,6 +177,7 @@ Scene BuildMapScene(const EnvironmentModel& model, const std::vector<Pose2>& tra
   }
   for (const Pose2& p : trajectory) extend(p.x(), p.y());
   for (const Pose2& p : options.ground_truth) extend(p.x(), p.y());
+  for (const Eigen::Vector2d& p : options.removed_m) extend(p.x(), p.y());
   if (!std::isfinite(lo_x)) lo_x = 0, hi_x = 1, lo_y = 0, hi_y = 1;
   const double pad_m = 0.03 * std::max(hi_x - lo_x, hi_y - lo_y);
   lo_x -= pad_m, hi_x += pad_m, lo_y -= pad_m, hi_y += pad_m;
@@ -313,6 +315,11 @@ Scene BuildMapScene(const EnvironmentModel& model, const std::vector<Pose2>& tra
     p.rx = 1.6 + 1.6 * std::clamp(k.comp->weight, 0.0, 1.0);
     p.fill = k.color;
   }
+  auto cross = [&](const cv::Point2d& q) {
+    s.Line({{q.x - 3, q.y - 3}, {q.x + 3, q.y + 3}}, kRemovedColor, 1.3, 0.8);
+    s.Line({{q.x - 3, q.y + 3}, {q.x + 3, q.y - 3}}, kRemovedColor, 1.3, 0.8);
+  };
+  for (const Eigen::Vector2d& r : options.removed_m) cross(c.P(r.x(), r.y()));
 
   // Legend: two rows under the map.
   const double y1 = top + map_h + 20, y2 = y1 + 24;
@@ -337,6 +344,12 @@ Scene BuildMapScene(const EnvironmentModel& model, const std::vector<Pose2>& tra
   }
   if (options.ground_truth.size() >= 2) swatch_line(kTruthColor, 1.5, "ground truth");
   if (trajectory.size() >= 2) swatch_line(kEstimateColor, 1.5, "estimate");
+  if (!options.removed_m.empty()) {
+    cross({x + 8, y1 - 4});
+    const std::string label = StrCat("view removed (", options.removed_m.size(), ")");
+    s.Text(x + 20, y1, label);
+    x += 20 + TextWidthPx(label) + 18;
+  }
   {
     Prim& e = s.Add(Prim::Type::kEllipse);
     e.pts = {{x + 11, y1 - 4}};

@@ -23,7 +23,8 @@ void HtmlReport::AddParagraph(const std::string& text) {
 void HtmlReport::AddTable(const std::vector<std::string>& header,
                           const std::vector<std::vector<std::string>>& rows) {
   std::ostringstream os;
-  os << "<table>\n";
+  // Wide tables scroll sideways inside their own box instead of widening the page.
+  os << "<div class=\"scroll\"><table>\n";
   const bool has_header =
       std::any_of(header.begin(), header.end(), [](const std::string& h) { return !h.empty(); });
   if (has_header) {
@@ -39,7 +40,7 @@ void HtmlReport::AddTable(const std::vector<std::string>& header,
     }
     os << "</tr>\n";
   }
-  os << "</table>";
+  os << "</table></div>";
   blocks_.push_back(os.str());
 }
 
@@ -67,7 +68,9 @@ std::string HtmlReport::Render() const {
      << "table{border-collapse:collapse;margin:0.5em 0}\n"
      << "td,th{border:1px solid #ccc;padding:2px 8px;text-align:right}\n"
      << "th{background:#f0f0f0}\npre{background:#f7f7f7;padding:0.5em;overflow:auto}\n"
-     << ".plot{display:inline-block;margin:4px}\n</style>\n</head>\n<body>\n<h1>"
+     << ".plot{display:inline-block;margin:4px;max-width:100%;overflow-x:auto}\n"
+     << ".scroll{overflow-x:auto;max-width:100%}\n"
+     << "td:first-child,th:first-child{text-align:left}\n</style>\n</head>\n<body>\n<h1>"
      << XmlEscape(title_) << "</h1>\n";
   for (const auto& b : blocks_) os << b << "\n";
   os << "</body>\n</html>\n";

@@ -121,6 +121,10 @@ void SvgPlot::AddHistogram(const std::string& name, const std::vector<double>& b
   AddSeries({name, bin_edges, counts, as_steps ? SeriesStyle::kSteps : SeriesStyle::kBars, ""});
 }
 
+void SvgPlot::AddVerticalMarker(double x, std::string label) {
+  markers_.emplace_back(x, std::move(label));
+}
+
 void SvgPlot::SetXRange(double lo, double hi) {
   x_fixed_ = true;
   x_lo_ = std::min(lo, hi);
@@ -171,7 +175,14 @@ std::string SvgPlot::Render() const {
   if (x_hi - x_lo <= 0) x_hi = x_lo + 1;
   if (y_hi - y_lo <= 0) y_hi = y_lo + 1;
 
-  const double plot_w = width_px_ - kLeftPx - kRightPx;
+  // The legend takes a column right of the plot area, wide enough for its longest name
+  // (about 6.5 px per character at font-size 11), so it never covers data.
+  std::size_t longest_name = 0;
+  for (const Series& s : series_) longest_name = std::max(longest_name, s.name.size());
+  const double legend_w =
+      longest_name == 0 ? 0.0
+                        : std::min(0.4 * width_px_, 22.0 + 6.5 * static_cast<double>(longest_name));
+  const double plot_w = std::max(40.0, width_px_ - kLeftPx - kRightPx - legend_w);
   const double plot_h = height_px_ - kTopPx - kBottomPx;
   auto px = [&](double x) { return kLeftPx + (x - x_lo) / (x_hi - x_lo) * plot_w; };
   auto py = [&](double y) { return kTopPx + plot_h - (y - y_lo) / (y_hi - y_lo) * plot_h; };
@@ -222,6 +233,18 @@ std::string SvgPlot::Render() const {
   if (!any) {
     os << "<text x=\"" << Num(kLeftPx + plot_w / 2) << "\" y=\"" << Num(kTopPx + plot_h / 2)
        << "\" text-anchor=\"middle\" fill=\"#888888\">no data</text>\n";
+  }
+
+  // Vertical markers, under the series.
+  for (const auto& [mx, label] : markers_) {
+    if (!std::isfinite(mx) || mx < x_lo || mx > x_hi) continue;
+    os << "<line x1=\"" << Num(px(mx)) << "\" y1=\"" << Num(kTopPx) << "\" x2=\"" << Num(px(mx))
+       << "\" y2=\"" << Num(kTopPx + plot_h)
+       << "\" stroke=\"#888888\" stroke-width=\"1\" stroke-dasharray=\"4 3\"/>\n";
+    if (!label.empty()) {
+      os << "<text x=\"" << Num(px(mx) + 3) << "\" y=\"" << Num(kTopPx + 10)
+         << "\" fill=\"#666666\" font-size=\"9\">" << XmlEscape(label) << "</text>\n";
+    }
   }
 
   // Series.
@@ -294,14 +317,14 @@ std::string SvgPlot::Render() const {
     }
   }
 
-  // Legend, top right inside the plot area.
+  // Legend, in its column right of the plot area.
   int legend_row = 0;
   for (std::size_t i = 0; i < series_.size(); ++i) {
     if (series_[i].name.empty()) continue;
     const std::string color =
         series_[i].color.empty() ? SeriesColor(static_cast<int>(i)) : series_[i].color;
     const double y = kTopPx + 12 + 14 * legend_row++;
-    const double x = kLeftPx + plot_w - 150;
+    const double x = kLeftPx + plot_w + 10;
     os << "<rect x=\"" << Num(x) << "\" y=\"" << Num(y - 8)
        << "\" width=\"10\" height=\"10\" fill=\"" << XmlEscape(color) << "\"/>\n";
     os << "<text x=\"" << Num(x + 14) << "\" y=\"" << Num(y + 1) << "\">"

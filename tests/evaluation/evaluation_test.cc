@@ -1,6 +1,7 @@
 // Tests of the run records, error statistics, alignment and evaluation report.
 #include "omnicml/evaluation/evaluation.h"
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -11,6 +12,7 @@
 #include <gtest/gtest.h>
 
 #include "omnicml/common/common.h"
+#include "omnicml/evaluation/trajectory_metrics.h"
 
 namespace omnicml {
 namespace {
@@ -490,6 +492,84 @@ TEST(Align, Se2TurnsTheCovarianceWithTheEstimate) {
     EXPECT_NEAR(aligned[i].nees_xy, e.dot(c_truth.inverse() * e), 1e-6);
   }
   EXPECT_EQ(se2.overall.nees_xy.count, 50);
+}
+
+// A straight 10 m run along x, one frame per metre.
+std::vector<FrameRecord> StraightRun(double est_scale, double est_heading_rate_rad_per_m) {
+  std::vector<FrameRecord> records;
+  for (int i = 0; i <= 10; ++i) {
+    records.push_back(MakeRecord(0, i, MakePose(est_scale * i, 0, est_heading_rate_rad_per_m * i),
+                                 MakePose(i, 0, 0)));
+  }
+  RecomputeErrors(&records);
+  return records;
+}
+
+TEST(TrajectoryMetrics, ApeRmseAndRpeOfAScaledRunByHand) {
+  // est x = 1.1 truth x: APE e_i = 0.1 i, RMSE = 0.1 sqrt(mean(i^2), i = 0..10) =
+  // 0.1 sqrt(35); RPE over 2 m: pairs (2,4) (4,6) (6,8) (8,10), each 0.2 m too long.
+  TrajectoryMetricsOptions options;
+  options.rpe_delta_m = 2.0;
+  const TrajectoryMetrics m = ComputeTrajectoryMetrics(StraightRun(1.1, 0), options);
+  EXPECT_EQ(m.frames_evaluated, 11);
+  EXPECT_NEAR(m.ape_m.rmse, 0.1 * std::sqrt(35.0), 1e-12);
+  EXPECT_NEAR(m.ape_m.mean, 0.5, 1e-12);
+  EXPECT_NEAR(m.ape_m.max, 1.0, 1e-12);
+  EXPECT_NEAR(m.ape_m.std, 0.1 * std::sqrt(10.0), 1e-12);  // population std of 0..10 = sqrt(10)
+  EXPECT_EQ(m.rpe_pairs, 4);
+  EXPECT_NEAR(m.rpe_translation_m.rmse, 0.2, 1e-12);
+  EXPECT_NEAR(m.rpe_rotation_deg.max, 0.0, 1e-12);
+  EXPECT_NEAR(m.drift_percent, 10.0, 1e-9);
+}
+
+TEST(TrajectoryMetrics, RpeRotationOfAHeadingDriftByHand) {
+  // The heading drifts by 0.01 rad per metre: every 2 m pair turns 0.02 rad too far.
+  TrajectoryMetricsOptions options;
+  options.rpe_delta_m = 2.0;
+  const TrajectoryMetrics m = ComputeTrajectoryMetrics(StraightRun(1.0, 0.01), options);
+  EXPECT_EQ(m.rpe_pairs, 4);
+  EXPECT_NEAR(m.rpe_rotation_deg.rmse, 0.02 * 180 / kPi, 1e-9);
+  EXPECT_NEAR(m.rotation_drift_deg_per_m, 0.01 * 180 / kPi, 1e-9);
+  EXPECT_NEAR(m.ape_m.max, 0.0, 1e-12);
+  EXPECT_NEAR(m.ape_heading_deg.max, 0.1 * 180 / kPi, 1e-9);
+}
+
+TEST(TrajectoryMetrics, RpePairsStayWithinASessionAndCountUnlocalizedFrames) {
+  // Two sessions of a straight run; pairs never join them; frames without an estimate
+  // are counted in frames but not evaluated.
+  std::vector<FrameRecord> records = StraightRun(1.1, 0);
+  std::vector<FrameRecord> day2 = StraightRun(1.1, 0);
+  for (FrameRecord& r : day2) r.session = 1, r.global_frame += 11;
+  day2[5].has_estimate = false;
+  records.insert(records.end(), day2.begin(), day2.end());
+  RecomputeErrors(&records);
+  TrajectoryMetricsOptions options;
+  options.rpe_delta_m = 2.0;
+  const TrajectoryMetrics m = ComputeTrajectoryMetrics(records, options);
+  EXPECT_EQ(m.frames, 22);
+  EXPECT_EQ(m.frames_evaluated, 21);
+  // Day 1: 4 pairs; day 2 without frame 5: path 2 at 2, 4 at 4, (5 missing) 6, 8, 10 -> 4.
+  EXPECT_EQ(m.rpe_pairs, 8);
+  EXPECT_NEAR(m.rpe_translation_m.rmse, 0.2, 1e-12);
+  EXPECT_EQ(ComputeTrajectoryMetrics(records, options, 1).rpe_pairs, 4);
+}
+
+TEST(AssociateGroundTruth, NearestStampWithinTheToleranceElseNone) {
+  // Reference stamps 4 ms after the frames: associated within 10 ms, not within 3 ms;
+  // frames left without ground truth stay counted.
+  std::vector<FrameRecord> records = StraightRun(1.0, 0);
+  std::vector<TimedPose> reference;
+  for (const FrameRecord& r : records) reference.push_back({r.stamp_s + 0.004, r.truth});
+  std::reverse(reference.begin(), reference.end());  // need not be sorted
+  std::vector<FrameRecord> a = records;
+  EXPECT_EQ(AssociateGroundTruth(&a, reference, 0.01), 11);
+  EXPECT_NEAR(a[3].truth.x(), 3.0, 1e-12);
+  EXPECT_NEAR(a[3].position_error_m, 0.0, 1e-12);
+  std::vector<FrameRecord> b = records;
+  EXPECT_EQ(AssociateGroundTruth(&b, reference, 0.003), 0);
+  EXPECT_FALSE(b[3].has_truth);
+  EXPECT_TRUE(std::isnan(b[3].position_error_m));
+  EXPECT_THROW(AssociateGroundTruth(&b, reference, -1), Error);
 }
 
 }  // namespace

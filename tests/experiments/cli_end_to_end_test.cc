@@ -9,6 +9,7 @@
 #include <fstream>
 #include <iterator>
 #include <map>
+#include <memory>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -17,7 +18,9 @@
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 
+#include "omnicml/common/file_io.h"
 #include "omnicml/engine/cml_engine.h"
+#include "omnicml/engine/engine_io.h"
 #include "omnicml/evaluation/evaluation.h"
 #include "omnicml/logs/log_format.h"
 #include "omnicml/report/map_export.h"
@@ -277,15 +280,42 @@ TEST_F(CliEndToEnd, ExportInspectAndEvaluate) {
     EXPECT_NE(eval.output.find("alignment: " + std::string(align)), std::string::npos);
   }
   EXPECT_TRUE(fs::is_regular_file(run / "evaluation.html"));
+  // Each evaluation keeps the earlier ones; --out never replaces a file without --force.
+  EXPECT_TRUE(fs::is_regular_file(run / "evaluation-2.html"));
+  EXPECT_TRUE(fs::is_regular_file(run / "evaluation-3.html"));
+  const CommandResult eval = RunOmnicml("evaluate " + run.string() + " --out " + (run / "evaluation.html").string());
+  EXPECT_EQ(eval.exit_code, 2) << eval.output;
+  EXPECT_NE(eval.output.find("--force"), std::string::npos) << eval.output;
+  const CommandResult forced = RunOmnicml("evaluate " + run.string() + " --force --out " + (run / "evaluation.html").string());
+  EXPECT_EQ(forced.exit_code, 0) << forced.output;
+  EXPECT_NE(forced.output.find("APE position"), std::string::npos) << forced.output;
+  EXPECT_NE(forced.output.find("RPE translation"), std::string::npos) << forced.output;
   EXPECT_TRUE(TemporaryFiles(Dir()).empty());
 }
 
 TEST_F(CliEndToEnd, CompareRunsTheThreeModes) {
   // compare prints views at the steps for passive, active and static, and writes a report.
   const fs::path out = Dir() / "compare";
+  const fs::path maps = Dir() / "compare_maps";
   const CommandResult r = RunOmnicml("compare " + (Dir() / "log").string() +
-                                     " --quiet --jobs 3 --steps 25,50,100,1000 --out " + out.string());
+                                     " --quiet --jobs 3 --steps 25,50,100,1000 --out " + out.string() +
+                                     " --map-out " + maps.string());
   ASSERT_EQ(r.exit_code, 0) << r.output;
+  // --map-out: one map per mode, each holding the views the table reports at the end.
+  for (const char* mode : {"passive", "active", "static"}) {
+    const fs::path map = maps / (std::string(mode) + ".omap");
+    ASSERT_TRUE(fs::is_regular_file(map)) << mode;
+    const std::unique_ptr<CmlEngine> engine = DecodeEngine(ReadBinaryFile(map), map.string());
+    const std::string views_end = std::to_string(engine->model().NumViews());
+    const auto line_start = r.output.find("\n" + std::string(mode) + " ");
+    ASSERT_NE(line_start, std::string::npos) << r.output;
+    const std::string line = r.output.substr(line_start + 1, r.output.find('\n', line_start + 1) - line_start - 1);
+    std::stringstream cells(line);
+    std::vector<std::string> cell{std::istream_iterator<std::string>(cells), {}};
+    ASSERT_GE(cell.size(), 6u) << line;
+    EXPECT_EQ(cell[5], views_end) << line;  // forgetting, 4 steps, views_end
+  }
+  EXPECT_TRUE(fs::is_regular_file(out / "replay.html"));
   // The modes ran in three threads; one after the other they give the same frames.
   const fs::path sequential = Dir() / "compare_sequential";
   const CommandResult r1 = RunOmnicml("compare " + (Dir() / "log").string() +
@@ -308,6 +338,17 @@ TEST_F(CliEndToEnd, CompareRunsTheThreeModes) {
   EXPECT_NE(r.output.find("views@25"), std::string::npos);
   EXPECT_NE(r.output.find("odom_err_m"), std::string::npos);
   EXPECT_TRUE(fs::is_regular_file(out / "report.html"));
+  // The report: the odometry-only line and day boundaries on the error plot, and the
+  // three modes' maps (growth, error, histogram and 3 map pictures = 6 drawings).
+  const std::string report = slurp(out / "report.html");
+  EXPECT_NE(report.find("odometry only"), std::string::npos);
+  EXPECT_NE(report.find(">day 2</text>"), std::string::npos);
+  EXPECT_NE(report.find("Views removed per day: by active forgetting / otherwise"),
+            std::string::npos);
+  std::size_t drawings = 0;
+  for (std::size_t p = report.find("<svg"); p != std::string::npos; p = report.find("<svg", p + 1))
+    ++drawings;
+  EXPECT_EQ(drawings, 6u);
   // Static freezes the map after day 1: its view count never changes on day 2.
   const FramesTable st = ReadFramesCsv(out / "static" / "frames.csv");
   int first_day2_views = -1;

@@ -131,6 +131,9 @@ TEST(SweepEndToEnd, TwoByTwoLocally) {
     EXPECT_GT(std::stoi(row.at("views")), 0);
     EXPECT_GT(std::stod(row.at("wall_s")), 0);
     EXPECT_GT(std::stod(row.at("peak_rss_mb")), 1);
+    // mode is the forgetting mode the run used; seed the simulator seed.
+    EXPECT_EQ(row.at("mode"), row.at("forgetting")) << row.at("job");
+    EXPECT_TRUE(row.at("seed") == "1" || row.at("seed") == "2") << row.at("job");
   }
   EXPECT_TRUE(fs::exists(dir / "sweep" / "summary.html"));
 

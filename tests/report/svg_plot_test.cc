@@ -1,16 +1,19 @@
 // Tests of the SVG plot writer: well-formed output, escaping, ticks, geometry.
 #include "omnicml/report/svg_plot.h"
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <random>
 #include <regex>
+#include <sstream>
 #include <string>
 #include <vector>
 
 #include <gtest/gtest.h>
 
 #include "omnicml/common/common.h"
+#include "omnicml/report/strip_plot.h"
 
 namespace omnicml {
 namespace {
@@ -165,6 +168,66 @@ TEST(XmlEscape, EscapesMarkupCharacters) {
   // Markup characters become entities and the result is well formed as text.
   EXPECT_EQ(XmlEscape("a<b>&\"c'"), "a&lt;b&gt;&amp;&quot;c&apos;");
   EXPECT_EQ(CheckWellFormed("<t>" + XmlEscape("<<&&>>") + "</t>"), "");
+}
+
+// x coordinates of every point of every polyline of an SVG.
+std::vector<double> PolylineXs(const std::string& svg) {
+  std::vector<double> xs;
+  const std::regex points("points=\"([^\"]*)\"");
+  for (auto it = std::sregex_iterator(svg.begin(), svg.end(), points); it != std::sregex_iterator();
+       ++it) {
+    std::stringstream ss((*it)[1].str());
+    std::string pair;
+    while (ss >> pair) xs.push_back(std::stod(pair.substr(0, pair.find(','))));
+  }
+  return xs;
+}
+
+TEST(SvgPlot, LegendStaysRightOfTheData) {
+  // The legend column starts right of every data point, so it never covers a curve.
+  SvgPlot plot("t", "x", "y", 600, 300);
+  plot.AddLine("a long series name", {0, 1, 2, 3}, {0, 1, 4, 9});
+  plot.AddLine("b", {0, 3}, {9, 0});
+  const std::string svg = plot.Render();
+  EXPECT_EQ(CheckWellFormed(svg), "");
+  const std::vector<double> xs = PolylineXs(svg);
+  ASSERT_FALSE(xs.empty());
+  const double data_right = *std::max_element(xs.begin(), xs.end());
+  const std::regex legend_text("<text x=\"([0-9.]+)\"[^>]*>a long series name</text>");
+  std::smatch m;
+  ASSERT_TRUE(std::regex_search(svg, m, legend_text)) << svg;
+  EXPECT_GT(std::stod(m[1].str()), data_right);
+}
+
+TEST(SvgPlot, VerticalMarkersInsideTheRangeWithEscapedLabels) {
+  // A marker inside the x range is a dashed line with its label; one outside is left out.
+  SvgPlot plot("t", "x", "y", 600, 300);
+  plot.AddLine("", {0, 100}, {0, 1});
+  plot.AddVerticalMarker(50, "day <2>");
+  plot.AddVerticalMarker(500, "day 3");
+  const std::string svg = plot.Render();
+  EXPECT_EQ(CheckWellFormed(svg), "");
+  EXPECT_NE(svg.find("day &lt;2&gt;"), std::string::npos);
+  EXPECT_EQ(svg.find("day 3"), std::string::npos);
+  EXPECT_NE(svg.find("stroke-dasharray"), std::string::npos);
+}
+
+TEST(StripPlot, MarksMeanAndWorstOfEachGroup) {
+  // Mean bar at the group's mean, worst diamond at its max (errors) or min (coverage).
+  StripGroup a{"passive <a>", "", {1.0, 2.0, 6.0}, {"seed 1", "seed 2", "seed 3"}};
+  StripGroup b{"active", "#D55E00", {2.0, std::nan("")}, {}};
+  StripPlotOptions o;
+  o.title = "errors & more";
+  const std::string svg = RenderStripPlot({a, b}, o);
+  EXPECT_EQ(CheckWellFormed(svg), "");
+  EXPECT_NE(svg.find("passive &lt;a&gt;"), std::string::npos);
+  EXPECT_NE(svg.find("<title>mean 3</title>"), std::string::npos);
+  EXPECT_NE(svg.find("<title>worst 6</title>"), std::string::npos);
+  EXPECT_NE(svg.find("<title>seed 3</title>"), std::string::npos);
+  EXPECT_NE(svg.find("<title>mean 2</title>"), std::string::npos);  // NaN left out
+  o.worst_is_max = false;
+  EXPECT_NE(RenderStripPlot({a}, o).find("<title>worst 1</title>"), std::string::npos);
+  EXPECT_EQ(CheckWellFormed(RenderStripPlot({}, o)), "");
 }
 
 }  // namespace

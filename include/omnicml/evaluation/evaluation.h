@@ -39,11 +39,15 @@
 #include <map>
 #include <ostream>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "omnicml/geometry/pose.h"
 
 namespace omnicml {
+
+class SvgPlot;
+struct TrajectoryMetrics;
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
@@ -183,6 +187,7 @@ struct ErrorStats {
   double median = kNaN;
   double p95 = kNaN;  // linear interpolation between order statistics
   double max = kNaN;
+  double rmse = kNaN;  // sqrt(mean(v^2)): evo's headline APE figure for position errors
 };
 ErrorStats ComputeStats(std::vector<double> values);
 // The q-quantile (0 <= q <= 1) of sorted finite values, linear interpolation; NaN if empty.
@@ -260,7 +265,7 @@ std::string FormatTextTable(const std::vector<std::string>& header,
                             bool left_align_first = false);
 
 // Text table: one line per day (frames, localized frames, coverage %, skipped frames,
-// mean/median/p95/max position error over the localized frames, heading error,
+// mean/RMSE/median/p95/max position error over the localized frames, heading error,
 // odometry-only mean, change of the mean from the previous day), then the run, the
 // run's position NEES (consistency of the estimates' covariances) when the frames carry
 // covariances, then (with_histogram) the position histogram as counts per bin and day.
@@ -271,9 +276,18 @@ std::string FormatEvaluation(const EvaluationResult& result, bool with_histogram
 std::string RenderPositionHistogramSvg(const EvaluationResult& result,
                                        const std::string& title = "Position error histogram");
 
-// Self-contained HTML page (tables and inline SVG histograms and error-over-time plot).
+// The first frame of every session after the first: (global_frame, session), for day
+// boundaries on plots over frames.
+std::vector<std::pair<std::int64_t, int>> DayStarts(const std::vector<FrameRecord>& records);
+// Adds a vertical marker "day N" at the first frame (x = global_frame, or x_offset +
+// global_frame) of every session but the first.
+void AddDayMarkers(SvgPlot* plot, const std::vector<FrameRecord>& records, double x_offset = 0);
+
+// Self-contained HTML page (tables and inline SVG histograms and error-over-time plot
+// with day boundaries); with `metrics`, its APE/RPE table (trajectory_metrics.h) first.
 std::string RenderEvaluationHtml(const EvaluationResult& result, const FramesTable& table,
-                                 const std::string& title);
+                                 const std::string& title,
+                                 const TrajectoryMetrics* metrics = nullptr);
 
 }  // namespace omnicml
 

@@ -14,7 +14,9 @@
 //                                trajectory.tum, groundtruth.tum, odometry.tum)
 //   table.txt                    the table as printed
 //   report.html                  the table, per-day errors and views, growth and error
-//                                plots, the error histogram of all modes
+//                                plots (with day boundaries and the odometry-only error),
+//                                the error histogram of all modes, each mode's final map
+// With map_out_dir, MAPDIR/<mode>.omap holds each mode's final engine/map.
 //
 // The three modes are independent runs (each with its own frame source and engine, each
 // deterministic whatever the timing), so they run in `jobs` parallel threads; the results
@@ -25,7 +27,9 @@
 #define OMNICML_EXPERIMENTS_COMPARE_EXPERIMENT_H_
 
 #include <cstdint>
+#include <map>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "omnicml/evaluation/evaluation.h"
@@ -45,6 +49,10 @@ struct CompareExperimentOptions {
   std::vector<std::int64_t> steps = {2000, 4000, 6000, 8000};
   // Modes run in parallel: 0 = one per core; clamped to [1, 3].
   int jobs = 0;
+  // "" = no maps; otherwise a directory (created when missing) receiving each mode's
+  // engine/map at the end as <mode>.omap (loadable with run --map-in, export, inspect),
+  // written only once every mode has succeeded.
+  std::string map_out_dir;
 };
 
 // One mode's run.
@@ -58,6 +66,13 @@ struct CompareModeResult {
   double wall_s = 0;
   int final_views = 0;  // after Finish
   int final_components = 0;
+  // SVG picture of the mode's final map over its estimated trajectory (map_export.h),
+  // with the places where views were removed marked; for the report.
+  std::string map_svg;
+  // Views removed during each session (engine session index, from events.csv): by
+  // active forgetting (its last component went by (18)-(19)) and otherwise (passive
+  // forgetting, weight below w_min, merges). Sessions without removals are absent.
+  std::map<int, std::pair<int, int>> views_removed_by_session;
 };
 
 struct CompareExperimentResult {

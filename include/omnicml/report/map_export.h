@@ -107,6 +107,9 @@ struct MapPictureOptions {
   std::string title;           // drawn at the top when not empty
   FloorPlan floor_plan;        // drawn under everything when not empty
   std::vector<Pose2> ground_truth;  // drawn under the estimate when not empty
+  // Places where views were removed from the map (MapEvent positions of view_removed
+  // events, metres), drawn as red crosses over the dots; empty = none drawn.
+  std::vector<Eigen::Vector2d> removed_m;
   MapColoring coloring = MapColoring::kWeight;
   // kHealth: the session the health refers to; -1 = the latest session a view was
   // created or seen in. Cells of health_cell_m metres.

@@ -22,7 +22,8 @@ class HtmlReport {
   void AddHeading(const std::string& text, int level = 2);
   // A paragraph of plain text (escaped).
   void AddParagraph(const std::string& text);
-  // A table; every row should have header.size() cells (shorter rows are padded).
+  // A table; every row should have header.size() cells (shorter rows are padded). A
+  // table wider than the page scrolls sideways in its own box.
   void AddTable(const std::vector<std::string>& header,
                 const std::vector<std::vector<std::string>>& rows);
   // A key/value list rendered as a two-column table.

@@ -1,6 +1,7 @@
 // A small, dependency-free writer of SVG plots for the HTML reports: line plots,
 // step-histograms and bar histograms, and scatter plots, with axes, "nice" ticks, axis
-// labels, a title and a legend.
+// labels, a title, a legend (to the right of the plot area, never over the data) and
+// labelled vertical markers (e.g. day boundaries on a plot over frames).
 //
 // The output is a single <svg> element (no XML prolog) meant to be inlined into HTML
 // or saved as an .svg file; every text is XML-escaped. Non-finite data points are
@@ -12,6 +13,7 @@
 #define OMNICML_REPORT_SVG_PLOT_H_
 
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace omnicml {
@@ -64,6 +66,9 @@ class SvgPlot {
   void SetYRange(double lo, double hi);
   // Makes the y axis start at zero (counts, errors); default true.
   void SetYFromZero(bool from_zero) { y_from_zero_ = from_zero; }
+  // A dashed vertical line at data x with a short label at its top (e.g. "day 2"); drawn
+  // under the series, only when inside the x range.
+  void AddVerticalMarker(double x, std::string label);
 
   // The <svg> element.
   std::string Render() const;
@@ -74,6 +79,7 @@ class SvgPlot {
   std::string title_, x_label_, y_label_;
   int width_px_, height_px_;
   std::vector<Series> series_;
+  std::vector<std::pair<double, std::string>> markers_;
   bool x_fixed_ = false, y_fixed_ = false, y_from_zero_ = true;
   double x_lo_ = 0, x_hi_ = 1, y_lo_ = 0, y_hi_ = 1;
 };

@@ -252,7 +252,7 @@ TEST(LiveEngine, SessionsCommandsAndSave) {
   live.Stop(true);
   EXPECT_EQ(live.stats().sessions, 2);
   EXPECT_EQ(live.engine().session_state().session, 1);
-  EXPECT_EQ(live.engine().options().model.forgetting, ForgettingMode::kStatic);
+  EXPECT_EQ(live.engine().options().model.forgetting.mode, ForgettingMode::kStatic);
   ASSERT_EQ(views.size(), 4u);
   EXPECT_FALSE(views.back().empty());
   const std::unique_ptr<CmlEngine> loaded = LoadEngine(path.string());

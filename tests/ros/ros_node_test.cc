@@ -243,7 +243,7 @@ TEST(RosNode, LocalizesAPlayedBagLikeTheOfflineRun) {
   const std::unique_ptr<CmlEngine> saved = LoadEngine(map.string());  // saved on shutdown
   EXPECT_EQ(saved->model().NumViews(), offline_views);
   EXPECT_EQ(saved->counters().frames, offline.frames);
-  EXPECT_EQ(saved->options().model.forgetting, ForgettingMode::kStatic);
+  EXPECT_EQ(saved->options().model.forgetting.mode, ForgettingMode::kStatic);
   std::cout << "offline: " << offline.frames << " frames, mean error " << offline.mean_m
             << " m, max " << offline.max_m << " m; node: " << live.frames << " poses, mean "
             << live.mean_m << " m, max " << live.max_m << " m\n";

@@ -88,8 +88,8 @@ struct Key {
   bool index = true;
   bool fresh = false;  // a map the benchmark changes (Update): never reused
   bool ann = false;    // the approximate graph (options ann_*) instead of the exact index
-  int ann_m = EnvironmentModelOptions{}.ann_m;
-  int ann_ef_construction = EnvironmentModelOptions{}.ann_ef_construction;
+  int ann_m = EnvironmentModelOptions{}.index.ann_m;
+  int ann_ef_construction = EnvironmentModelOptions{}.index.ann_ef_construction;
   bool operator==(const Key&) const = default;
 };
 
@@ -379,7 +379,7 @@ void BM_Ann(benchmark::State& state) {
   const int mode = static_cast<int>(state.range(1));
   ScaleFixture& f = Fixture(key);
   const int ef = state.range(2) > 0 ? static_cast<int>(state.range(2))
-                                    : EnvironmentModelOptions{}.ann_ef;
+                                    : EnvironmentModelOptions{}.index.ann_ef;
   if (ef != f.model->options().index.ann_ef) {
     f.model->SetAnnSearch(ef, f.model->options().index.ann_k);
     Measure(f);

@@ -104,6 +104,12 @@ py::dict DayDict(const DayEvaluation& e) {
   d["views_at_end"] = e.views_at_end;
   d["map_components_at_end"] = e.map_components_at_end;
   d["mean_frame_time_us"] = e.mean_frame_time_us;
+  d["nees_xy"] = StatsDict(e.nees_xy);
+  d["nees_phi"] = StatsDict(e.nees_phi);
+  d["nis"] = StatsDict(e.nis);
+  d["nees_xy_in_band"] = e.nees_xy_in_band;
+  d["nees_phi_in_band"] = e.nees_phi_in_band;
+  d["nis_in_band"] = e.nis_in_band;
   return d;
 }
 
@@ -149,6 +155,10 @@ py::dict FramesDict(const std::vector<FrameRecord>& r) {
   d["cov_yy_m2"] = Column<double>(r, [](const FrameRecord& x) { return x.cov_yy_m2; });
   d["var_phi_rad2"] = Column<double>(r, [](const FrameRecord& x) { return x.var_phi_rad2; });
   d["nees_xy"] = Column<double>(r, [](const FrameRecord& x) { return x.nees_xy; });
+  d["nees_phi"] = Column<double>(r, [](const FrameRecord& x) { return x.nees_phi; });
+  d["nis"] = Column<double>(r, [](const FrameRecord& x) { return x.nis; });
+  d["prior_nees_xy"] = Column<double>(r, [](const FrameRecord& x) { return x.prior_nees_xy; });
+  d["fix_nees_xy"] = Column<double>(r, [](const FrameRecord& x) { return x.fix_nees_xy; });
   d["matches"] = Column<std::int32_t>(r, [](const FrameRecord& x) { return x.matches; });
   d["best_similarity"] =
       Column<double>(r, [](const FrameRecord& x) { return x.best_similarity; });
@@ -202,7 +212,7 @@ void BindExperiments(py::module_& m) {
       "frame, global_frame, stamp_s, has_estimate, estimate (N, 3), mean_estimate, unimodal, "
       "has_truth, truth (N, 3), position_error_m, heading_error_rad, odometry_error_m, views, "
       "map_components, hypotheses, mixture_components, cov_xx_m2, cov_xy_m2, cov_yy_m2, "
-      "var_phi_rad2, nees_xy (NaN where unknown), matches (-1 unknown), best_similarity (NaN "
+      "var_phi_rad2, nees_xy, nees_phi, nis, prior_nees_xy, fix_nees_xy (NaN where unknown), matches (-1 unknown), best_similarity (NaN "
       "unknown)), days (per-day statistics dicts), "
       "overall (the same over all days), the map size after finish, wall time, run_dir (\"\" "
       "when temporary) and, for run(), the engine as saved at the end (before finish(): "

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <limits>
 #include <utility>
 
 #include <Eigen/LU>
@@ -327,6 +328,21 @@ void CmlEngine::ShapeHypothesis(double best_similarity, Mixture* p_x_y) const {
   }
 }
 
+void CmlEngine::NoteInnovation(const Mixture& p_x_u, const Mixture& p_x_y, FrameResult* result) const {
+  if (p_x_u.empty()) return;
+  const Gaussian& prior = p_x_u[StrongestComponent(p_x_u)];
+  result->prior = prior;
+  double best = std::numeric_limits<double>::infinity();
+  for (const Gaussian& b : p_x_y) {
+    const double d2 = SquaredMahalanobis(prior.mean, b.mean, prior.covariance + b.covariance);
+    if (d2 < best) {
+      best = d2;
+      result->appearance_fix = b;
+    }
+  }
+  if (result->appearance_fix) result->stats.nis = best;
+}
+
 Descriptor CmlEngine::DescribeBehindBarrier(const Frame& frame, std::int64_t t,
                                             FrameStats* stats) {
   // 2. Hand the updates due at t to the worker; it runs while we unwrap and describe.
@@ -400,6 +416,7 @@ FrameResult CmlEngine::ProcessFrame(const Frame& frame) {
   result.stats.hypothesis_components = static_cast<int>(p_x_y.size());
   ShapeHypothesis(result.stats.best_similarity, &p_x_y);
   result.stats.match_us = MicrosSince(t0);
+  NoteInnovation(p_x_u, p_x_y, &result);
 
   if (options_.pose_graph.enabled) pose_graph_->AddFrameOdometry(t, current_increment_);
 

@@ -12,6 +12,7 @@
 
 #include "omnicml/common/common.h"
 #include "omnicml/common/file_io.h"
+#include "omnicml/geometry/chi_square.h"
 #include "omnicml/report/map_export.h"
 #include "omnicml/report/report.h"
 #include "omnicml/report/svg_plot.h"
@@ -37,7 +38,7 @@ const std::vector<std::string>& LaterColumns() {
   static const std::vector<std::string> kColumns = {
       "localized", "run_stamp_s", "odom_x_m",     "odom_y_m", "odom_phi_rad",
       "cov_xx_m2", "cov_xy_m2",   "cov_yy_m2",    "var_phi_rad2", "nees_xy",
-      "matches",   "best_similarity"};
+      "matches",   "best_similarity", "nees_phi", "nis", "prior_nees_xy", "fix_nees_xy"};
   return kColumns;
 }
 
@@ -107,6 +108,8 @@ void WriteFramesCsvRow(std::ostream& os, const FrameRecord& r) {
   os << ',';
   if (r.matches >= 0) os << r.matches;
   os << ',' << ShortestDouble(r.best_similarity);
+  os << ',' << ShortestDouble(r.nees_phi) << ',' << ShortestDouble(r.nis) << ','
+     << ShortestDouble(r.prior_nees_xy) << ',' << ShortestDouble(r.fix_nees_xy);
   os << '\n';
 }
 
@@ -195,6 +198,10 @@ FramesTable ReadFramesCsv(const fs::path& path) {
       }
     }
     if (col.count("best_similarity")) r.best_similarity = num("best_similarity");
+    if (col.count("nees_phi")) r.nees_phi = num("nees_phi");
+    if (col.count("nis")) r.nis = num("nis");
+    if (col.count("prior_nees_xy")) r.prior_nees_xy = num("prior_nees_xy");
+    if (col.count("fix_nees_xy")) r.fix_nees_xy = num("fix_nees_xy");
     const double ex = num("est_x_m"), ey = num("est_y_m"), ephi = num("est_phi_rad");
     r.has_estimate = std::isfinite(ex) && std::isfinite(ey) && std::isfinite(ephi);
     if (r.has_estimate) {
@@ -312,15 +319,35 @@ bool HasTumContent(const std::vector<FrameRecord>& records, TumContent content) 
   return false;
 }
 
-double PositionNees(const FrameRecord& r) {
-  if (!(r.has_estimate && r.has_truth)) return kNaN;
-  const double a = r.cov_xx_m2, b = r.cov_xy_m2, d = r.cov_yy_m2;
+double PositionNees(double ex, double ey, double a, double b, double d) {
   const double det = a * d - b * b;
   // Not SPD (or unknown: NaN compares false): no NEES.
-  if (!(a > 0 && d > 0 && det > 0)) return kNaN;
-  const Eigen::Vector2d e = r.estimate.head<2>() - r.truth.head<2>();
+  if (!(a > 0 && d > 0 && det > 0) || !std::isfinite(ex) || !std::isfinite(ey)) return kNaN;
   // e^T C^-1 e with C^-1 = [d -b; -b a] / det.
-  return (d * e.x() * e.x() - 2 * b * e.x() * e.y() + a * e.y() * e.y()) / det;
+  return (d * ex * ex - 2 * b * ex * ey + a * ey * ey) / det;
+}
+
+double PositionNees(const FrameRecord& r) {
+  if (!(r.has_estimate && r.has_truth)) return kNaN;
+  const Eigen::Vector2d e = r.estimate.head<2>() - r.truth.head<2>();
+  return PositionNees(e.x(), e.y(), r.cov_xx_m2, r.cov_xy_m2, r.cov_yy_m2);
+}
+
+double HeadingNees(const FrameRecord& r) {
+  if (!(r.has_estimate && r.has_truth) || !(r.var_phi_rad2 > 0)) return kNaN;
+  const double e = WrapAngle(r.estimate.z() - r.truth.z());
+  return e * e / r.var_phi_rad2;
+}
+
+double FractionInChiSquareBand(const std::vector<double>& values, int dof) {
+  const ChiSquareBand band = ChiSquareTwoSidedBand(0.95, dof);
+  int finite = 0, inside = 0;
+  for (double v : values) {
+    if (!std::isfinite(v)) continue;
+    ++finite;
+    if (v >= band.lower && v <= band.upper) ++inside;
+  }
+  return finite > 0 ? static_cast<double>(inside) / finite : kNaN;
 }
 
 void ComputeErrors(FrameRecord* record) {
@@ -333,6 +360,7 @@ void ComputeErrors(FrameRecord* record) {
     r.heading_error_rad = kNaN;
   }
   r.nees_xy = PositionNees(r);
+  r.nees_phi = HeadingNees(r);
 }
 
 void RecomputeErrors(std::vector<FrameRecord>* records) {
@@ -463,7 +491,7 @@ DayEvaluation EvaluateDay(const std::vector<FrameRecord>& records, int session,
   for (const auto& [s, n] : skipped_frames) {
     if (session < 0 || s == session) d.frames_skipped += n;
   }
-  std::vector<double> pos, head, odo, times, nees;
+  std::vector<double> pos, head, odo, times, nees, nees_phi, nis, prior_nees, fix_nees;
   int unimodal = 0;
   std::size_t total_col = stage_names.size();
   for (std::size_t i = 0; i < stage_names.size(); ++i) {
@@ -479,6 +507,10 @@ DayEvaluation EvaluateDay(const std::vector<FrameRecord>& records, int session,
     head.push_back(r.heading_error_rad);
     odo.push_back(r.odometry_error_m);
     nees.push_back(r.nees_xy);
+    nees_phi.push_back(r.nees_phi);
+    nis.push_back(r.nis);
+    prior_nees.push_back(r.prior_nees_xy);
+    fix_nees.push_back(r.fix_nees_xy);
     if (total_col < r.stage_times_us.size()) times.push_back(r.stage_times_us[total_col]);
     d.views_at_end = r.views;
     d.map_components_at_end = r.map_components;
@@ -490,6 +522,13 @@ DayEvaluation EvaluateDay(const std::vector<FrameRecord>& records, int session,
   d.heading_rad = ComputeStats(head);
   d.odometry_m = ComputeStats(odo);
   d.nees_xy = ComputeStats(nees);
+  d.nees_phi = ComputeStats(nees_phi);
+  d.nis = ComputeStats(nis);
+  d.prior_nees_xy = ComputeStats(prior_nees);
+  d.fix_nees_xy = ComputeStats(fix_nees);
+  d.nees_xy_in_band = FractionInChiSquareBand(nees, 2);
+  d.nees_phi_in_band = FractionInChiSquareBand(nees_phi, 1);
+  d.nis_in_band = FractionInChiSquareBand(nis, 3);
   d.mean_frame_time_us = ComputeStats(times).mean;
   return d;
 }
@@ -594,6 +633,94 @@ const std::vector<std::string>& DayHeader() {
 }
 
 
+std::vector<std::string> ConsistencyRow(const std::string& name, const ErrorStats& s,
+                                        double in_band, int frames, int dof) {
+  const ChiSquareBand band = ChiSquareTwoSidedBand(0.95, dof);
+  return {name,
+          std::to_string(dof),
+          std::to_string(s.count) + "/" + std::to_string(frames),
+          Fixed(s.mean, 2),
+          Fixed(s.median, 2),
+          Fixed(s.p95, 2),
+          Fixed(in_band * 100, 1),
+          Fixed(static_cast<double>(dof), 2) + " / " + Fixed(ChiSquareQuantile(0.5, dof), 2) +
+              " / " + Fixed(ChiSquareQuantile(0.95, dof), 2),
+          "[" + Fixed(band.lower, 3) + ", " + Fixed(band.upper, 2) + "]"};
+}
+
+const std::vector<std::string>& ConsistencyHeader() {
+  static const std::vector<std::string> kHeader = {
+      "statistic", "dof", "frames", "mean", "median", "p95", "in_band%",
+      "consistent mean/median/p95", "95% band"};
+  return kHeader;
+}
+
+std::vector<std::vector<std::string>> ConsistencyRows(const DayEvaluation& d) {
+  std::vector<std::vector<std::string>> rows;
+  if (d.nees_xy.count > 0)
+    rows.push_back(ConsistencyRow("position NEES", d.nees_xy, d.nees_xy_in_band, d.frames, 2));
+  if (d.nees_phi.count > 0)
+    rows.push_back(ConsistencyRow("heading NEES", d.nees_phi, d.nees_phi_in_band, d.frames, 1));
+  if (d.nis.count > 0) rows.push_back(ConsistencyRow("NIS of fixes", d.nis, d.nis_in_band, d.frames, 3));
+  if (d.prior_nees_xy.count > 0) {
+    rows.push_back(ConsistencyRow("prior NEES (odometry)", d.prior_nees_xy,
+                                  kNaN, d.frames, 2));
+  }
+  if (d.fix_nees_xy.count > 0) {
+    rows.push_back(ConsistencyRow("fix NEES (map)", d.fix_nees_xy, kNaN,
+                                  d.frames, 2));
+  }
+  return rows;
+}
+
+}  // namespace
+
+const std::vector<std::string>& ConsistencyPerDayHeader() {
+  static const std::vector<std::string> kHeader = {
+      "day",          "nees_frames",   "nees_med",     "nees_p95",  "nees_in%",
+      "head_nees_med", "head_nees_p95", "head_in%",    "nis_frames", "nis_med",
+      "nis_in%",      "prior_nees_med", "fix_nees_med"};
+  return kHeader;
+}
+
+std::vector<std::string> ConsistencyPerDayRow(const DayEvaluation& d) {
+  return {d.session < 0 ? "all" : std::to_string(d.session + 1),
+          std::to_string(d.nees_xy.count),
+          Fixed(d.nees_xy.median, 2),
+          Fixed(d.nees_xy.p95, 2),
+          Fixed(d.nees_xy_in_band * 100, 1),
+          Fixed(d.nees_phi.median, 2),
+          Fixed(d.nees_phi.p95, 2),
+          Fixed(d.nees_phi_in_band * 100, 1),
+          std::to_string(d.nis.count),
+          Fixed(d.nis.median, 2),
+          Fixed(d.nis_in_band * 100, 1),
+          Fixed(d.prior_nees_xy.median, 2),
+          Fixed(d.fix_nees_xy.median, 2)};
+}
+
+namespace {
+
+// The consistency block of FormatEvaluation: the run's NEES / NIS table (empty when the
+// frames carry no covariances).
+std::string FormatConsistency(const EvaluationResult& result) {
+  const std::vector<std::vector<std::string>> rows = ConsistencyRows(result.overall);
+  if (rows.empty()) return "";
+  std::ostringstream os;
+  if (result.days.size() > 1) {
+    std::vector<std::vector<std::string>> per_day;
+    for (const DayEvaluation& d : result.days) per_day.push_back(ConsistencyPerDayRow(d));
+    per_day.push_back(ConsistencyPerDayRow(result.overall));
+    os << "consistency per day (medians; in% = inside the two-sided 95 % chi-square band)\n"
+       << FormatTextTable(ConsistencyPerDayHeader(), per_day);
+  }
+  os << "consistency over the run (NEES = e^T C^-1 e of the strongest component, NIS = "
+        "innovation of the appearance fixes; below the consistent values = under-confident, "
+        "above = over-confident; in_band% = frames inside the two-sided 95 % chi-square band)\n"
+     << FormatTextTable(ConsistencyHeader(), rows, /*left_align_first=*/true);
+  return os.str();
+}
+
 }  // namespace
 
 std::string ShortestDouble(double v) {
@@ -653,13 +780,7 @@ std::string FormatEvaluation(const EvaluationResult& result, bool with_histogram
   }
   rows.push_back(DayRow(result.overall, nullptr));
   os << FormatTextTable(DayHeader(), rows);
-  const ErrorStats& nees = result.overall.nees_xy;
-  if (nees.count > 0) {
-    os << "consistency: position NEES (e^T C^-1 e of the strongest component) mean "
-       << Fixed(nees.mean, 2) << ", median " << Fixed(nees.median, 2) << ", p95 "
-       << Fixed(nees.p95, 2) << " over " << nees.count << " of " << result.overall.frames
-       << " frames (consistent: mean 2, median 1.39, p95 5.99; lower = under-confident)\n";
-  }
+  os << FormatConsistency(result);
   if (with_histogram && !result.position_histograms.empty()) {
     os << "\nposition error histogram (frames per bin and day)\n";
     std::vector<std::string> header = {"bin_m"};
@@ -687,7 +808,12 @@ void WriteDaysCsv(std::ostream& os, const std::vector<FrameRecord>& records,
         "position_error_median_m,position_error_p95_m,position_error_max_m,heading_error_mean_"
         "rad,odometry_error_mean_m,views_at_end,map_components_at_end,";
   for (const std::string& c : extra_columns) os << c << ',';
-  os << "mean_frame_time_us,frames_localized,frames_unlocalized,coverage,frames_skipped\n";
+  os << "mean_frame_time_us,frames_localized,frames_unlocalized,coverage,frames_skipped";
+  for (const char* c : {"nees_xy", "nees_phi", "nis"}) {
+    os << ',' << c << "_frames," << c << "_mean," << c << "_median," << c << "_p95," << c
+       << "_in_band";
+  }
+  os << ",prior_nees_xy_median,fix_nees_xy_median\n";
   std::vector<int> sessions;
   for (const FrameRecord& r : records) {
     if (sessions.empty() || sessions.back() != r.session) sessions.push_back(r.session);
@@ -706,14 +832,89 @@ void WriteDaysCsv(std::ostream& os, const std::vector<FrameRecord>& records,
       for (const std::string& v : values) os << v << ',';
     }
     os << ShortestDouble(d.mean_frame_time_us) << ',' << d.frames_with_estimate << ','
-       << d.frames_unlocalized << ',' << ShortestDouble(d.coverage) << ',' << d.frames_skipped
-       << '\n';
+       << d.frames_unlocalized << ',' << ShortestDouble(d.coverage) << ',' << d.frames_skipped;
+    const std::pair<const ErrorStats*, double> consistency[] = {
+        {&d.nees_xy, d.nees_xy_in_band}, {&d.nees_phi, d.nees_phi_in_band}, {&d.nis, d.nis_in_band}};
+    for (const auto& [stats, in_band] : consistency) {
+      os << ',' << stats->count << ',' << ShortestDouble(stats->mean) << ','
+         << ShortestDouble(stats->median) << ',' << ShortestDouble(stats->p95) << ','
+         << ShortestDouble(in_band);
+    }
+    os << ',' << ShortestDouble(d.prior_nees_xy.median) << ','
+       << ShortestDouble(d.fix_nees_xy.median) << '\n';
   }
 }
 
 namespace {
 std::string DayName(const DayEvaluation& day) { return "day " + std::to_string(day.session + 1); }
 }  // namespace
+
+namespace {
+
+// Moving median over the `window` frames ending at each frame (NaN ignored; NaN where
+// the window holds no value).
+std::vector<double> MovingMedian(const std::vector<double>& v, int window) {
+  std::vector<double> out(v.size(), kNaN);
+  std::vector<double> buffer;
+  for (std::size_t i = 0; i < v.size(); ++i) {
+    buffer.clear();
+    const std::size_t first = i + 1 >= static_cast<std::size_t>(window) ? i + 1 - window : 0;
+    for (std::size_t k = first; k <= i; ++k) {
+      if (std::isfinite(v[k])) buffer.push_back(v[k]);
+    }
+    if (buffer.empty()) continue;
+    std::sort(buffer.begin(), buffer.end());
+    out[i] = Quantile(buffer, 0.5);
+  }
+  return out;
+}
+
+// One NEES plot: the per-frame values (every k-th frame, at most about 2000 points, values
+// above the plot clipped to its top), the moving median, the band and the consistent median.
+std::string NeesPlot(const std::string& title, const std::vector<double>& x,
+                     const std::vector<double>& nees, int dof, int window) {
+  const ChiSquareBand band = ChiSquareTwoSidedBand(0.95, dof);
+  const double top = 3.0 * band.upper;
+  SvgPlot plot(title, "frame", "NEES", 960, 300);
+  plot.SetYRange(0.0, top);
+  const std::size_t step = std::max<std::size_t>(1, x.size() / 2000);
+  std::vector<double> px, py;
+  for (std::size_t i = 0; i < x.size(); i += step) {
+    if (!std::isfinite(nees[i])) continue;
+    px.push_back(x[i]);
+    py.push_back(std::min(nees[i], top));
+  }
+  if (!px.empty()) plot.AddScatter("per frame (clipped at " + Fixed(top, 1) + ")", px, py);
+  std::vector<double> median = MovingMedian(nees, window);
+  for (double& m : median) {
+    if (std::isfinite(m)) m = std::min(m, top);
+  }
+  plot.AddLine("moving median (" + std::to_string(window) + " frames)", x, median);
+  if (!x.empty()) {
+    const std::vector<double> ends = {x.front(), x.back()};
+    plot.AddLine("95 % band, upper " + Fixed(band.upper, 2), ends,
+                 {band.upper, band.upper});
+    plot.AddLine("95 % band, lower " + Fixed(band.lower, 3), ends, {band.lower, band.lower});
+    const double median_consistent = ChiSquareQuantile(0.5, dof);
+    plot.AddLine("consistent median " + Fixed(median_consistent, 2), ends,
+                 {median_consistent, median_consistent});
+  }
+  return plot.Render();
+}
+
+}  // namespace
+
+std::string RenderNeesOverTimeSvg(const std::vector<FrameRecord>& records, int window) {
+  window = std::max(1, window);
+  std::vector<double> x, pos, head;
+  for (const FrameRecord& r : records) {
+    x.push_back(static_cast<double>(r.global_frame));
+    pos.push_back(r.nees_xy);
+    head.push_back(r.nees_phi);
+  }
+  return NeesPlot("Position NEES over the run (2 dof)", x, pos, 2, window) +
+         NeesPlot("Heading NEES over the run (1 dof)", x, head, 1, window);
+}
 
 std::string RenderPositionHistogramSvg(const EvaluationResult& result, const std::string& title) {
   SvgPlot plot(title, "error [m]", "frames");
@@ -796,6 +997,20 @@ std::string RenderEvaluationHtml(const EvaluationResult& result, const FramesTab
   over_time.AddLine("odometry only", x, odo);
   AddDayMarkers(&over_time, records);
   report.AddSvg(over_time.Render());
+  if (result.overall.nees_xy.count > 0 || result.overall.nees_phi.count > 0) {
+    report.AddHeading("Consistency: NEES over the run against the 95 % chi-square band");
+    report.AddParagraph(
+        "NEES = e^T C^-1 e of the strongest component against ground truth. A consistent "
+        "estimator keeps 95 % of its frames inside the band and its moving median on the "
+        "consistent median; a median below it means the reported covariance is wider than "
+        "the errors (under-confident), above it narrower (over-confident).");
+    report.AddTable(ConsistencyHeader(), ConsistencyRows(result.overall));
+    std::vector<std::vector<std::string>> per_day;
+    for (const DayEvaluation& d : result.days) per_day.push_back(ConsistencyPerDayRow(d));
+    per_day.push_back(ConsistencyPerDayRow(result.overall));
+    report.AddTable(ConsistencyPerDayHeader(), per_day);
+    report.AddSvg(RenderNeesOverTimeSvg(records));
+  }
   SvgPlot map_plot("Map size", "frame", "reference views", 960, 260);
   map_plot.AddLine("views", x, views);
   AddDayMarkers(&map_plot, records);

@@ -202,6 +202,19 @@ std::string RenderCompareReport(const std::string& input,
     removed_rows.push_back(row);
   }
   report.AddTable(header, removed_rows);
+  report.AddHeading("Consistency per day (NEES, NIS)");
+  report.AddParagraph(
+      "Medians of the position NEES (2 dof, consistent 1.39), heading NEES (1 dof, 0.45) and "
+      "NIS of the appearance fixes (3 dof, 2.37); in% = frames inside the two-sided 95 % "
+      "chi-square band (consistent: 95 %). Each mode's report.html plots them over the run.");
+  for (const auto& r : results) {
+    std::vector<std::vector<std::string>> consistency;
+    for (const DayEvaluation& d : r.evaluation.days) consistency.push_back(ConsistencyPerDayRow(d));
+    consistency.push_back(ConsistencyPerDayRow(r.evaluation.overall));
+    std::vector<std::string> header = ConsistencyPerDayHeader();
+    header[0] = r.mode + ": day";
+    report.AddTable(header, consistency);
+  }
 
   report.AddHeading("Plots");
   SvgPlot growth("Map growth", "step (frame)", "reference views", 960, 320);
@@ -451,6 +464,13 @@ std::string FormatCompareExperimentResult(const CompareExperimentResult& result)
     for (const auto& d : r.evaluation.days) os << " " << FormatFixed(d.position_m.mean, 3);
     os << "; per-day coverage %:";
     for (const auto& d : r.evaluation.days) os << " " << FormatFixed(d.coverage * 100, 1);
+    const DayEvaluation& all = r.evaluation.overall;
+    if (all.nees_xy.count > 0) {
+      os << "; position NEES median " << FormatFixed(all.nees_xy.median, 2) << " p95 "
+         << FormatFixed(all.nees_xy.p95, 2) << " in band " << FormatFixed(all.nees_xy_in_band * 100, 1)
+         << " %, heading NEES median " << FormatFixed(all.nees_phi.median, 2)
+         << " (consistent 1.39 / 5.99 / 95 %, 0.45)";
+    }
     os << "\n";
   }
   os << "report: " << (std::filesystem::path(result.out_dir) / "report.html").string() << "\n";

@@ -117,6 +117,18 @@ void RunRecorder::Record(const Frame& frame, const FrameResult& result) {
   }
   ComputeErrors(&r);
   const FrameStats& s = result.stats;
+  r.nis = s.nis;
+  if (r.has_truth) {
+    // Stage diagnostics: the prior and the appearance fix against truth (map frame).
+    const auto stage_nees = [&r](const std::optional<Gaussian>& g) {
+      if (!g) return kNaN;
+      const Eigen::Matrix3d& c = g->covariance;
+      return PositionNees(g->mean.x() - r.truth.x(), g->mean.y() - r.truth.y(), c(0, 0), c(0, 1),
+                          c(1, 1));
+    };
+    r.prior_nees_xy = stage_nees(result.prior);
+    r.fix_nees_xy = stage_nees(result.appearance_fix);
+  }
   r.views = static_cast<int>(s.num_views);
   r.map_components = static_cast<int>(s.num_map_components);
   r.hypotheses = s.hypothesis_components;

@@ -172,6 +172,11 @@ SweepRow RowFromRunDir(const fs::path& run_dir) {
   row.error_max_m = o.position_m.max;
   row.heading_mean_deg = o.heading_rad.mean * 180 / kPi;
   row.odometry_mean_m = o.odometry_m.mean;
+  row.nees_xy_median = o.nees_xy.median;
+  row.nees_xy_p95 = o.nees_xy.p95;
+  row.nees_xy_in_band = o.nees_xy_in_band;
+  row.nees_phi_median = o.nees_phi.median;
+  row.nis_median = o.nis.median;
   if (!table.records.empty()) {
     row.views = table.records.back().views;
     row.components = table.records.back().map_components;
@@ -507,13 +512,14 @@ std::string SweepRowsToCsv(const std::vector<SweepRow>& rows) {
                                           : rows.front().options;
   for (const auto& [flag, value] : option_names) os << ',' << CsvCell(flag);
   os << ",frames,sessions,coverage,unimodal_fraction,error_mean_m,error_median_m,error_p95_m,"
-        "error_max_m,heading_mean_deg,odometry_mean_m,views,components,wall_s,peak_rss_mb\n";
+        "error_max_m,heading_mean_deg,odometry_mean_m,views,components,wall_s,peak_rss_mb,"
+        "nees_xy_median,nees_xy_p95,nees_xy_in_band,nees_phi_median,nis_median\n";
   for (const SweepRow& r : rows) {
     os << CsvCell(r.job) << ',' << CsvCell(r.mode) << ',' << r.status << ',' << CsvCell(r.input)
        << ',' << r.seed;
     for (const auto& [flag, value] : r.options) os << ',' << CsvCell(value);
     if (r.status == "missing") {
-      os << ",,,,,,,,,,,,,,\n";
+      os << ",,,,,,,,,,,,,,,,,,,\n";
       continue;
     }
     os << ',' << r.frames << ',' << r.sessions << ',' << Fixed(r.coverage, 4) << ','
@@ -521,7 +527,9 @@ std::string SweepRowsToCsv(const std::vector<SweepRow>& rows) {
        << Fixed(r.error_median_m, 4) << ',' << Fixed(r.error_p95_m, 4) << ','
        << Fixed(r.error_max_m, 4) << ',' << Fixed(r.heading_mean_deg, 3) << ','
        << Fixed(r.odometry_mean_m, 4) << ',' << r.views << ',' << r.components << ','
-       << Fixed(r.wall_s, 2) << ',' << Fixed(r.peak_rss_mb, 1) << '\n';
+       << Fixed(r.wall_s, 2) << ',' << Fixed(r.peak_rss_mb, 1) << ',' << Fixed(r.nees_xy_median, 4)
+       << ',' << Fixed(r.nees_xy_p95, 4) << ',' << Fixed(r.nees_xy_in_band, 4) << ','
+       << Fixed(r.nees_phi_median, 4) << ',' << Fixed(r.nis_median, 4) << '\n';
   }
   return os.str();
 }

@@ -67,9 +67,12 @@ double Alpha(double w_a, double det_a, double w_b, double det_b) {
 
 // (3)-(4) in information form around mu_a, with mu_b's angle unwrapped next to mu_a's:
 // C((1-alpha) I_a mu_a + alpha I_b (mu_a + d)) = mu_a + C alpha I_b d, d = mu_b - mu_a wrapped.
+// `independent` replaces the weights (1 - alpha, alpha) by (1, 1): the Kalman update.
 Gaussian Intersect(const Gaussian& a, const Prepared& pa, const Gaussian& b, const Prepared& pb,
-                   double alpha, double min_eigenvalue) {
-  const Eigen::Matrix3d information = (1.0 - alpha) * pa.information + alpha * pb.information;
+                   double alpha, double min_eigenvalue, bool independent = false) {
+  const double share_a = independent ? 1.0 : 1.0 - alpha;
+  const double share_b = independent ? 1.0 : alpha;
+  const Eigen::Matrix3d information = share_a * pa.information + share_b * pb.information;
   const Eigen::LLT<Eigen::Matrix3d> llt(information);
   if (llt.info() != Eigen::Success) {
     throw Error(StrCat(
@@ -81,7 +84,7 @@ Gaussian Intersect(const Gaussian& a, const Prepared& pa, const Gaussian& b, con
   static const std::string kWhat = "CovarianceIntersection: fused covariance";
   out.covariance = RepairCovariance(c, min_eigenvalue, kWhat);
   const Eigen::Vector3d d = PoseDifference(b.mean, a.mean);
-  const Eigen::Vector3d shift = llt.solve(alpha * (pb.information * d));
+  const Eigen::Vector3d shift = llt.solve(share_b * (pb.information * d));
   out.mean = MakePose(a.mean.x() + shift.x(), a.mean.y() + shift.y(), a.mean.z() + shift.z());
   out.weight = 0.0;
   return out;
@@ -299,7 +302,8 @@ Mixture FuseOnce(const Mixture& a_side, const Mixture& b_side, const TrackerOpti
       const Gaussian& gb = b[pairs[p].second];
       const double alpha = Alpha(ga.weight, pa[i].det, gb.weight, pb[pairs[p].second].det);  // (5)
       Gaussian fused =
-          Intersect(ga, pa[i], gb, pb[pairs[p].second], alpha, options.min_covariance_eigenvalue);
+          Intersect(ga, pa[i], gb, pb[pairs[p].second], alpha, options.min_covariance_eigenvalue,
+                    options.fusion == FusionRule::kIndependent);
       // (8): w = w_a w_b / hat_w_a + w_b w_a / hat_w_b. Each side's weight is shared
       // among its counterparts in proportion to theirs, so the total weight is kept.
       const double hat_a = hat_w_a[i], hat_b = hat_w_b[pairs[p].second];

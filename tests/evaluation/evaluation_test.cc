@@ -8,11 +8,13 @@
 #include <random>
 #include <sstream>
 
+#include <Eigen/Cholesky>
 #include <Eigen/Geometry>
 #include <gtest/gtest.h>
 
 #include "omnicml/common/common.h"
 #include "omnicml/evaluation/trajectory_metrics.h"
+#include "omnicml/geometry/chi_square.h"
 
 namespace omnicml {
 namespace {
@@ -264,10 +266,14 @@ TEST(Evaluate, CoverageCountsFramesWithoutEstimateAndErrorsStayOverLocalizedFram
   std::getline(in, header);
   std::getline(in, day1);
   std::getline(in, day2);
-  const std::string suffix = "mean_frame_time_us,frames_localized,frames_unlocalized,coverage,frames_skipped";
+  // The coverage columns, then the consistency columns (empty without covariances).
+  const std::string block =
+      "mean_frame_time_us,frames_localized,frames_unlocalized,coverage,frames_skipped,nees_xy_frames,";
+  EXPECT_NE(header.find(block), std::string::npos) << header;
+  const std::string suffix = ",prior_nees_xy_median,fix_nees_xy_median";
   EXPECT_EQ(header.substr(header.size() - suffix.size()), suffix);
   EXPECT_EQ(header.rfind("session,frames,frames_with_truth,unimodal_fraction,", 0), 0u);
-  EXPECT_EQ(day2.substr(day2.size() - 12), ",1,3,7,0.3,4");
+  EXPECT_NE(day2.find(",1,3,7,0.3,4,0,,,,,"), std::string::npos) << day2;
   EXPECT_EQ(day2.rfind("1,10,10,", 0), 0u);
   EXPECT_NE(day2.find(",0.5,"), std::string::npos);  // position_error_mean_m
 
@@ -571,6 +577,128 @@ TEST(AssociateGroundTruth, NearestStampWithinTheToleranceElseNone) {
   EXPECT_TRUE(std::isnan(b[3].position_error_m));
   EXPECT_THROW(AssociateGroundTruth(&b, reference, -1), Error);
 }
+// Heading NEES is WrapAngle(est - truth)^2 / var_phi (hand values, across +-pi), and NaN
+// without a positive variance; NIS and the stage NEES round-trip through frames.csv.
+TEST(Consistency, HeadingNeesAndNewColumnsRoundTrip) {
+  FrameRecord r = MakeRecord(0, 1, MakePose(1.0, 2.0, 0.3), MakePose(1.0, 2.0, 0.1));
+  r.cov_xx_m2 = 0.04;
+  r.cov_xy_m2 = 0.0;
+  r.cov_yy_m2 = 0.01;
+  r.var_phi_rad2 = 0.01;
+  ComputeErrors(&r);
+  EXPECT_NEAR(r.nees_phi, 0.04 / 0.01, 1e-12);  // (0.3 - 0.1)^2 / 0.01
+  EXPECT_NEAR(r.nees_xy, 0.0, 1e-12);
+  FrameRecord wrap = MakeRecord(0, 2, MakePose(0, 0, 3.1), MakePose(0, 0, -3.1));
+  wrap.var_phi_rad2 = 0.0004;
+  ComputeErrors(&wrap);
+  const double e = 2 * kPi - 6.2;  // the wrapped difference, 0.0832 rad
+  EXPECT_NEAR(wrap.nees_phi, e * e / 0.0004, 1e-9);
+  FrameRecord no_variance = wrap;
+  no_variance.var_phi_rad2 = 0.0;
+  EXPECT_TRUE(std::isnan(HeadingNees(no_variance)));
+  // Position NEES by hand: e = (0.1, -0.2), C = [0.02 0.01; 0.01 0.05], det 0.0009:
+  // (0.05 * 0.01 - 2 * 0.01 * 0.1 * -0.2 + 0.02 * 0.04) / 0.0009 = 0.0017 / 0.0009.
+  EXPECT_NEAR(PositionNees(0.1, -0.2, 0.02, 0.01, 0.05), 0.0017 / 0.0009, 1e-12);
+  EXPECT_TRUE(std::isnan(PositionNees(kNaN, 0.0, 1.0, 0.0, 1.0)));
+
+  r.nis = 2.5;
+  r.prior_nees_xy = 0.125;
+  r.fix_nees_xy = 3.75;
+  const fs::path dir = TempDir("consistency");
+  {
+    std::ofstream os(dir / "frames.csv");
+    WriteFramesCsvHeader(os, {"a", "b"});
+    WriteFramesCsvRow(os, r);
+    WriteFramesCsvRow(os, wrap);
+  }
+  const FramesTable table = ReadFramesCsv(dir / "frames.csv");
+  ASSERT_EQ(table.records.size(), 2u);
+  EXPECT_EQ(table.records[0].nees_phi, r.nees_phi);
+  EXPECT_EQ(table.records[0].nis, 2.5);
+  EXPECT_EQ(table.records[0].prior_nees_xy, 0.125);
+  EXPECT_EQ(table.records[0].fix_nees_xy, 3.75);
+  EXPECT_TRUE(std::isnan(table.records[1].nis));
+  fs::remove_all(dir);
+}
+
+// The fraction inside the two-sided 95 % band counts exactly the values within
+// [q(0.025), q(0.975)] (2 dof: [0.0506, 7.378]) among the finite ones.
+TEST(Consistency, FractionInBandCountsFiniteValues) {
+  EXPECT_DOUBLE_EQ(FractionInChiSquareBand({0.01, 0.06, 1.0, 7.0, 7.5, kNaN}, 2), 3.0 / 5.0);
+  EXPECT_DOUBLE_EQ(FractionInChiSquareBand({0.0005, 0.002, 5.0, 5.1}, 1), 2.0 / 4.0);
+  EXPECT_TRUE(std::isnan(FractionInChiSquareBand({kNaN}, 2)));
+}
+
+// A consistent Gaussian estimator (errors drawn from the covariance it reports, random
+// correlated covariances) gives position NEES mean ~2, median ~1.39, p95 ~5.99 and 95 %
+// in band, heading NEES mean ~1, median ~0.45; an estimator reporting 3x the standard
+// deviation gives a mean of ~2/9. Through days.csv as well.
+TEST(Consistency, ConsistentGaussianEstimatorAveragesTheDegreesOfFreedom) {
+  std::mt19937 rng(11);
+  std::normal_distribution<double> n(0.0, 1.0);
+  std::uniform_real_distribution<double> u(0.05, 0.8);
+  std::vector<FrameRecord> consistent, wide;
+  const int kFrames = 20000;
+  for (int i = 0; i < kFrames; ++i) {
+    const double sx = u(rng), sy = u(rng), rho = 0.9 * (2 * u(rng) - 0.85), sphi = 0.2 * u(rng);
+    Eigen::Matrix2d c;
+    c << sx * sx, rho * sx * sy, rho * sx * sy, sy * sy;
+    const Eigen::Matrix2d l = c.llt().matrixL();
+    const Eigen::Vector2d e = l * Eigen::Vector2d(n(rng), n(rng));
+    const Pose2 truth = MakePose(5 * u(rng), 5 * u(rng), 3 * (u(rng) - 0.4));
+    FrameRecord r = MakeRecord(2 * i / kFrames, i, MakePose(truth.x() + e.x(), truth.y() + e.y(),
+                                                      truth.z() + sphi * n(rng)), truth);
+    r.cov_xx_m2 = c(0, 0);
+    r.cov_xy_m2 = c(0, 1);
+    r.cov_yy_m2 = c(1, 1);
+    r.var_phi_rad2 = sphi * sphi;
+    ComputeErrors(&r);
+    consistent.push_back(r);
+    r.cov_xx_m2 *= 9;
+    r.cov_xy_m2 *= 9;
+    r.cov_yy_m2 *= 9;
+    r.var_phi_rad2 *= 9;
+    ComputeErrors(&r);
+    wide.push_back(r);
+  }
+  const DayEvaluation d = EvaluateDay(consistent, -1, {});
+  EXPECT_EQ(d.nees_xy.count, kFrames);
+  EXPECT_NEAR(d.nees_xy.mean, 2.0, 0.06);
+  EXPECT_NEAR(d.nees_xy.median, 1.386, 0.05);
+  EXPECT_NEAR(d.nees_xy.p95, 5.99, 0.25);
+  EXPECT_NEAR(d.nees_xy_in_band, 0.95, 0.01);
+  EXPECT_NEAR(d.nees_phi.mean, 1.0, 0.04);
+  EXPECT_NEAR(d.nees_phi.median, 0.455, 0.03);
+  EXPECT_NEAR(d.nees_phi_in_band, 0.95, 0.01);
+  const DayEvaluation w = EvaluateDay(wide, -1, {});
+  EXPECT_NEAR(w.nees_xy.mean, 2.0 / 9, 0.01);
+  // Inside the band iff chi2 / 9 >= 0.0506, i.e. with probability exp(-9 x 0.0506 / 2).
+  EXPECT_NEAR(w.nees_xy_in_band, std::exp(-4.5 * ChiSquareTwoSidedBand(0.95, 2).lower), 0.01);
+
+  std::ostringstream days;
+  WriteDaysCsv(days, consistent, {});
+  std::istringstream in(days.str());
+  std::string header, row;
+  std::getline(in, header);
+  std::getline(in, row);
+  const auto cell = [&](const std::string& name) {
+    std::vector<std::string> names, cells;
+    std::stringstream hs(header), rs(row);
+    std::string item;
+    while (std::getline(hs, item, ',')) names.push_back(item);
+    while (std::getline(rs, item, ',')) cells.push_back(item);
+    const auto it = std::find(names.begin(), names.end(), name);
+    EXPECT_NE(it, names.end()) << name;
+    return it == names.end() ? kNaN : std::stod(cells.at(it - names.begin()));
+  };
+  const DayEvaluation day0 = EvaluateDay(consistent, 0, {});
+  EXPECT_EQ(cell("nees_xy_frames"), day0.nees_xy.count);
+  EXPECT_DOUBLE_EQ(cell("nees_xy_median"), day0.nees_xy.median);
+  EXPECT_DOUBLE_EQ(cell("nees_xy_in_band"), day0.nees_xy_in_band);
+  EXPECT_DOUBLE_EQ(cell("nees_phi_p95"), day0.nees_phi.p95);
+  EXPECT_EQ(cell("nis_frames"), 0);
+}
+
 
 }  // namespace
 }  // namespace omnicml

@@ -200,6 +200,43 @@ TEST_F(RunMetricsTest, DaysCsvCountsUnlocalizedAndSkippedFramesNextToTheError) {
   EXPECT_NE(html.find("coverage"), std::string::npos);
 }
 
+TEST_F(RunMetricsTest, ConsistencyMetricsReachDaysCsvAndReports) {
+  // NEES and NIS per day in days.csv equal the evaluation of frames.csv; the NIS is set
+  // exactly on frames whose appearance fix was computed (a prior and p(x|y)), and the
+  // console summary and the HTML report carry the consistency table and the NEES plot.
+  RunExperimentOptions o;
+  o.settings = Settings(*dir_ / "nees");
+  const RunExperimentResult r = RunExperiment(o);
+  const FramesTable table = ReadFramesCsv(*dir_ / "nees" / "frames.csv");
+  const auto days = ReadDays(*dir_ / "nees" / "days.csv");
+  ASSERT_EQ(days.size(), 2u);
+  int with_nis = 0;
+  for (const FrameRecord& rec : table.records) {
+    if (std::isfinite(rec.nis)) {
+      ++with_nis;
+      EXPECT_GE(rec.nis, 0.0);
+      EXPECT_TRUE(std::isfinite(rec.prior_nees_xy));  // the fix had a prior
+    }
+  }
+  EXPECT_GT(with_nis, 0);
+  for (int d = 0; d < 2; ++d) {
+    SCOPED_TRACE(StrCat("day ", d + 1));
+    const DayEvaluation& e = r.evaluation.days[static_cast<std::size_t>(d)];
+    const auto& row = days[static_cast<std::size_t>(d)];
+    EXPECT_GT(e.nees_xy.count, 0);
+    EXPECT_EQ(std::stoi(row.at("nees_xy_frames")), e.nees_xy.count);
+    EXPECT_DOUBLE_EQ(std::stod(row.at("nees_xy_median")), e.nees_xy.median);
+    EXPECT_DOUBLE_EQ(std::stod(row.at("nees_phi_p95")), e.nees_phi.p95);
+    EXPECT_EQ(std::stoi(row.at("nis_frames")), e.nis.count);
+  }
+  const std::string text = FormatRunExperimentResult(o, r);
+  EXPECT_NE(text.find("position NEES"), std::string::npos) << text;
+  EXPECT_NE(text.find("heading NEES"), std::string::npos) << text;
+  const std::string html = ReadTextFile(*dir_ / "nees" / "report.html");
+  EXPECT_NE(html.find("Position NEES over the run"), std::string::npos);
+  EXPECT_NE(html.find("95 % band"), std::string::npos);
+}
+
 TEST_F(RunMetricsTest, TumFilesShareIncreasingRunStampsAndMatchFramesCsv) {
   // trajectory.tum, groundtruth.tum and odometry.tum: equal line counts, identical stamp
   // columns, strictly increasing over both days (which both start at 0), the localized

@@ -330,6 +330,35 @@ TEST(Fusion, FuseOnceKeepsTotalWeight) {
   }
 }
 
+// FusionRule::kIndependent fuses a gated pair by the information-filter update,
+// C = (C_a^-1 + C_b^-1)^-1 and mu = C (C_a^-1 mu_a + C_b^-1 mu_b), narrower than both
+// inputs; covariance intersection of two equal covariances keeps that covariance.
+TEST(Fusion, IndependentRuleIsTheKalmanUpdate) {
+  std::mt19937_64 rng(41);
+  TrackerOptions independent;
+  independent.fusion = FusionRule::kIndependent;
+  independent.gamma = 1e6;  // every pair gated
+  for (int trial = 0; trial < 20; ++trial) {
+    const Gaussian a{MakePose(1.0, 2.0, 0.3), RandomSpd(rng, 1e-2, 1.0), 1.0};
+    const Gaussian b{MakePose(1.4, 1.7, 0.5), RandomSpd(rng, 1e-2, 1.0), 1.0};
+    const Mixture out = FuseOnce({a}, {b}, independent);
+    ASSERT_EQ(out.size(), 1u);
+    const Eigen::Matrix3d c = (a.covariance.inverse() + b.covariance.inverse()).inverse();
+    EXPECT_TRUE(out[0].covariance.isApprox(c, 1e-9));
+    const Pose2 mu = c * (a.covariance.inverse() * a.mean + b.covariance.inverse() * b.mean);
+    EXPECT_NEAR((out[0].mean - mu).norm(), 0.0, 1e-9);
+    // Narrower than either input: C_a - C and C_b - C are positive semi-definite.
+    EXPECT_GT((a.covariance - out[0].covariance).eigenvalues().real().minCoeff(), -1e-12);
+    EXPECT_GT((b.covariance - out[0].covariance).eigenvalues().real().minCoeff(), -1e-12);
+  }
+  const Gaussian a{MakePose(0, 0, 0), Eigen::Matrix3d::Identity() * 0.04, 1.0};
+  const Gaussian b{MakePose(0.1, 0, 0), Eigen::Matrix3d::Identity() * 0.04, 1.0};
+  TrackerOptions ci;
+  ci.gamma = 1e6;
+  EXPECT_TRUE(FuseOnce({a}, {b}, ci)[0].covariance.isApprox(a.covariance, 1e-12));
+  EXPECT_TRUE(FuseOnce({a}, {b}, independent)[0].covariance.isApprox(0.5 * a.covariance, 1e-12));
+}
+
 // Several sources are fused one after the other before a single final clean-up, and the
 // result is a valid state mixture.
 TEST(Fusion, SeveralSourcesBeforeNormalisation) {

@@ -47,6 +47,7 @@
 
 #include <chrono>
 #include <cstdint>
+#include <limits>
 #include <memory>
 #include <optional>
 #include <string>
@@ -241,6 +242,11 @@ struct FrameStats {
   int updates_queued = 0;               // updates pushed by this frame (incl. reconstructed)
   int pending_multimodal = 0;           // multimodal frames waiting after this frame
   int dropped_pending = 0;              // pending frames dropped during this call
+  // Normalised innovation squared of the appearance fix: d^T (C_u + C_y)^-1 d between
+  // FrameResult::prior and FrameResult::appearance_fix (3 dof, heading wrapped); NaN
+  // when either is absent. A consistent filter gives chi-square(3) values on frames
+  // whose match is right (docs/design.md "Consistency metrics").
+  double nis = std::numeric_limits<double>::quiet_NaN();
 };
 
 // The result of one frame.
@@ -255,6 +261,11 @@ struct FrameResult {
   // Unimodal frames: N(mu_t, C_t) queued for the map (the moment-matched merge of
   // p(x_t), weight 1). Unset otherwise.
   std::optional<Gaussian> map_state;
+  // Consistency diagnostics: the strongest component of the prior p(x|u) (unset without
+  // a state) and the component of the shaped p(x|y) nearest to it in squared Mahalanobis
+  // distance (unset without a prior or without p(x|y)), both in the map frame.
+  std::optional<Gaussian> prior;
+  std::optional<Gaussian> appearance_fix;
   FrameStats stats;
 };
 
@@ -399,6 +410,8 @@ class CmlEngine {
   void PushUpdate(std::int64_t t, std::int64_t frame, int session, const Descriptor& d,
                   const Gaussian& g, bool reconstructed, FrameStats* stats);
   void ShapeHypothesis(double best_similarity, Mixture* p_x_y) const;
+  // Sets result->prior, result->appearance_fix and result->stats.nis (see FrameResult).
+  void NoteInnovation(const Mixture& p_x_u, const Mixture& p_x_y, FrameResult* result) const;
   // Global pose graph (cml_engine_pose_graph.cc): after the anchor frame t was queued
   // with an appearance fix, a loop closure from the best match and, when due, the
   // optimisation; the map, the queued updates and the tracker move with the nodes.

@@ -17,7 +17,9 @@
 //   run_stamp_s                              stamp made unique over the run (RunStampClock);
 //                                            the stamp of the TUM files
 //   odom_x_m, odom_y_m, odom_phi_rad         odometry pose as delivered by the log
-// (The last five columns were added later; readers accept files without them.)
+//   cov_xx_m2, cov_xy_m2, cov_yy_m2, var_phi_rad2, nees_xy, matches, best_similarity,
+//   nees_phi, nis, prior_nees_xy, fix_nees_xy   covariance and consistency (FrameRecord)
+// (The columns after the timings were added later; readers accept files without them.)
 // Errors are computed from the strongest component (what a robot would act on).
 //
 // Metrics and frames without an estimate (docs/experiments.md, "Metrics"): a frame is
@@ -86,6 +88,19 @@ struct FrameRecord {
   // whose covariance is consistent with its error; below: under-confident, above:
   // over-confident. NaN without estimate, truth or covariance (RecomputeErrors).
   double nees_xy = kNaN;
+  // Heading NEES, WrapAngle(est - truth)^2 / var_phi: chi-square with 1 degree of freedom
+  // (mean 1, median 0.455) for a consistent heading variance. NaN like nees_xy.
+  double nees_phi = kNaN;
+  // Normalised innovation squared of the appearance fix (engine runs; no truth needed):
+  // d^T (C_u + C_y)^-1 d between the strongest component of the prior p(x|u) and the
+  // p(x|y) component nearest to it, 3 degrees of freedom (x, y, phi; mean 3, median
+  // 2.37). NaN on frames without p(x|y) or without a prior.
+  double nis = kNaN;
+  // Stage diagnostics (engine runs with truth): position NEES of the prior's strongest
+  // component (odometry propagation alone) and of the p(x|y) component nearest to it (the
+  // map's observation, after the engine's shaping). NaN where the stage has no component.
+  double prior_nees_xy = kNaN;
+  double fix_nees_xy = kNaN;
   // How the frame matched the map (engine runs; unknown in older files and MCL runs):
   // views with E < e_max (after top_k), -1 unknown; and the similarity S of the best of
   // them, 0 without a match, NaN unknown. p(x|y) enters the fusion only from S >=
@@ -157,6 +172,12 @@ bool HasTumContent(const std::vector<FrameRecord>& records, TumContent content);
 // FrameRecord::nees_xy of one record from its estimate, truth and covariance (NaN when
 // one is missing or the xy covariance is not positive definite).
 double PositionNees(const FrameRecord& record);
+// e^T C^-1 e of a position error e (metres) under the xy covariance (cxx, cxy, cyy) in
+// m^2; NaN when the covariance is not positive definite or an input is not finite.
+double PositionNees(double ex_m, double ey_m, double cxx_m2, double cxy_m2, double cyy_m2);
+// FrameRecord::nees_phi: WrapAngle(estimate - truth)^2 / var_phi_rad2 (NaN when one is
+// missing or the variance is not positive).
+double HeadingNees(const FrameRecord& record);
 
 // Sets the position and heading errors and the NEES of one record from its estimate,
 // truth and covariance (NaN where one is missing).
@@ -213,6 +234,18 @@ struct DayEvaluation {
   // position_m / heading_rad: over localized frames with ground truth (count = those).
   // nees_xy: over those of them with a covariance (FrameRecord::nees_xy).
   ErrorStats nees_xy;
+  // Consistency (docs/design.md "Consistency metrics"): heading NEES (1 dof), NIS of the
+  // appearance fixes (3 dof, frames with a fix), the stage NEES of the prior and of the
+  // fix, and for each the fraction of its frames inside the two-sided 95 % chi-square
+  // band of its degrees of freedom (a consistent estimator: about 0.95; NaN when there
+  // is no value).
+  ErrorStats nees_phi;
+  ErrorStats nis;
+  ErrorStats prior_nees_xy;
+  ErrorStats fix_nees_xy;
+  double nees_xy_in_band = kNaN;
+  double nees_phi_in_band = kNaN;
+  double nis_in_band = kNaN;
   int views_at_end = 0;
   int map_components_at_end = 0;
   double mean_frame_time_us = kNaN;  // of the time_total_us column when present
@@ -243,8 +276,11 @@ DayEvaluation EvaluateDay(const std::vector<FrameRecord>& records, int session,
 // odometry_error_mean_m, views_at_end, map_components_at_end, then `extra_columns`
 // (values from extra_values(session), as many as columns), then mean_frame_time_us,
 // then the coverage columns frames_localized, frames_unlocalized, coverage (fraction
-// 0..1) and frames_skipped (from `skipped_frames`). The error columns are over the
-// localized frames with ground truth; read them together with coverage.
+// 0..1) and frames_skipped (from `skipped_frames`), then the consistency columns:
+// nees_xy_{frames,mean,median,p95,in_band}, nees_phi_{frames,mean,median,p95,in_band},
+// nis_{frames,mean,median,p95,in_band}, prior_nees_xy_median, fix_nees_xy_median (empty
+// where unknown; DayEvaluation). The error columns are over the localized frames with
+// ground truth; read them together with coverage.
 void WriteDaysCsv(std::ostream& os, const std::vector<FrameRecord>& records,
                   const std::vector<std::string>& stage_names,
                   const std::vector<std::string>& extra_columns = {},
@@ -270,6 +306,22 @@ std::string FormatTextTable(const std::vector<std::string>& header,
 // run's position NEES (consistency of the estimates' covariances) when the frames carry
 // covariances, then (with_histogram) the position histogram as counts per bin and day.
 std::string FormatEvaluation(const EvaluationResult& result, bool with_histogram = true);
+
+// Per-day consistency table (text and HTML reports): day ("all" for session -1), frames
+// with a position NEES, its median / p95 / in-band %, heading NEES median / p95 /
+// in-band %, NIS median / in-band % with its frame count, and the medians of the prior's
+// and the fix's position NEES ("-" where unknown).
+const std::vector<std::string>& ConsistencyPerDayHeader();
+std::vector<std::string> ConsistencyPerDayRow(const DayEvaluation& day);
+
+// The two-sided 95 % band of a chi-square variable with `dof` degrees of freedom and the
+// fraction of the finite `values` inside it (NaN when none is finite).
+double FractionInChiSquareBand(const std::vector<double>& values, int dof);
+
+// Inline SVG of position NEES (2 dof) and heading NEES (1 dof) over the run (one point
+// per frame, log scale) against their two-sided 95 % chi-square bands, with the
+// moving median over `window` frames.
+std::string RenderNeesOverTimeSvg(const std::vector<FrameRecord>& records, int window = 100);
 
 // Inline SVG of the position-error histogram, one series per day (steps when there are
 // several days), on the result's common bins.

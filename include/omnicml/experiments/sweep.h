@@ -34,6 +34,7 @@
 
 #include <cstdint>
 #include <filesystem>
+#include <limits>
 #include <string>
 #include <utility>
 #include <vector>
@@ -108,6 +109,14 @@ struct SweepRow {
   int views = 0, components = 0;  // at the end of the run
   double wall_s = 0;              // whole job (a compare job: its modes together)
   double peak_rss_mb = 0;         // peak resident memory of the job's process
+  // Consistency over the run (DayEvaluation; NaN without covariances): position NEES
+  // (2 dof) median and p95, fraction inside its 95 % band, heading NEES (1 dof) median,
+  // NIS (3 dof) median.
+  double nees_xy_median = std::numeric_limits<double>::quiet_NaN();
+  double nees_xy_p95 = std::numeric_limits<double>::quiet_NaN();
+  double nees_xy_in_band = std::numeric_limits<double>::quiet_NaN();
+  double nees_phi_median = std::numeric_limits<double>::quiet_NaN();
+  double nis_median = std::numeric_limits<double>::quiet_NaN();
 };
 
 // Reads the runs of the sweep in `dir` (jobs from sweep.json; missing runs give a row of

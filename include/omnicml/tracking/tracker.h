@@ -29,6 +29,19 @@ struct MotionNoise {
   void Validate() const;  // throws omnicml::Error naming the field if negative/non-finite
 };
 
+// How a gated pair (a from p(x|u) or an earlier fusion, b from a source) becomes one
+// component (docs/design.md "Fusion of state hypotheses").
+enum class FusionRule {
+  // [G] (3)-(5): weighted covariance intersection, consistent whatever the (unknown)
+  // correlation between a and b; never narrower than the CI bound, so equal covariances
+  // fuse to the same covariance.
+  kCovarianceIntersection,
+  // The information-filter (Kalman) update C = (C_a^-1 + C_b^-1)^-1, mu = C (C_a^-1 mu_a +
+  // C_b^-1 mu_b): optimal when a and b are independent, over-confident when they share
+  // errors (a map built from the same trajectory).
+  kIndependent,
+};
+
 struct TrackerOptions {
   // Gate (2): a and b are fused iff their squared Mahalanobis distance under C_a + C_b
   // is below gamma. Dimensionless, on the engine's own covariances. For consistent
@@ -52,6 +65,8 @@ struct TrackerOptions {
   double unimodal_min_weight = 0.05;
   // Smallest eigenvalue a covariance may have after repair (m^2 / rad^2).
   double min_covariance_eigenvalue = 1e-10;
+  // The fusion of a gated pair (FusionRule).
+  FusionRule fusion = FusionRule::kCovarianceIntersection;
   MotionNoise motion;
   void Validate() const;  // throws omnicml::Error naming the field
 };
@@ -72,6 +87,9 @@ void VisitFields(V& v, TrackerOptions& o) {
   v("max_components", o.max_components);
   v("unimodal_min_weight", o.unimodal_min_weight);
   v("min_covariance_eigenvalue", o.min_covariance_eigenvalue);
+  v.NamedEnum("fusion", o.fusion,
+              {{FusionRule::kCovarianceIntersection, "covariance_intersection"},
+               {FusionRule::kIndependent, "independent"}});
   v.Section("motion", o.motion);
 }
 

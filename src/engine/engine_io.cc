@@ -114,6 +114,30 @@ OmniCalibration ReadCalibration(BinaryReader& in) {
 
 }  // namespace
 
+// The tracker's fusion rule is stored only when it departs from [G]'s covariance
+// intersection, so files written before the rule became an option load unchanged and a
+// default engine's file keeps the bytes it always had.
+namespace {
+
+constexpr const char* kDefaultFusion = "covariance_intersection";
+
+void OmitDefaultFusion(OptionValue* tracker) {
+  auto& m = tracker->members;
+  std::erase_if(m, [](const auto& kv) {
+    return kv.first == "fusion" && kv.second.kind == OptionValue::Kind::kScalar &&
+           kv.second.scalar == kDefaultFusion;
+  });
+}
+
+void RestoreDefaultFusion(OptionValue* tracker) {
+  for (const auto& kv : tracker->members) {
+    if (kv.first == "fusion") return;
+  }
+  tracker->members.emplace_back("fusion", OptionValue::Scalar(kDefaultFusion));
+}
+
+}  // namespace
+
 // The options section is the schema's tree of every field (cml_engine.h VisitFields,
 // common/options.h EncodeOptionValue): names and values, so reading checks that every
 // field is present and none is unknown. The model's options are stored in the flat
@@ -123,6 +147,7 @@ void WriteEngineOptions(BinaryWriter& out, const CmlEngineOptions& o) {
   OptionValue tree = OptionsToValue(o);
   for (auto& [key, value] : tree.members) {
     if (key == "model") value = FlatModelOptionsValue(value);
+    if (key == "tracker") OmitDefaultFusion(&value);
   }
   EncodeOptionValue(out, tree);
 }
@@ -131,6 +156,7 @@ CmlEngineOptions ReadEngineOptions(BinaryReader& in) {
   OptionValue tree = DecodeOptionValue(in, "options");
   for (auto& [key, value] : tree.members) {
     if (key == "model") value = GroupedModelOptionsValue(value);
+    if (key == "tracker") RestoreDefaultFusion(&value);
   }
   CmlEngineOptions o;
   OptionsFromValue(tree, OptionSource{"options", true, {}}, &o);

@@ -58,7 +58,7 @@ const CommandRegistration kRegistration{
                       "(best rigid fit)")
           ->capture_default_str();
       cmd->add_option("--bins", flags->bins, "Histogram bins")->capture_default_str();
-      cmd->add_option("--html", flags->html_out,
+      AddOutputFile(cmd, "--html", &flags->html_out,
                       "HTML report path (default RUNDIR/evaluation.html)");
       cmd->callback([flags] { Evaluate(*flags); });
     }};

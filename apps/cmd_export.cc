@@ -109,7 +109,7 @@ const CommandRegistration kRegistration{
           ->required();
       cmd->add_option("--format", flags->format,
                       "json | csv | svg | png (default: from the --out extension)");
-      cmd->add_option("--out", flags->out, "Output file")->required();
+      AddOutputFile(cmd, "--out", &flags->out, "Output file")->required();
       cmd->add_option("--trajectory", flags->trajectory,
                       "TUM trajectory drawn under the map (svg, png)");
       cmd->add_option("--run", flags->run,

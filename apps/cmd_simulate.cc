@@ -197,9 +197,9 @@ const CommandRegistration kRegistration{
                              "at most ", kMaxSimulatedFrames, ")"))
           ->capture_default_str();
       cmd->add_option("--seed", args->seed, "Seed of every random stream")->capture_default_str();
-      cmd->add_option("--out", args->out, "Output log directory");
+      AddOutputDirectory(cmd, "--out", &args->out, "Output log directory");
       cmd->add_flag("--panorama", args->panorama, "Write panoramas instead of raw ring images");
-      cmd->add_option("--preview", args->preview,
+      AddOutputFile(cmd, "--preview", &args->preview,
                       "Write a PNG with the floor plan, route and sample panoramas");
       cmd->add_option("--start", args->start,
                       "How days after the first start: known|continue|global")

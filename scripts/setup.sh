@@ -8,7 +8,8 @@ cd "$(dirname "$0")/.."
 
 packages=(build-essential cmake ninja-build pkg-config libeigen3-dev libopencv-dev libfftw3-dev
   libceres-dev libhnswlib-dev libgtest-dev libgmock-dev libbenchmark-dev libcli11-dev libyaml-cpp-dev
-  nlohmann-json3-dev pybind11-dev python3-dev python3-numpy snakemake libjemalloc-dev)
+  nlohmann-json3-dev pybind11-dev python3-dev python3-numpy snakemake libjemalloc-dev
+  libssl-dev libpng-dev)
 # shellcheck source=lib/packages.sh
 source scripts/lib/packages.sh
 install_missing setup "${packages[@]}"

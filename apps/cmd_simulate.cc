@@ -5,6 +5,7 @@
 // ground truth, plus simulation.yaml (the effective options) and world.yaml (the world
 // used) next to the sessions. `omnicml simulate --list` lists the built-in worlds.
 #include <algorithm>
+#include <cctype>
 #include <chrono>
 #include <filesystem>
 #include <functional>
@@ -139,6 +140,17 @@ void RunSimulate(const SimulateArgs& args, const CLI::App& cmd) {
   }
   CheckOutputDirectory(args.out, "--out");
   CheckOutputFile(args.preview, "--preview");
+  if (!args.preview.empty()) {
+    // The picture's format comes from its extension: checked now, not after simulating.
+    std::string ext = std::filesystem::path(args.preview).extension().string();
+    std::transform(ext.begin(), ext.end(), ext.begin(),
+                   [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+    if (ext != ".png" && ext != ".jpg" && ext != ".jpeg" && ext != ".bmp" && ext != ".tif" &&
+        ext != ".tiff" && ext != ".ppm" && ext != ".webp") {
+      throw Error(StrCat("--preview '", args.preview,
+                         "': name an image file (.png, .jpg, .bmp, .tif, .ppm or .webp)"));
+    }
+  }
   const World world = LoadWorld(options.world);
   // The world's text, saved next to the sessions (read now, so a bad file fails first).
   const std::vector<std::string> builtins = BuiltinWorldNames();

@@ -346,6 +346,17 @@ TEST(OutputSafety, PanoramaSizeBoundedByEveryReader) {
   }
 }
 
+// `simulate --preview NAME` without an image extension fails before simulating anything,
+// leaving no log behind.
+TEST(OutputSafety, SimulatePreviewExtensionCheckedFirst) {
+  const fs::path dir = FreshDir("preview");
+  const CommandResult r =
+      RunOmnicml(StrCat("simulate --world home_store --frames-per-day 2 --out ",
+                        (dir / "log").string(), " --preview ", (dir / "preview").string()));
+  ExpectOneLineNaming(r, (dir / "preview").string());
+  EXPECT_FALSE(fs::exists(dir / "log"));
+}
+
 // A PNG whose chunks are sound but whose compressed data is not gives exactly one line
 // (libpng's own message inside it), not libpng's line on stderr before ours.
 TEST(OutputSafety, CorruptPngGivesOneLine) {

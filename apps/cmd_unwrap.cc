@@ -96,7 +96,7 @@ const CommandRegistration kUnwrap{
       CLI::App* cmd =
           app.add_subcommand("unwrap", "Unwrap a raw catadioptric ring image into a panorama");
       cmd->add_option("RAW", args->raw, "Raw ring image (grey or colour)")->required();
-      cmd->add_option("--out", args->out, "Output panorama image (e.g. pano.png)")->required();
+      AddOutputFile(cmd, "--out", &args->out, "Output panorama image (e.g. pano.png)")->required();
       CLI::Option* calib = cmd->add_option("--calibration", args->calibration,
                                            "Calibration YAML (OmniCalibration keys)");
       CLI::Option* autocal = cmd->add_flag("--auto-calibrate", args->auto_calibrate,
@@ -106,7 +106,7 @@ const CommandRegistration kUnwrap{
                       "Panorama width (azimuth bins); overrides the calibration");
       cmd->add_option("--height", args->height,
                       "Panorama height (rows); overrides the calibration");
-      cmd->add_option("--save-calibration", args->save_calibration,
+      AddOutputFile(cmd, "--save-calibration", &args->save_calibration,
                       "Write the calibration used to this YAML file");
       cmd->callback([args] { RunUnwrap(*args); });
     }};

@@ -66,6 +66,10 @@ void CmlEngineOptions::Validate() const {
     throw Error(StrCat("CmlEngineOptions.panorama_width/panorama_height must both be 0 or both > 0, got ",
                        panorama_width, " x ", panorama_height));
   }
+  if (panorama_width > kMaxPanoramaSidePx || panorama_height > kMaxPanoramaSidePx) {
+    throw Error(StrCat("CmlEngineOptions.panorama_width/panorama_height must be at most ",
+                       kMaxPanoramaSidePx, ", got ", panorama_width, " x ", panorama_height));
+  }
   if (!IsFinitePose(initial_pose)) throw Error("CmlEngineOptions.initial_pose must be finite");
   try {
     RepairCovariance(initial_covariance, 1e-12, "CmlEngineOptions.initial_covariance");

@@ -18,6 +18,7 @@
 
 #include "logs/internal/csv_util.h"
 #include "omnicml/common/common.h"
+#include "omnicml/common/yaml_io.h"
 #include "omnicml/common/file_io.h"
 #include "omnicml/common/limits.h"
 #include "omnicml/unwrap/omni_unwrapper.h"
@@ -208,7 +209,19 @@ std::string YamlQuoted(const std::string& s) {
 std::vector<std::string> ListSessionDirs(const std::string& log_dir) {
   std::error_code ec;
   if (!fs::is_directory(log_dir, ec)) throw Error(StrCat(log_dir, ": not a directory"));
-  if (fs::exists(fs::path(log_dir) / "session.yaml", ec)) return {log_dir};
+  // A session.yaml that is present but unusable (a symbolic-link loop) is named as such.
+  const auto present = [](const fs::path& yaml) {
+    std::error_code lec;
+    if (!fs::exists(fs::symlink_status(yaml, lec))) return false;
+    std::error_code sec;
+    (void)fs::status(yaml, sec);
+    if (sec && sec != std::errc::no_such_file_or_directory) {
+      throw Error(StrCat(yaml.string(), ": ", sec.message()));
+    }
+    if (sec) throw Error(StrCat(yaml.string(), ": dangling symbolic link"));
+    return true;
+  };
+  if (present(fs::path(log_dir) / "session.yaml")) return {log_dir};
   std::vector<std::string> dirs;
   for (const auto& entry : fs::directory_iterator(log_dir, ec)) {
     if (!entry.is_directory()) continue;
@@ -221,7 +234,7 @@ std::vector<std::string> ListSessionDirs(const std::string& log_dir) {
   if (dirs.empty()) throw Error(StrCat(log_dir, ": no session directory (and no session.yaml)"));
   for (const auto& dir : dirs) {
     const std::string yaml = (fs::path(dir) / "session.yaml").string();
-    if (!fs::exists(yaml, ec))
+    if (!present(yaml))
       throw Error(StrCat(yaml, ": missing file (every session directory needs one)"));
   }
   return dirs;
@@ -234,8 +247,9 @@ std::unique_ptr<LineReader> OpenFramesCsv(const std::string& path) {
   std::string header;
   if (!in->Next(&header)) throw Error(StrCat(path, ":1: empty file (expected the header line)"));
   if (header != kFramesCsvHeader) {
-    throw Error(StrCat(path, ":1: header is '", Excerpt(header), "', expected '", kFramesCsvHeader,
-                       "'"));
+    // The line itself is not quoted: the file may be anything (a key file given by mistake).
+    throw Error(StrCat(path, ":1: not a frames.csv file: the header line is not '",
+                       kFramesCsvHeader, "'"));
   }
   return in;
 }
@@ -256,7 +270,7 @@ SessionInfo ReadSessionYaml(const std::string& path) {
   const std::string text = ReadTextFile(path, kMaxTextFileBytes, "session file");
   YAML::Node root;
   try {
-    root = YAML::Load(text);
+    root = LoadYaml(text, path);
   } catch (const YAML::Exception& e) {
     throw Error(StrCat(path, ":", e.mark.line + 1, ": YAML syntax error: ", e.msg));
   }
@@ -565,7 +579,8 @@ LogWriter::LogWriter(const std::string& log_dir, bool overwrite) : overwrite_(ov
   if (fs::exists(log_dir_, ec) && !overwrite_) {
     throw Error(StrCat(log_dir_, ": already exists (remove it or ask to overwrite)"));
   }
-  // Staging directories of killed writers of the same log (dead pid, or ours recycled).
+  lock_ = std::make_unique<OutputLock>(log_dir_, "--out");
+  // Staging directories of killed writers of the same log (we hold its lock).
   RemoveStaleStagingDirs(log_dir_);
   partial_dir_ = StagingDirFor(log_dir_, ::getpid()).string();
   fs::create_directories(partial_dir_, ec);

@@ -18,9 +18,12 @@
 #include <opencv2/imgproc.hpp>
 
 #include "unwrap/internal/circle_fit.h"
+#include "unwrap/internal/png_decode.h"
 #include "omnicml/common/binary_io.h"
 #include "omnicml/common/common.h"
+#include "omnicml/common/yaml_io.h"
 #include "omnicml/common/file_io.h"
+#include "omnicml/common/limits.h"
 
 namespace omnicml {
 namespace {
@@ -320,10 +323,16 @@ void OmniCalibration::Validate() const {
                  " must be finite and exceed inner_radius_px = ", inner_radius_px));
   Require(finite(azimuth0_rad),
           StrCat("calibration: azimuth0_rad = ", azimuth0_rad, " is not finite"));
-  Require(panorama_width >= 2 && panorama_width <= 65536,
-          StrCat("calibration: panorama_width = ", panorama_width, " must be in [2, 65536]"));
-  Require(panorama_height >= 1 && panorama_height <= 65536,
-          StrCat("calibration: panorama_height = ", panorama_height, " must be in [1, 65536]"));
+  Require(panorama_width >= 2 && panorama_width <= kMaxPanoramaSidePx,
+          StrCat("calibration: panorama_width = ", panorama_width, " must be in [2, ",
+                 kMaxPanoramaSidePx, "]"));
+  Require(panorama_height >= 1 && panorama_height <= kMaxPanoramaSidePx,
+          StrCat("calibration: panorama_height = ", panorama_height, " must be in [1, ",
+                 kMaxPanoramaSidePx, "]"));
+  Require(static_cast<std::uint64_t>(panorama_width) * static_cast<std::uint64_t>(panorama_height) <=
+              kMaxImagePixels,
+          StrCat("calibration: panorama_width x panorama_height = ", panorama_width, " x ",
+                 panorama_height, " exceeds ", kMaxImagePixels, " pixels"));
 }
 
 void OmniCalibration::ValidateFor(int image_width, int image_height) const {
@@ -346,7 +355,7 @@ OmniCalibration OmniCalibration::FromYamlFile(const std::string& path) {
   const std::string text = ReadTextFile(path, kMaxTextFileBytes, "calibration file");
   YAML::Node root;
   try {
-    root = YAML::Load(text);
+    root = LoadYaml(text, path);
   } catch (const YAML::ParserException& e) {
     throw Error(StrCat(path, ":", e.mark.line + 1, ": YAML syntax error: ", e.msg));
   } catch (const YAML::Exception& e) {
@@ -836,12 +845,21 @@ cv::Mat ReadImage(const std::string& path) {
     throw Error(StrCat("image file '", path, "' is unreadable: ", problem));
   }
   cv::Mat image;
-  try {
-    // Decoder warnings (libpng, libjpeg) go to OpenCV's logger, which stays quiet below
-    // its error level; failures surface here as an empty image.
-    image = cv::imdecode(bytes, cv::IMREAD_UNCHANGED);
-  } catch (const cv::Exception& e) {
-    throw Error(StrCat("image file '", path, "' is unreadable: ", e.what()));
+  if (SupportedImageFormat(bytes) == "PNG") {
+    // libpng directly: its messages go into the one-line error, never to stderr.
+    std::string problem;
+    image = internal::DecodePng(bytes, &problem);
+    if (image.empty()) {
+      throw Error(StrCat("image file '", path, "' is unreadable: PNG: ", Excerpt(problem, 200)));
+    }
+  } else {
+    try {
+      // Decoder warnings (libjpeg) go to OpenCV's logger, which stays quiet below its error
+      // level; failures surface here as an empty image.
+      image = cv::imdecode(bytes, cv::IMREAD_UNCHANGED);
+    } catch (const cv::Exception& e) {
+      throw Error(StrCat("image file '", path, "' is unreadable: ", e.what()));
+    }
   }
   if (image.empty()) {
     throw Error(

@@ -656,19 +656,24 @@ std::string ReadInputLine(const fs::path& run_dir) {
   return "";
 }
 
-// The value of the first "forgetting:" key of RUNDIR/config.yaml ("" when absent).
+// The forgetting mode of RUNDIR/config.yaml: the value of the first "forgetting:" key, or
+// of the "mode:" key of its section (model.forgetting.mode); "" when absent.
 std::string ReadForgetting(const fs::path& run_dir) {
   const fs::path config = run_dir / "config.yaml";
   std::error_code ec;
   if (!fs::is_regular_file(config, ec)) return "";
   LineReader in(config, "config");
   std::string line;
+  bool in_section = false;
   while (in.Next(&line)) {
-    const std::size_t key = line.find("forgetting:");
+    const std::string wanted = in_section ? "mode:" : "forgetting:";
+    const std::size_t key = line.find(wanted);
     if (key == std::string::npos || line.find_first_not_of(' ') != key) continue;
-    std::string value = line.substr(key + 11);
+    std::string value = line.substr(key + wanted.size());
     value.erase(0, value.find_first_not_of(' '));
-    return value.substr(0, value.find_first_of(" #"));
+    value = value.substr(0, value.find_first_of(" #"));
+    if (!value.empty() || in_section) return value;
+    in_section = true;  // "forgetting:" opens the section holding "mode:"
   }
   return "";
 }

@@ -193,8 +193,8 @@ SweepRow RowFromRunDir(const fs::path& run_dir) {
   return row;
 }
 
-// The forgetting mode in RUNDIR/config.yaml (the key `forgetting` at any depth), "" when
-// the file or the key is missing.
+// The forgetting mode in RUNDIR/config.yaml (the key `forgetting` at any depth, or its
+// section's `mode`), "" when the file or the key is missing.
 std::string ForgettingOfRun(const fs::path& run_dir) {
   std::error_code ec;
   if (!fs::is_regular_file(run_dir / "config.yaml", ec)) return "";
@@ -209,6 +209,10 @@ std::string ForgettingOfRun(const fs::path& run_dir) {
     for (const auto& kv : n) {
       if (kv.first.as<std::string>() == "forgetting" && kv.second.IsScalar())
         return kv.second.as<std::string>();
+      // model.forgetting is a section whose `mode` is the forgetting mode.
+      if (kv.first.as<std::string>() == "forgetting" && kv.second.IsMap() &&
+          kv.second["mode"] && kv.second["mode"].IsScalar())
+        return kv.second["mode"].as<std::string>();
       const std::string inner = find(kv.second);
       if (!inner.empty()) return inner;
     }

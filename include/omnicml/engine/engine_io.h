@@ -60,7 +60,9 @@ namespace omnicml {
 //    model section's version 4 (its recent updates).
 // 12: option model.forget_unconfirmed_views (issue 14).
 // 13: option descriptor.ifh.normalize_columns (issue 18).
-inline constexpr std::uint32_t kEngineFormatVersion = 13;
+// 14: the session camera's model (ring, fisheye, equirectangular), its fields and the
+//    user mask after the ring calibration.
+inline constexpr std::uint32_t kEngineFormatVersion = 14;
 // The 8 magic bytes (including the terminating NUL).
 inline constexpr char kEngineMagic[8] = {'O', 'M', 'N', 'I', 'C', 'M', 'L', '\0'};
 

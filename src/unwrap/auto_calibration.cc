@@ -2,8 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstdio>
-#include <cstdlib>
 #include <random>
 #include <vector>
 
@@ -135,7 +133,8 @@ Candidate SearchCircle(const std::vector<Gradients>& grads, const std::vector<cv
   std::vector<Candidate> best_per_centre;
   for (const cv::Point2d& c : centres) {
     std::vector<int> support(static_cast<std::size_t>(bins), 0), visible(support);
-    for (const Gradients& g : grads) AccumulateSupport(g, c, rays, r_lo, r_hi, tol, support, visible);
+    for (const Gradients& g : grads)
+      AccumulateSupport(g, c, rays, r_lo, r_hi, tol, support, visible);
     const int min_visible = static_cast<int>(std::ceil(0.5 * rays * grads.size()));
     // Local maxima of the support over radius: candidate circles of this centre.
     for (int j = r_lo; j <= r_hi; ++j) {
@@ -155,17 +154,10 @@ Candidate SearchCircle(const std::vector<Gradients>& grads, const std::vector<cv
     if (cand.score > best.score) best = cand;
   }
   if (best.score <= 0) return best;
-  if (std::getenv("OMNICML_CALIB_DEBUG")) {
-    std::vector<Candidate> sorted = best_per_centre;
-    std::sort(sorted.begin(), sorted.end(), [](const Candidate& a, const Candidate& b) { return a.score > b.score; });
-    for (std::size_t i = 0; i < std::min<std::size_t>(8, sorted.size()); ++i)
-      std::fprintf(stderr, "cand %.1f %.1f r %.1f s %.3f\n", sorted[i].center.x, sorted[i].center.y, sorted[i].radius, sorted[i].score);
-  }
   Candidate chosen = best;
   for (const Candidate& cand : best_per_centre) {
-    const bool concentric =
-        std::hypot(cand.center.x - best.center.x, cand.center.y - best.center.y) <=
-        0.1 * best.radius + tol;
+    const bool concentric = std::hypot(cand.center.x - best.center.x,
+                                       cand.center.y - best.center.y) <= 0.1 * best.radius + tol;
     if (concentric && cand.score >= prefer_outer * best.score &&
         (cand.radius > chosen.radius + tol ||
          (std::abs(cand.radius - chosen.radius) <= tol && cand.score > chosen.score))) {
@@ -186,8 +178,8 @@ std::vector<cv::Point2d> Grid(cv::Point2d lo, cv::Point2d hi, double step) {
 // One sub-pixel edge point per ray near radius `r` (full resolution): the strongest
 // radial edge within [r - w, r + w]; rays whose point at r leaves the image count as not
 // visible. Returns the points; *visible_rays counts the rays inside the image.
-std::vector<cv::Point2d> EdgePoints(const Gradients& g, cv::Point2d c, double r, double w,
-                                    int rays, int* visible_rays) {
+std::vector<cv::Point2d> EdgePoints(const Gradients& g, cv::Point2d c, double r, double w, int rays,
+                                    int* visible_rays) {
   std::vector<cv::Point2d> points;
   const int n = static_cast<int>(std::ceil(2 * w)) + 1;
   std::vector<float> s(static_cast<std::size_t>(n) + 2);
@@ -203,7 +195,8 @@ std::vector<cv::Point2d> EdgePoints(const Gradients& g, cv::Point2d c, double r,
       s[i] = t <= 0 ? 0.0f : RadialStrength(g, c.x + t * cs, c.y + t * sn, cs, sn, true);
     }
     for (int i = 1; i <= n; ++i) {
-      if (s[i] > 0 && s[i] >= s[i - 1] && s[i] >= s[i + 1] && (best < 0 || s[i] > s[best])) best = i;
+      if (s[i] > 0 && s[i] >= s[i - 1] && s[i] >= s[i + 1] && (best < 0 || s[i] > s[best]))
+        best = i;
     }
     if (best < 0) continue;
     double offset = 0.0;
@@ -352,21 +345,21 @@ AutoCalibrationResult AutoCalibrate(const std::vector<cv::Mat>& frames,
   const int r_lo = std::max(4, static_cast<int>(0.12 * std::min(cw, ch)));
   const int r_hi = static_cast<int>(0.6 * std::max(cw, ch));
   const double step = std::max(2.0, std::min(cw, ch) / 40.0);
-  const Candidate coarse_best =
-      SearchCircle(coarse, Grid({0.2 * cw, 0.2 * ch}, {0.8 * cw, 0.8 * ch}, step), 120, r_lo, r_hi,
-                   2, 0.9);
+  const Candidate coarse_best = SearchCircle(
+      coarse, Grid({0.2 * cw, 0.2 * ch}, {0.8 * cw, 0.8 * ch}, step), 120, r_lo, r_hi, 2, 0.9);
   if (coarse_best.score <= 0) {
-    throw Error("no ring found (no circle with at least half of its length inside the image "
-                "shows edges)");
+    throw Error(
+        "no ring found (no circle with at least half of its length inside the image "
+        "shows edges)");
   }
   // Stage 1b: refine on the finer image around the coarse circle.
   const double k = fine_scale / coarse_scale;
   const cv::Point2d c0 = coarse_best.center * k;
   const double r0 = coarse_best.radius * k;
   const double span = step * k;
-  const Candidate fine_best = SearchCircle(
-      fine, Grid(c0 - cv::Point2d(span, span), c0 + cv::Point2d(span, span), 1.0), 180,
-      static_cast<int>(0.93 * r0), static_cast<int>(std::ceil(1.07 * r0)), 1, 1.0);
+  const Candidate fine_best =
+      SearchCircle(fine, Grid(c0 - cv::Point2d(span, span), c0 + cv::Point2d(span, span), 1.0), 180,
+                   static_cast<int>(0.93 * r0), static_cast<int>(std::ceil(1.07 * r0)), 1, 1.0);
   const cv::Point2d prior_c = fine_best.center / fine_scale;
   const double prior_r = fine_best.radius / fine_scale;
 
@@ -388,8 +381,8 @@ AutoCalibrationResult AutoCalibrate(const std::vector<cv::Mat>& frames,
   if (rim.inliers < kMinEdgePoints) {
     throw Error(StrCat("no ring found (only ", rim.inliers, " of ", rim_points.size(),
                        " rim edge points agree with one circle near radius ",
-                       static_cast<int>(prior_r), " px around (", static_cast<int>(prior_c.x),
-                       ", ", static_cast<int>(prior_c.y), "))"));
+                       static_cast<int>(prior_r), " px around (", static_cast<int>(prior_c.x), ", ",
+                       static_cast<int>(prior_c.y), "))"));
   }
   result.confidence = visible > 0 ? static_cast<double>(rim.inliers) / visible : 0.0;
   result.outer_inliers = rim.inliers;
@@ -422,10 +415,11 @@ AutoCalibrationResult AutoCalibrate(const std::vector<cv::Mat>& frames,
   const Candidate inner_best = SearchCircle(fine, {fc}, 180, in_lo, in_hi, 1, 0.9);
   result.inner_confidence = std::max(0.0, inner_best.score);
   if (result.inner_confidence < options.min_inner_confidence) {
-    throw Error(StrCat("no ring found (no inner boundary: the best circle inside the rim has edges "
-                       "on ",
-                       Pct(result.inner_confidence), " of its rays; need ",
-                       Pct(options.min_inner_confidence), ")"));
+    throw Error(
+        StrCat("no ring found (no inner boundary: the best circle inside the rim has edges "
+               "on ",
+               Pct(result.inner_confidence), " of its rays; need ",
+               Pct(options.min_inner_confidence), ")"));
   }
   // Refinement: edge points near the found radius; RANSAC keeps one circle's points (the
   // robot's body need not be concentric with the rim); the inner radius is their median
@@ -487,7 +481,8 @@ cv::Mat DrawCalibrationOverlay(const cv::Mat& raw, const CameraCalibration& cali
   const int thickness = std::max(2, std::max(out.cols, out.rows) / 400);
   constexpr int kShift = 4;  // sub-pixel drawing: coordinates in 1/16 px
   const auto fixed = [](cv::Point2d p) {
-    return cv::Point(static_cast<int>(std::lround(p.x * 16)), static_cast<int>(std::lround(p.y * 16)));
+    return cv::Point(static_cast<int>(std::lround(p.x * 16)),
+                     static_cast<int>(std::lround(p.y * 16)));
   };
   const auto circle = [&](cv::Point2d c, double r, cv::Scalar colour) {
     cv::circle(out, fixed(c), static_cast<int>(std::lround(r * 16)), colour, thickness, cv::LINE_AA,
@@ -511,12 +506,14 @@ cv::Mat DrawCalibrationOverlay(const cv::Mat& raw, const CameraCalibration& cali
     // Equirectangular: the band's top and bottom rows as horizontal lines.
     for (const double row : {-0.5, h - 0.5}) {
       const cv::Point2d p = PanoramaToImage(calibration, 0, row, out.cols, out.rows);
-      cv::line(out, cv::Point(0, static_cast<int>(p.y)), cv::Point(out.cols - 1, static_cast<int>(p.y)),
-               cv::Scalar(0, 255, 255), thickness, cv::LINE_AA);
+      cv::line(out, cv::Point(0, static_cast<int>(p.y)),
+               cv::Point(out.cols - 1, static_cast<int>(p.y)), cv::Scalar(0, 255, 255), thickness,
+               cv::LINE_AA);
     }
     const cv::Point2d p0 = PanoramaToImage(calibration, 0, 0, out.cols, out.rows);
-    cv::line(out, cv::Point(static_cast<int>(p0.x), 0), cv::Point(static_cast<int>(p0.x), out.rows - 1),
-             cv::Scalar(255, 0, 255), thickness, cv::LINE_AA);
+    cv::line(out, cv::Point(static_cast<int>(p0.x), 0),
+             cv::Point(static_cast<int>(p0.x), out.rows - 1), cv::Scalar(255, 0, 255), thickness,
+             cv::LINE_AA);
     return out;
   }
   const double arm = std::max(6.0, 0.02 * std::max(out.cols, out.rows));

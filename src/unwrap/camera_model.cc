@@ -97,10 +97,12 @@ class FieldParser {
     throw Error(StrCat(path_, ": ", what));
   }
 
-  void Double(const char* key, double& out) { Field(key, [&](const YAML::Node& v) {
-      out = Scalar<double>(v, key, "a number"); }); }
-  void Int(const char* key, int& out) { Field(key, [&](const YAML::Node& v) {
-      out = Scalar<int>(v, key, "an integer"); }); }
+  void Double(const char* key, double& out) {
+    Field(key, [&](const YAML::Node& v) { out = Scalar<double>(v, key, "a number"); });
+  }
+  void Int(const char* key, int& out) {
+    Field(key, [&](const YAML::Node& v) { out = Scalar<int>(v, key, "an integer"); });
+  }
   void Direction(const char* key, RingDirection& out) {
     Field(key, [&](const YAML::Node& v) {
       const std::string s = Scalar<std::string>(v, key, "a string");
@@ -252,8 +254,8 @@ CameraModelType CameraModelTypeFromString(const std::string& name) {
   if (name == "omni_ring") return CameraModelType::kRing;
   if (name == "fisheye") return CameraModelType::kFisheye;
   if (name == "equirectangular") return CameraModelType::kEquirectangular;
-  throw Error(StrCat("unknown camera model '", name,
-                     "' (expected omni_ring, fisheye or equirectangular)"));
+  throw Error(
+      StrCat("unknown camera model '", name, "' (expected omni_ring, fisheye or equirectangular)"));
 }
 
 std::string ToString(FisheyeProjection projection) {
@@ -352,15 +354,14 @@ void CameraCalibration::ValidateFor(int image_width, int image_height) const {
     }
   }
   const double fraction = static_cast<double>(inside) / total;
-  const double radius = model == CameraModelType::kRing ? ring.outer_radius_px
-                                                        : fisheye.circle_radius_px;
-  Require(centre_inside && fraction >= kMinVisibleFraction,
-          StrCat("calibration leaves the image: ", ToString(model), " of radius ", radius,
-                 " px around (", cx, ", ", cy, ") has ",
-                 static_cast<int>(std::round(100.0 * fraction)), " % of its panorama inside a ",
-                 image_width, "x", image_height, " image (at least ",
-                 static_cast<int>(100.0 * kMinVisibleFraction),
-                 " % and the centre must be inside)"));
+  const double radius =
+      model == CameraModelType::kRing ? ring.outer_radius_px : fisheye.circle_radius_px;
+  Require(
+      centre_inside && fraction >= kMinVisibleFraction,
+      StrCat("calibration leaves the image: ", ToString(model), " of radius ", radius,
+             " px around (", cx, ", ", cy, ") has ", static_cast<int>(std::round(100.0 * fraction)),
+             " % of its panorama inside a ", image_width, "x", image_height, " image (at least ",
+             static_cast<int>(100.0 * kMinVisibleFraction), " % and the centre must be inside)"));
 }
 
 bool CameraCalibration::operator==(const CameraCalibration& o) const {
@@ -410,9 +411,9 @@ std::string CameraCalibration::YamlFields(const std::string& indent) const {
 void CameraCalibration::ToYamlFile(const std::string& path, int image_width,
                                    int image_height) const {
   Validate();
-  const std::string text = StrCat("camera:\n  model: ", ToString(model), "\n  image_width: ",
-                                  image_width, "\n  image_height: ", image_height,
-                                  "\n  calibration:\n", YamlFields("    "));
+  const std::string text =
+      StrCat("camera:\n  model: ", ToString(model), "\n  image_width: ", image_width,
+             "\n  image_height: ", image_height, "\n  calibration:\n", YamlFields("    "));
   WriteFileAtomic(path, text);
 }
 
@@ -434,7 +435,8 @@ CameraCalibration ParseCameraCalibration(CameraModelType model, const std::strin
       ParseEquirect(p, c.equirectangular);
       break;
   }
-  p.Finish(require_all, require_all ? std::vector<std::string>{} : std::vector<std::string>{"model"});
+  p.Finish(require_all,
+           require_all ? std::vector<std::string>{} : std::vector<std::string>{"model"});
   return c;
 }
 
@@ -463,8 +465,8 @@ CameraCalibration CameraCalibration::FromYamlFile(const std::string& path) {
         const std::string key = kv.first.Scalar();
         if (key != "model" && key != "image_width" && key != "image_height" &&
             key != "calibration") {
-          throw Error(StrCat(path, ":", kv.first.Mark().line + 1, ": unknown key '", key,
-                             "' in 'camera'"));
+          throw Error(
+              StrCat(path, ":", kv.first.Mark().line + 1, ": unknown key '", key, "' in 'camera'"));
         }
       }
       model_node = camera["model"];
@@ -494,8 +496,8 @@ CameraCalibration CameraCalibration::FromYamlFile(const std::string& path) {
 
 // ---- Projections ------------------------------------------------------------------------
 
-cv::Point2d PanoramaToImage(const CameraCalibration& c, double column, double row,
-                            int image_width, int image_height) {
+cv::Point2d PanoramaToImage(const CameraCalibration& c, double column, double row, int image_width,
+                            int image_height) {
   switch (c.model) {
     case CameraModelType::kRing: {
       const OmniCalibration& r = c.ring;
@@ -527,8 +529,7 @@ cv::Point2d PanoramaToImage(const CameraCalibration& c, double column, double ro
 }
 
 std::optional<cv::Point2d> ImageToPanorama(const CameraCalibration& c, cv::Point2d xy,
-                                           int image_width, int image_height,
-                                           double margin_rows) {
+                                           int image_width, int image_height, double margin_rows) {
   switch (c.model) {
     case CameraModelType::kRing: {
       const OmniCalibration& r = c.ring;

@@ -66,7 +66,8 @@ TEST(AutoCalibrate, BrightCentreClippedRingWithText) {
   EXPECT_GT(r.confidence, 0.8);
   EXPECT_LT(r.visible_fraction, 0.95);  // clipped
   // Several frames of the same camera give the same answer within a fraction of a pixel.
-  cv::Mat other = renderer.Render(Blocks(720, 120, 5), cv::Scalar(20, 20, 20)).rowRange(20, 740).clone();
+  cv::Mat other =
+      renderer.Render(Blocks(720, 120, 5), cv::Scalar(20, 20, 20)).rowRange(20, 740).clone();
   AddNoise(other, 4.0, 10);
   const AutoCalibrationResult pooled = AutoCalibrate(std::vector<cv::Mat>{raw, other});
   EXPECT_EQ(pooled.frames_used, 2);
@@ -119,7 +120,8 @@ TEST(AutoCalibrate, RefusesClutterWithoutRing) {
 TEST(AutoCalibrate, RealFrames) {
   // ../shared from a checkout next to it, ../../shared from a worktree under wt/.
   fs::path root = fs::path(OMNICML_SOURCE_DIR) / ".." / "shared" / "datasets" / "rings";
-  if (!fs::exists(root)) root = fs::path(OMNICML_SOURCE_DIR) / ".." / ".." / "shared" / "datasets" / "rings";
+  if (!fs::exists(root))
+    root = fs::path(OMNICML_SOURCE_DIR) / ".." / ".." / "shared" / "datasets" / "rings";
   if (!fs::exists(root / "kuanli_office" / "example.jpg")) {
     GTEST_SKIP() << "real ring frames not found at " << root
                  << " (../shared/datasets/rings); skipping the real-frame check";
@@ -130,7 +132,8 @@ TEST(AutoCalibrate, RealFrames) {
             0.015 * kuanli.cols);
   std::vector<cv::Point2d> centres;
   for (const char* name : {"frame5.jpg", "frame8.jpg", "frame12_edgecase.jpg"}) {
-    const AutoCalibrationResult r = AutoCalibrate(ReadImage((root / "omicron_soccer" / name).string()));
+    const AutoCalibrationResult r =
+        AutoCalibrate(ReadImage((root / "omicron_soccer" / name).string()));
     centres.emplace_back(r.calibration.center_x_px, r.calibration.center_y_px);
   }
   for (const cv::Point2d& c : centres) {
@@ -138,7 +141,8 @@ TEST(AutoCalibrate, RealFrames) {
   }
   for (const char* name : {"frame1.jpg", "WIN_20200226_17_58_26_Pro.jpg"}) {
     try {
-      const AutoCalibrationResult r = AutoCalibrate(ReadImage((root / "omicron_soccer" / name).string()));
+      const AutoCalibrationResult r =
+          AutoCalibrate(ReadImage((root / "omicron_soccer" / name).string()));
       EXPECT_GE(r.confidence, AutoCalibrationOptions{}.min_rim_confidence) << name;
     } catch (const Error& e) {
       EXPECT_NE(std::string(e.what()).find("no ring found ("), std::string::npos) << e.what();

@@ -106,7 +106,8 @@ TEST(CameraModel, DirectionRoundTripThroughEveryModel) {
 // lies at f pi/2 (equidistant) or 2 f sin(pi/4) (equisolid), and the image circle is the
 // field of view's edge.
 TEST(CameraModel, FisheyeRadiusFollowsProjection) {
-  for (const FisheyeProjection p : {FisheyeProjection::kEquidistant, FisheyeProjection::kEquisolid}) {
+  for (const FisheyeProjection p :
+       {FisheyeProjection::kEquidistant, FisheyeProjection::kEquisolid}) {
     const FisheyeCalibration f = Fisheye(p);
     const CameraCalibration c(f);
     const double psi_max = 0.5 * f.field_of_view_deg * kDeg;
@@ -144,7 +145,8 @@ TEST(CameraModel, UnwrapPlacesDirectionsWhereTheConventionSays) {
     cv::Mat raw(size, size, CV_8UC3);
     for (int y = 0; y < size; ++y) {
       for (int x = 0; x < size; ++x) {
-        raw.at<cv::Vec3b>(y, x) = cv::Vec3b(static_cast<uchar>(x / 8), static_cast<uchar>(y / 8), 0);
+        raw.at<cv::Vec3b>(y, x) =
+            cv::Vec3b(static_cast<uchar>(x / 8), static_cast<uchar>(y / 8), 0);
       }
     }
     const cv::Mat pano = unwrapper.Unwrap(raw);
@@ -224,8 +226,7 @@ TEST(CameraModel, UserMaskFlowsToValidMask) {
   EXPECT_EQ(mask.at<std::uint8_t>(60, 0), 0);
   EXPECT_EQ(mask.at<std::uint8_t>(60, 360), 255);
   EXPECT_LT(unwrapper.valid_fraction(), 0.99);
-  ExpectErrorMentions([&] { OmniUnwrapper(ring, 640, 480, cv::Mat(10, 10, CV_8UC1)); },
-                      {"mask"});
+  ExpectErrorMentions([&] { OmniUnwrapper(ring, 640, 480, cv::Mat(10, 10, CV_8UC1)); }, {"mask"});
 }
 
 // Calibration files: a flat ring file without `model` still loads, every model round
@@ -238,9 +239,8 @@ TEST(CameraModel, YamlRoundTripAndErrors) {
   const CameraCalibration ring = CameraCalibration::FromYamlFile(old_ring);
   EXPECT_EQ(ring.model, CameraModelType::kRing);
   EXPECT_EQ(ring.ring.center_x_px, 300.0);
-  for (const CameraCalibration& c :
-       {CameraCalibration(Fisheye(FisheyeProjection::kEquisolid)), CameraCalibration(Equirect()),
-        ring}) {
+  for (const CameraCalibration& c : {CameraCalibration(Fisheye(FisheyeProjection::kEquisolid)),
+                                     CameraCalibration(Equirect()), ring}) {
     const std::string path = (dir / StrCat(ToString(c.model), ".yaml")).string();
     c.ToYamlFile(path, 1440, 1440);
     const CameraCalibration back = CameraCalibration::FromYamlFile(path);

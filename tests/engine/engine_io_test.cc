@@ -131,7 +131,7 @@ TEST(EngineIo, RoundTripKeepsCameraModelAndMask) {
   EXPECT_EQ(EncodeEngine(*loaded), EncodeEngine(engine));
   // Another mask gives other bytes: the mask is stored, not dropped.
   CmlEngine other(TestOptions());
-  info.camera.mask.setTo(255);
+  info.camera.mask = cv::Mat(200, 200, CV_8UC1, cv::Scalar(255));  // a new buffer
   other.BeginSession(info);
   EXPECT_NE(EncodeEngine(other), EncodeEngine(engine));
 }

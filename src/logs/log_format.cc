@@ -15,6 +15,7 @@
 
 #include <yaml-cpp/yaml.h>
 #include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "logs/internal/csv_util.h"
 #include "omnicml/common/common.h"
@@ -102,42 +103,6 @@ class YamlFile {
  private:
   std::string path_;
 };
-
-OmniCalibration ParseCalibration(const YamlFile& file, const YAML::Node& node) {
-  file.CheckMap(node, "camera.calibration",
-                {"center_x_px", "center_y_px", "inner_radius_px", "outer_radius_px", "azimuth0_rad",
-                 "direction", "elevation", "panorama_width", "panorama_height"});
-  const std::string where = "camera.calibration";
-  OmniCalibration c;
-  c.center_x_px = file.Double(file.Required(node, "center_x_px", where), "center_x_px");
-  c.center_y_px = file.Double(file.Required(node, "center_y_px", where), "center_y_px");
-  c.inner_radius_px = file.Double(file.Required(node, "inner_radius_px", where), "inner_radius_px");
-  c.outer_radius_px = file.Double(file.Required(node, "outer_radius_px", where), "outer_radius_px");
-  c.azimuth0_rad = file.Double(file.Required(node, "azimuth0_rad", where), "azimuth0_rad");
-  const YAML::Node direction = file.Required(node, "direction", where);
-  const std::string d = file.String(direction, "direction");
-  if (d == "counter_clockwise") {
-    c.direction = RingDirection::kCounterClockwise;
-  } else if (d == "clockwise") {
-    c.direction = RingDirection::kClockwise;
-  } else {
-    file.Fail(direction,
-              StrCat("unknown direction '", d, "' (expected counter_clockwise or clockwise)"));
-  }
-  const YAML::Node elevation = file.Required(node, "elevation", where);
-  const std::string e = file.String(elevation, "elevation");
-  if (e == "linear") {
-    c.elevation = ElevationMapping::kLinear;
-  } else if (e == "linear_inverted") {
-    c.elevation = ElevationMapping::kLinearInverted;
-  } else {
-    file.Fail(elevation,
-              StrCat("unknown elevation '", e, "' (expected linear or linear_inverted)"));
-  }
-  c.panorama_width = file.Int(file.Required(node, "panorama_width", where), "panorama_width");
-  c.panorama_height = file.Int(file.Required(node, "panorama_height", where), "panorama_height");
-  return c;
-}
 
 // Validates a camera model; `fail` prefixes the message with the place of the problem.
 template <typename Fail>
@@ -288,27 +253,56 @@ SessionInfo ReadSessionYaml(const std::string& path) {
   if (root["start_time_s"]) info.start_time_s = file.Double(root["start_time_s"], "start_time_s");
 
   const YAML::Node camera = file.Required(root, "camera", "session");
-  file.CheckMap(camera, "camera", {"model", "image_width", "image_height", "calibration"});
+  file.CheckMap(camera, "camera",
+                {"model", "image_width", "image_height", "calibration", "mask_image"});
   const YAML::Node model = file.Required(camera, "model", "camera");
   const std::string model_name = file.String(model, "model");
+  CameraModelType model_type = CameraModelType::kRing;
   if (model_name == "panorama") {
     info.camera.kind = ImageKind::kPanorama;
-  } else if (model_name == "omni_ring") {
-    info.camera.kind = ImageKind::kRawRing;
   } else {
-    file.Fail(model,
-              StrCat("unknown camera model '", model_name, "' (expected panorama or omni_ring)"));
+    info.camera.kind = ImageKind::kRawRing;
+    try {
+      model_type = CameraModelTypeFromString(model_name);
+    } catch (const Error&) {
+      file.Fail(model, StrCat("unknown camera model '", model_name,
+                              "' (expected panorama, omni_ring, fisheye or equirectangular)"));
+    }
   }
   info.camera.image_width = file.Int(file.Required(camera, "image_width", "camera"), "image_width");
   info.camera.image_height =
       file.Int(file.Required(camera, "image_height", "camera"), "image_height");
   if (info.camera.kind == ImageKind::kRawRing) {
-    info.camera.calibration =
-        ParseCalibration(file, file.Required(camera, "calibration", "camera"));
-  } else if (camera["calibration"]) {
-    file.Fail(camera["calibration"], "'calibration' is only meaningful for model omni_ring");
+    // Every key of the model is required in session.yaml (camera_model.h).
+    info.camera.calibration = ParseCameraCalibration(
+        model_type, path, file.Required(camera, "calibration", "camera"), "camera.calibration",
+        true);
+  } else {
+    for (const char* key : {"calibration", "mask_image"}) {
+      if (camera[key]) {
+        file.Fail(camera[key], StrCat("'", key, "' is only meaningful for a raw camera model"));
+      }
+    }
   }
   CheckCamera(info.camera, [&](const std::string& what) { file.Fail(camera, what); });
+  if (camera["mask_image"]) {
+    info.camera.mask_image = file.String(camera["mask_image"], "mask_image");
+    const fs::path mask_path = fs::path(path).parent_path() / info.camera.mask_image;
+    cv::Mat mask;
+    try {
+      mask = ReadImage(mask_path.string());
+    } catch (const Error& e) {
+      file.Fail(camera["mask_image"], StrCat("camera.mask_image: ", e.what()));
+    }
+    if (mask.channels() == 3) cv::cvtColor(mask, mask, cv::COLOR_BGR2GRAY);
+    if (mask.cols != info.camera.image_width || mask.rows != info.camera.image_height) {
+      file.Fail(camera["mask_image"],
+                StrCat("camera.mask_image: '", mask_path.string(), "' is ", mask.cols, "x",
+                       mask.rows, ", the camera's images are ", info.camera.image_width, "x",
+                       info.camera.image_height));
+    }
+    info.camera.mask = mask;
+  }
 
   const YAML::Node start = file.Required(root, "start", "session");
   file.CheckMap(start, "start", {"mode", "pose", "covariance_diagonal"});
@@ -341,23 +335,15 @@ std::string SessionYamlText(const SessionInfo& info) {
   os << "day_label: " << YamlQuoted(info.day_label) << "\n";
   os << "start_time_s: " << FormatRoundTrip(info.start_time_s) << "\n";
   os << "camera:\n";
-  os << "  model: " << (info.camera.kind == ImageKind::kRawRing ? "omni_ring" : "panorama") << "\n";
+  os << "  model: "
+     << (info.camera.kind == ImageKind::kRawRing ? ToString(info.camera.calibration.model)
+                                                 : std::string("panorama"))
+     << "\n";
   os << "  image_width: " << info.camera.image_width << "\n";
   os << "  image_height: " << info.camera.image_height << "\n";
   if (info.camera.kind == ImageKind::kRawRing) {
-    const OmniCalibration& c = info.camera.calibration;
-    os << "  calibration:\n";
-    os << "    center_x_px: " << FormatRoundTrip(c.center_x_px) << "\n";
-    os << "    center_y_px: " << FormatRoundTrip(c.center_y_px) << "\n";
-    os << "    inner_radius_px: " << FormatRoundTrip(c.inner_radius_px) << "\n";
-    os << "    outer_radius_px: " << FormatRoundTrip(c.outer_radius_px) << "\n";
-    os << "    azimuth0_rad: " << FormatRoundTrip(c.azimuth0_rad) << "\n";
-    os << "    direction: "
-       << (c.direction == RingDirection::kClockwise ? "clockwise" : "counter_clockwise") << "\n";
-    os << "    elevation: "
-       << (c.elevation == ElevationMapping::kLinearInverted ? "linear_inverted" : "linear") << "\n";
-    os << "    panorama_width: " << c.panorama_width << "\n";
-    os << "    panorama_height: " << c.panorama_height << "\n";
+    os << "  calibration:\n" << info.camera.calibration.YamlFields("    ");
+    if (!info.camera.mask_image.empty()) os << "  mask_image: " << YamlQuoted(info.camera.mask_image) << "\n";
   }
   os << "start:\n";
   os << "  mode: " << ToString(info.start.mode) << "\n";
@@ -617,7 +603,10 @@ void LogWriter::BeginSession(const SessionInfo& info) {
   CheckCamera(info.camera, fail);
   CheckStart(info.start, fail);
   if (!std::isfinite(info.start_time_s)) fail("start_time_s is not finite");
-  const std::string yaml = SessionYamlText(info);
+  SessionInfo stored = info;
+  // A mask is stored next to session.yaml as mask.png.
+  stored.camera.mask_image = stored.camera.mask.empty() ? "" : "mask.png";
+  const std::string yaml = SessionYamlText(stored);
 
   CloseSession();
   session_dir_ = (fs::path(partial_dir_) / name).string();
@@ -625,6 +614,12 @@ void LogWriter::BeginSession(const SessionInfo& info) {
   fs::create_directory(session_dir_, ec);
   if (ec) throw Error(StrCat(session_dir_, ": cannot create directory: ", ec.message()));
   WriteFileAtomic(fs::path(session_dir_) / "session.yaml", yaml, FileSync::kDeferred);
+  if (!stored.camera.mask.empty()) {
+    std::vector<std::uint8_t> png;
+    cv::imencode(".png", stored.camera.mask, png);
+    WriteFileAtomic(fs::path(session_dir_) / stored.camera.mask_image, png,
+                    FileSync::kDeferred);
+  }
   csv_ = std::make_unique<AtomicFile>(fs::path(session_dir_) / "frames.csv", FileSync::kDeferred);
   csv_->stream() << kFramesCsvHeader << "\n";
   if (!csv_->stream()) throw Error(StrCat(session_dir_, "/frames.csv: cannot write"));

@@ -12,6 +12,7 @@
 #include "omnicml/common/common.h"
 #include "omnicml/common/file_io.h"
 #include "omnicml/common/limits.h"
+#include "omnicml/common/yaml_io.h"
 
 namespace omnicml {
 namespace {
@@ -444,7 +445,7 @@ CameraCalibration CameraCalibration::FromYamlFile(const std::string& path) {
   const std::string text = ReadTextFile(path, kMaxTextFileBytes, "calibration file");
   YAML::Node root;
   try {
-    root = YAML::Load(text);
+    root = LoadYaml(text, path);
   } catch (const YAML::ParserException& e) {
     throw Error(StrCat(path, ":", e.mark.line + 1, ": YAML syntax error: ", e.msg));
   } catch (const YAML::Exception& e) {

@@ -229,7 +229,7 @@ TEST(OutputFlags, EveryOutputLikeOptionIsRegisteredAsOutput) {
   };
   check(app.get(), "");
   // The commands known to write files are all there (the registry is complete).
-  for (const char* expected : {"--out", "--map-out", "--trajectory-out", "--preview", "--html",
+  for (const char* expected : {"--out", "--map-out", "--trajectory-out", "--preview", "--overlay",
                                "--csv", "--save-calibration", "--make-sample"}) {
     EXPECT_NE(std::find(flagged.begin(), flagged.end(), expected), flagged.end()) << expected;
   }

@@ -3,6 +3,7 @@
 #include <filesystem>
 #include <string>
 
+#include "command_registry.h"
 #include "omnicml/common/common.h"
 #include "omnicml/common/limits.h"
 #include "omnicml/engine/engine_io.h"
@@ -76,7 +77,7 @@ void AddRunInputFlags(CLI::App* cmd, RunSettings* f, bool with_forgetting) {
   cmd->add_option("--survey-poses", f->survey.poses_path,
                   "Trusted poses of the survey days as a TUM file (stamp x y z qx qy qz qw per "
                   "line), matched to frames by stamp; default: the input's ground truth");
-  cmd->add_option("--out", f->out_dir,
+  AddOutputDirectory(cmd, "--out", &f->out_dir,
                   "Run directory (default runs/<command>-<date>-<time>); checked, with every "
                   "other output, before the first frame");
   cmd->add_flag("--quiet", f->quiet, "No progress output");

@@ -35,7 +35,7 @@ const CommandRegistration kRegistration{
       cmd->add_option("--frames-per-day", f->input.frames_per_day, "Simulated frames (with --world)");
       cmd->add_option("--seed", f->input.seed, "Simulator seed")->capture_default_str();
       cmd->add_option("--config", f->config_path, "Engine configuration (descriptor, e_max)");
-      cmd->add_option("--out", f->out, "Write the derived values as engine YAML");
+      AddOutputFile(cmd, "--out", &f->out, "Write the derived values as engine YAML");
       cmd->add_option("--max-frames", f->calibration.max_frames, "Frames used")
           ->capture_default_str();
       cmd->add_option("--max-lag", f->calibration.max_lag_frames, "Largest frame lag")

@@ -33,9 +33,9 @@ const CommandRegistration kRegistration{
              "Modes run in parallel (0 = one per core, at most 3); results do not depend on it")
           ->capture_default_str()
           ->check(CLI::Range(0, 64));
-      cmd->add_option("--map-out", options->map_out_dir,
-                      "Directory receiving each mode's final engine/map as <mode>.omap "
-                      "(loadable with run --map-in, export, inspect)");
+      AddOutputDirectory(cmd, "--map-out", &options->map_out_dir,
+                         "Directory receiving each mode's final engine/map as <mode>.omap "
+                         "(loadable with run --map-in, export, inspect)");
       cmd->callback([options, steps] {
         options->steps = ParseSteps(*steps);
         const CompareExperimentResult result = RunCompareExperiment(*options);

@@ -213,8 +213,8 @@ const CommandRegistration kRegistration{
       unwrap->excludes(autocal)->excludes(pano);
       autocal->excludes(pano);
       cmd->add_flag("--json", args->json, "Print JSON instead of a table");
-      cmd->add_option(
-          "--make-sample", args->make_sample,
+      AddOutputDirectory(
+          cmd, "--make-sample", &args->make_sample,
           "Write a synthetic panorama and a copy rolled by 45 degrees into this directory");
       cmd->add_option("--seed", args->seed, "Seed of the --make-sample panorama");
       cmd->callback([args] { RunDescribe(*args); });

@@ -124,9 +124,9 @@ const CommandRegistration kRegistration{
                       "(best rigid fit)")
           ->capture_default_str();
       cmd->add_option("--bins", flags->bins, "Histogram bins")->capture_default_str();
-      cmd->add_option("--out,--html", flags->html_out,
-                      "HTML report path (default RUNDIR/evaluation.html, or the next free "
-                      "evaluation-N.html so earlier evaluations are kept)");
+      AddOutputFile(cmd, "--out,--html", &flags->html_out,
+                    "HTML report path (default RUNDIR/evaluation.html, or the next free "
+                    "evaluation-N.html so earlier evaluations are kept)");
       cmd->add_flag("--force", flags->force,
                     "Replace an existing report (--out FILE, or RUNDIR/evaluation.html)");
       cmd->add_option("--groundtruth", flags->groundtruth,

@@ -110,7 +110,7 @@ const CommandRegistration kRegistration{
       cmd->add_option("map", flags->map, "Map (engine) file written by omnicml run --map-out");
       cmd->add_option("--format", flags->format,
                       "json | csv | svg | png (default: from the --out extension)");
-      cmd->add_option("--out", flags->out, "Output file");
+      AddOutputFile(cmd, "--out", &flags->out, "Output file");
       cmd->add_option("--trajectory", flags->trajectory,
                       "TUM trajectory drawn under the map (svg, png)");
       cmd->add_option("--run", flags->run,

@@ -32,7 +32,7 @@ const CommandRegistration kImport{
       CLI::App* antworld = cmd->add_subcommand(
           "antworld", "Import an AntWorld CSV (mm, degrees, 720x150 panoramas)");
       antworld->add_option("CSV", args->csv, "AntWorld pose file; images beside it")->required();
-      antworld->add_option("--out", args->out_dir, "Output log directory (must not exist)")
+      AddOutputDirectory(antworld, "--out", &args->out_dir, "Output log directory (must not exist)")
           ->required();
       antworld->add_option("--seed", args->seed, "Seed of the odometry noise")
           ->capture_default_str();

@@ -76,7 +76,7 @@ const CommandRegistration kRegistration{
           ->capture_default_str();
       cmd->add_option("--max-iterations", f->options.max_iterations, "Pose-graph iterations per realisation")
           ->capture_default_str();
-      cmd->add_option("--csv", f->csv, "Write the per-pose standard deviations (pose, x_m, y_m, odometry_std_m, closed_std_m)");
+      AddOutputFile(cmd, "--csv", &f->csv, "Write the per-pose standard deviations (pose, x_m, y_m, odometry_std_m, closed_std_m)");
       cmd->callback([f] {
         if (f->world.empty() == f->log.empty()) throw Error("lap-bound: give exactly one of --world W or a LOG directory");
         std::vector<Pose2> lap;

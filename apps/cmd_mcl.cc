@@ -115,7 +115,7 @@ const CommandRegistration kRegistration{
           ->capture_default_str();
       cmd->add_flag("--global", a->global, "Start with uniform particles (global localization)");
       cmd->add_option("--mcl-seed", a->mcl_seed, "Seed of the filter")->capture_default_str();
-      cmd->add_option("--out", a->out_dir, "Run directory (single run)");
+      AddOutputDirectory(cmd, "--out", &a->out_dir, "Run directory (single run)");
       cmd->add_option("--experiment", a->experiment, "tracking | global | kidnap | noise");
       cmd->add_option("--runs", a->runs,
                       StrCat("Runs per experiment (per noise level), at most ", kMaxRuns))

@@ -38,7 +38,7 @@ void AddExport(CLI::App& app) {
                                          "Write a log as a ROS 1 bag (images, odometry, tf, "
                                          "ground truth, sessions)");
   cmd->add_option("LOG", args->log, "Log directory")->required();
-  cmd->add_option("--out", args->out, "Output bag file")->required();
+  AddOutputFile(cmd, "--out", &args->out, "Output bag file")->required();
   RosbagExportOptions& o = args->options;
   cmd->add_flag("--compressed", o.compressed, "sensor_msgs/CompressedImage (PNG) instead of Image");
   cmd->add_option("--image-topic", o.image_topic)->capture_default_str();
@@ -60,7 +60,7 @@ void AddImport(CLI::App& app) {
   CLI::App* cmd =
       parent->add_subcommand("rosbag", "Import ROS 1 bags (images + odometry) as one log");
   cmd->add_option("BAG", args->bags, "Bag files, in time order")->required();
-  cmd->add_option("--out", args->out, "Output log directory")->required();
+  AddOutputDirectory(cmd, "--out", &args->out, "Output log directory")->required();
   RosbagImportOptions& o = args->options;
   cmd->add_option("--image-topic", o.image_topic, "sensor_msgs/Image or CompressedImage topic")
       ->required();

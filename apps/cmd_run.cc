@@ -23,9 +23,9 @@ const CommandRegistration kRegistration{
       auto options = std::make_shared<RunExperimentOptions>();
       AddRunInputFlags(cmd, &options->settings, /*with_forgetting=*/true);
       cmd->add_option("--map-in", options->map_in, "Resume from a saved engine/map file");
-      cmd->add_option("--map-out", options->map_out,
+      AddOutputFile(cmd, "--map-out", &options->map_out,
                       "Save the engine/map at the end (resumable with --map-in)");
-      cmd->add_option("--trajectory-out", options->trajectory_out,
+      AddOutputFile(cmd, "--trajectory-out", &options->trajectory_out,
                       "Write the estimated trajectory in TUM format (stamp x y z qx qy qz qw)");
       cmd->callback([options] {
         const RunExperimentResult result = RunExperiment(*options);

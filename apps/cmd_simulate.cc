@@ -5,6 +5,7 @@
 // ground truth, plus simulation.yaml (the effective options) and world.yaml (the world
 // used) next to the sessions. `omnicml simulate --list` lists the built-in worlds.
 #include <algorithm>
+#include <cctype>
 #include <chrono>
 #include <filesystem>
 #include <functional>
@@ -139,6 +140,17 @@ void RunSimulate(const SimulateArgs& args, const CLI::App& cmd) {
   }
   CheckOutputDirectory(args.out, "--out");
   CheckOutputFile(args.preview, "--preview");
+  if (!args.preview.empty()) {
+    // The picture's format comes from its extension: checked now, not after simulating.
+    std::string ext = std::filesystem::path(args.preview).extension().string();
+    std::transform(ext.begin(), ext.end(), ext.begin(),
+                   [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+    if (ext != ".png" && ext != ".jpg" && ext != ".jpeg" && ext != ".bmp" && ext != ".tif" &&
+        ext != ".tiff" && ext != ".ppm" && ext != ".webp") {
+      throw Error(StrCat("--preview '", args.preview,
+                         "': name an image file (.png, .jpg, .bmp, .tif, .ppm or .webp)"));
+    }
+  }
   const World world = LoadWorld(options.world);
   // The world's text, saved next to the sessions (read now, so a bad file fails first).
   const std::vector<std::string> builtins = BuiltinWorldNames();
@@ -197,9 +209,9 @@ const CommandRegistration kRegistration{
                              "at most ", kMaxSimulatedFrames, ")"))
           ->capture_default_str();
       cmd->add_option("--seed", args->seed, "Seed of every random stream")->capture_default_str();
-      cmd->add_option("--out", args->out, "Output log directory");
+      AddOutputDirectory(cmd, "--out", &args->out, "Output log directory");
       cmd->add_flag("--panorama", args->panorama, "Write panoramas instead of raw ring images");
-      cmd->add_option("--preview", args->preview,
+      AddOutputFile(cmd, "--preview", &args->preview,
                       "Write a PNG with the floor plan, route and sample panoramas");
       cmd->add_option("--start", args->start,
                       "How days after the first start: known|continue|global")

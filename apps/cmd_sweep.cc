@@ -3,8 +3,25 @@
 // locally with N parallel jobs, then collects the summary (summary.csv, summary.html).
 // Complete jobs are skipped on rerun. Prints the Snakemake command lines for running the
 // same workflow by hand and on a Slurm cluster.
+//
+// Supervision: the sweep directory is locked (OutputLock) while `omnicml sweep` runs, so
+// a second sweep into it refuses. Snakemake runs in its own process group; SIGINT,
+// SIGTERM and SIGHUP sent to `omnicml sweep` are forwarded to that whole group (Snakemake
+// and its jobs; a second signal sends SIGKILL), and `omnicml sweep` waits for them. Should
+// `omnicml sweep` itself be killed, Snakemake receives SIGKILL (PR_SET_PDEATHSIG) and its
+// jobs SIGTERM in turn (the Snakefile sets the same for them), so nothing runs on
+// unsupervised. On start, a Snakemake lock left in DIR/.snakemake/locks by such a crash
+// is removed (`snakemake --unlock`): holding the sweep directory's lock, no other
+// `omnicml sweep` can be using it. Incomplete jobs rerun (--rerun-incomplete).
+#include <signal.h>
+#include <sys/prctl.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <cerrno>
 #include <chrono>
 #include <cstdlib>
+#include <cstring>
 #include <iomanip>
 #include <filesystem>
 #include <iostream>
@@ -39,10 +56,86 @@ std::string SelfPath() {
 
 bool HaveSnakemake() { return std::system("command -v snakemake >/dev/null 2>&1") == 0; }
 
+// The process group of the running Snakemake (0: none) and the signals forwarded to it.
+volatile sig_atomic_t g_child_group = 0;
+volatile sig_atomic_t g_signals = 0;
+
+void ForwardSignal(int signal) {
+  g_signals = g_signals + 1;
+  if (g_child_group > 0) ::kill(-g_child_group, g_signals > 1 ? SIGKILL : signal);
+}
+
+// Runs argv in a new process group, forwarding SIGINT/SIGTERM/SIGHUP to the group, and
+// returns its wait status. *signal_received: the first signal forwarded (0: none).
+int RunSupervised(const std::vector<std::string>& argv, int* signal_received) {
+  std::vector<char*> args;
+  for (const std::string& a : argv) args.push_back(const_cast<char*>(a.c_str()));
+  args.push_back(nullptr);
+  struct sigaction forward {}, old_int {}, old_term {}, old_hup {};
+  forward.sa_handler = ForwardSignal;
+  sigemptyset(&forward.sa_mask);
+  g_signals = 0;
+  ::sigaction(SIGINT, &forward, &old_int);
+  ::sigaction(SIGTERM, &forward, &old_term);
+  ::sigaction(SIGHUP, &forward, &old_hup);
+  const pid_t parent = ::getpid();
+  std::cout.flush();
+  const pid_t child = ::fork();
+  if (child < 0) throw Error(StrCat("cannot start snakemake: fork failed: ", std::strerror(errno)));
+  if (child == 0) {
+    ::setpgid(0, 0);
+    // Dies with its supervisor, even one killed with SIGKILL.
+    ::prctl(PR_SET_PDEATHSIG, SIGKILL);
+    if (::getppid() != parent) ::_exit(127);
+    ::signal(SIGINT, SIG_DFL);
+    ::signal(SIGTERM, SIG_DFL);
+    ::signal(SIGHUP, SIG_DFL);
+    ::execvp(args[0], args.data());
+    ::_exit(127);
+  }
+  ::setpgid(child, child);  // also here: no window in which a signal misses the group
+  g_child_group = child;
+  if (g_signals > 0) ::kill(-child, SIGTERM);
+  int status = 0;
+  while (::waitpid(child, &status, 0) < 0 && errno == EINTR) {
+  }
+  g_child_group = 0;
+  ::sigaction(SIGINT, &old_int, nullptr);
+  ::sigaction(SIGTERM, &old_term, nullptr);
+  ::sigaction(SIGHUP, &old_hup, nullptr);
+  *signal_received = g_signals > 0 ? SIGTERM : 0;
+  return status;
+}
+
+// Removes a Snakemake lock left in `dir` by a Snakemake that died (the caller holds the
+// sweep directory's lock, so no other omnicml sweep runs there).
+void RecoverSnakemakeLock(const std::string& dir) {
+  const std::filesystem::path locks = std::filesystem::path(dir) / ".snakemake" / "locks";
+  std::error_code ec;
+  if (!std::filesystem::is_directory(locks, ec) || std::filesystem::is_empty(locks, ec)) return;
+  std::vector<std::string> argv = SnakemakeCommand(dir, 1, SnakemakeMode::kLocal);
+  argv.push_back("--unlock");
+  argv.push_back("--quiet");
+  int signal_received = 0;
+  const int status = RunSupervised(argv, &signal_received);
+  if (signal_received != 0) throw Error("sweep: interrupted while removing a stale Snakemake lock");
+  if (status != 0) {
+    throw Error(StrCat("sweep: a stale Snakemake lock in ", locks.string(),
+                       " could not be removed (snakemake --unlock failed)"));
+  }
+  std::cout << "sweep: removed the Snakemake lock of an interrupted earlier run\n";
+}
+
 void Sweep(const SweepFlags& f) {
   if (f.jobs < 1 || f.jobs > 4096) throw Error("-j must be in 1..4096");
+  CheckOutputDirectory(f.out, "--out");
   const SweepSpec spec = LoadSweepSpec(f.spec);
   const std::vector<SweepJob> jobs = ExpandSweep(spec, SelfPath());
+  std::error_code ec;
+  std::filesystem::create_directories(f.out, ec);
+  if (ec) throw Error(StrCat("--out '", f.out, "': cannot create: ", ec.message()));
+  // The sweep directory is ours until we return; a second sweep into it refuses.
+  const OutputLock lock(f.out, "--out");
   WriteSweepWorkflow(f.out, spec, ReadTextFile(f.spec, 1 << 20), jobs);
   std::cout << "sweep: " << jobs.size() << " jobs (" << spec.command << ") written to "
             << std::filesystem::absolute(f.out).lexically_normal().string() << "\n";
@@ -57,13 +150,22 @@ void Sweep(const SweepFlags& f) {
         "snakemake is not installed (Debian package snakemake; scripts/setup.sh installs it); "
         "the workflow is written, run it with the commands above");
   }
+  RecoverSnakemakeLock(f.out);
   const SnakemakeMode mode = f.dry_run ? SnakemakeMode::kDryRun : SnakemakeMode::kLocal;
-  const std::string command = ShellJoin(SnakemakeCommand(f.out, f.jobs, mode));
-  std::cout << "$ " << command << std::endl;
+  const std::vector<std::string> argv = SnakemakeCommand(f.out, f.jobs, mode);
+  std::cout << "$ " << ShellJoin(argv) << std::endl;
   const auto start = std::chrono::steady_clock::now();
-  const int status = std::system(command.c_str());
+  int signal_received = 0;
+  const int status = RunSupervised(argv, &signal_received);
+  if (signal_received != 0) {
+    throw Error(StrCat("sweep interrupted: snakemake and its jobs were stopped; rerun the same "
+                       "command to resume (complete jobs are kept)"));
+  }
   if (status != 0) {
-    throw Error(StrCat("snakemake failed (status ", status, "); job logs are in ", f.out,
+    const std::string how = WIFEXITED(status)
+                                ? StrCat("exit code ", WEXITSTATUS(status))
+                                : StrCat("signal ", WIFSIGNALED(status) ? WTERMSIG(status) : 0);
+    throw Error(StrCat("snakemake failed (", how, "); job logs are in ", f.out,
                        "/logs/; rerun the same command to retry the failed jobs"));
   }
   if (f.dry_run) return;
@@ -82,7 +184,7 @@ const CommandRegistration kRegistration{
                    "workflow and run it");
       auto flags = std::make_shared<SweepFlags>();
       cmd->add_option("spec", flags->spec, "Sweep spec YAML (README \"Sweeps\")")->required();
-      cmd->add_option("--out", flags->out, "Sweep directory (created; reused on rerun)")
+      AddOutputDirectory(cmd, "--out", &flags->out, "Sweep directory (created; reused on rerun)")
           ->required();
       cmd->add_option("-j,--jobs", flags->jobs, "Cores for local jobs (snakemake --cores)")
           ->capture_default_str();

@@ -72,7 +72,7 @@ const CommandRegistration kRegistration{
                       "Without --places: places every this many metres along the route")
           ->capture_default_str()
           ->excludes(places);
-      cmd->add_option("--out", a->out_dir, "Run directory to write");
+      AddOutputDirectory(cmd, "--out", &a->out_dir, "Run directory to write");
       cmd->add_option("--bins", a->bins, "Histogram bins per band")->capture_default_str();
       cmd->add_option("--filter-width", a->filter_width, "Low-pass filter width, bins (odd)")
           ->capture_default_str();

@@ -7,6 +7,13 @@
 //         ... cmd->callback([...] { ...; });   // throw omnicml::Error on bad input
 //       }};
 //
+// Output flags: every option naming a file or directory that a command writes is added
+// with AddOutputFile or AddOutputDirectory. They refuse, while the command line is parsed
+// and so before any work, a path that is a device, FIFO, socket, symbolic link or (for a
+// file) a directory (common/file_io.h CheckOutputNode); OutputFlags() lists them, and
+// tests/apps/output_flags_test.cc runs every one against each kind of such path and fails
+// on an option that looks like an output (LooksLikeOutputFlag) but was added otherwise.
+//
 // Exit codes (apps/omnicml_main.cc): 0 success; 2 bad usage or bad input (CLI11 parse
 // errors, omnicml::Error, std::filesystem::filesystem_error naming its path and
 // YAML::Exception; one line on stderr, at most 1000 characters); 1 internal error.
@@ -36,6 +43,27 @@ struct CommandRegistration {
     CommandRegistry().push_back({std::move(name), std::move(setup)});
   }
 };
+
+// The kind of path an output flag names.
+enum class OutputKind { kFile, kDirectory };
+
+// Adds option `name` (e.g. "--out") storing into *target, checked as an output file /
+// directory (see above). Returns the option for further settings (->required()).
+CLI::Option* AddOutputFile(CLI::App* cmd, const std::string& name, std::string* target,
+                           const std::string& description);
+CLI::Option* AddOutputDirectory(CLI::App* cmd, const std::string& name, std::string* target,
+                                const std::string& description);
+
+struct OutputFlag {
+  std::vector<std::string> command;  // subcommand path, e.g. {"import", "antworld"}
+  std::string flag;                  // the option's long name, e.g. "--map-out"
+  OutputKind kind = OutputKind::kFile;
+};
+// Every output flag of every (nested) subcommand of `app`.
+std::vector<OutputFlag> OutputFlags(const CLI::App& app);
+// True for an option name whose words (split at '-') name an output: out, save, csv,
+// html, preview, sample, png, svg, json, report, export, write, dump.
+bool LooksLikeOutputFlag(const std::string& name);
 
 }  // namespace omnicml::app
 

@@ -13,13 +13,6 @@
 #include "omnicml/common/common.h"
 #include "omnicml/common/file_io.h"
 
-namespace omnicml::app {
-std::vector<RegisteredCommand>& CommandRegistry() {
-  static std::vector<RegisteredCommand> registry;
-  return registry;
-}
-}  // namespace omnicml::app
-
 namespace {
 
 // Longest error message printed; longer ones (an excerpt of a huge bad input) are cut.

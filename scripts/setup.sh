@@ -13,7 +13,9 @@ packages=(build-essential cmake ninja-build pkg-config libeigen3-dev libopencv-d
   libroscpp-dev librosbag-storage-dev libstd-msgs-dev libsensor-msgs-dev libnav-msgs-dev
   libgeometry-msgs-dev libvisualization-msgs-dev libtf2-msgs-dev libstd-srvs-dev python3-rosmaster
   # The replay's browser test: headless Chromium driven over the DevTools protocol.
-  chromium python3-websocket)
+  chromium python3-websocket
+  # SHA-256 of the outputs a run directory records; libpng's messages in the one-line error.
+  libssl-dev libpng-dev)
 # shellcheck source=lib/packages.sh
 source scripts/lib/packages.sh
 install_missing setup "${packages[@]}"

@@ -82,7 +82,7 @@ void BindLogs(py::module_& m) {
           "image_height", [](const SessionInfo& s) { return s.camera.image_height; },
           [](SessionInfo& s, int v) { s.camera.image_height = v; })
       .def_property(
-          "calibration", [](const SessionInfo& s) { return s.camera.calibration; },
+          "calibration", [](const SessionInfo& s) { return s.camera.calibration.ring; },
           [](SessionInfo& s, const OmniCalibration& c) { s.camera.calibration = c; })
       .def_property(
           "start_mode", [](const SessionInfo& s) { return omnicml::ToString(s.start.mode); },

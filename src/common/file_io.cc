@@ -1,7 +1,9 @@
 #include "omnicml/common/file_io.h"
 
 #include <fcntl.h>
-#include <signal.h>
+#include <stdio.h>
+#include <openssl/evp.h>
+#include <sys/file.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -9,11 +11,14 @@
 #include <atomic>
 #include <cerrno>
 #include <cstring>
+#include <map>
+#include <memory>
 #include <mutex>
 #include <set>
 #include <system_error>
 
 #include "omnicml/common/common.h"
+#include "omnicml/common/yaml_io.h"
 
 namespace omnicml {
 namespace fs = std::filesystem;
@@ -59,11 +64,26 @@ bool AllDigits(std::string_view s) {
   return true;
 }
 
-bool ProcessIsDead(pid_t pid) { return pid > 0 && ::kill(pid, 0) == -1 && errno == ESRCH; }
-
 fs::path DirectoryOf(const fs::path& target) {
   const fs::path dir = target.parent_path();
   return dir.empty() ? fs::path(".") : dir;
+}
+
+// Removes `path` (an AtomicFile temporary) when no process holds its lock: the writer
+// holds an flock on it from before it had a name until its rename, and the kernel drops
+// the lock when the writer dies, whatever PID namespace or host it ran in.
+bool RemoveIfUnlocked(const fs::path& path) {
+  const int fd = ::open(path.c_str(), O_RDONLY | O_NOFOLLOW | O_NONBLOCK | O_CLOEXEC | O_NOCTTY);
+  if (fd < 0) return false;
+  bool removed = false;
+  struct stat opened {}, named {};
+  if (::flock(fd, LOCK_EX | LOCK_NB) == 0 && ::fstat(fd, &opened) == 0 &&
+      ::lstat(path.c_str(), &named) == 0 && S_ISREG(opened.st_mode) &&
+      opened.st_ino == named.st_ino && opened.st_dev == named.st_dev) {
+    removed = ::unlink(path.c_str()) == 0;
+  }
+  ::close(fd);  // releases the lock
+  return removed;
 }
 
 // Removes stale temporaries of every target in `dir`, once per directory and process:
@@ -78,15 +98,34 @@ void SweepDirectoryOnce(const fs::path& dir) {
     if (!swept.insert(key).second) return;
   }
   for (fs::directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec)) {
-    pid_t pid = 0;
-    if (IsAtomicTempName(it->path().filename().string(), {}, &pid) && ProcessIsDead(pid)) {
-      std::error_code rm;
-      fs::remove(it->path(), rm);
-    }
+    if (IsAtomicTempName(it->path().filename().string())) RemoveIfUnlocked(it->path());
   }
 }
 
+const char* NodeTypeName(mode_t mode) {
+  if (S_ISLNK(mode)) return "is a symbolic link";
+  if (S_ISDIR(mode)) return "is a directory";
+  if (S_ISFIFO(mode)) return "is a FIFO (not a regular file)";
+  if (S_ISCHR(mode)) return "is a character device (not a regular file)";
+  if (S_ISBLK(mode)) return "is a block device (not a regular file)";
+  if (S_ISSOCK(mode)) return "is a socket (not a regular file)";
+  return "is not a regular file";
+}
+
+
 }  // namespace
+
+std::string OutputNodeProblem(const fs::path& path, bool directory) {
+  struct stat st {};
+  if (::lstat(path.c_str(), &st) != 0) {
+    if (errno == ENOENT) return {};
+    return ErrnoText(errno);
+  }
+  if (S_ISREG(st.st_mode) && !directory) return {};
+  if (S_ISDIR(st.st_mode) && directory) return {};
+  if (directory && S_ISREG(st.st_mode)) return "exists and is not a directory";
+  return NodeTypeName(st.st_mode);
+}
 
 // ---------------------------------------------------------------------------------------
 // Writing
@@ -119,10 +158,8 @@ int RemoveStaleTemporaries(const fs::path& target) {
   std::error_code ec;
   for (fs::directory_iterator it(DirectoryOf(target), ec), end; !ec && it != end;
        it.increment(ec)) {
-    pid_t pid = 0;
-    if (IsAtomicTempName(it->path().filename().string(), name, &pid) && ProcessIsDead(pid)) {
-      std::error_code rm;
-      if (fs::remove(it->path(), rm)) ++removed;
+    if (IsAtomicTempName(it->path().filename().string(), name) && RemoveIfUnlocked(it->path())) {
+      ++removed;
     }
   }
   return removed;
@@ -138,7 +175,17 @@ int RemoveStaleStagingDirs(const fs::path& target) {
   fs::path t = target.lexically_normal();
   if (!t.has_filename()) t = t.parent_path();
   const std::string name = t.filename().string();
-  if (name.empty()) return 0;
+  if (name.empty() || name == "." || name == "..") return 0;
+  // Every writer of `t` holds its lock: while we hold it, a staging directory of `t`
+  // belongs to nobody alive.
+  std::unique_ptr<OutputLock> lock;
+  if (!OutputLock::HeldByThisProcess(t)) {
+    try {
+      lock = std::make_unique<OutputLock>(t, "output");
+    } catch (const Error&) {
+      return 0;  // another process is writing it
+    }
+  }
   int removed = 0;
   std::error_code ec;
   for (fs::directory_iterator it(DirectoryOf(t), ec), end; !ec && it != end; it.increment(ec)) {
@@ -148,13 +195,273 @@ int RemoveStaleStagingDirs(const fs::path& target) {
       if (entry.size() <= prefix.size() || entry.compare(0, prefix.size(), prefix) != 0) continue;
       const std::string pid_text = entry.substr(prefix.size());
       if (!AllDigits(pid_text) || pid_text.size() > 9) continue;
-      const auto pid = static_cast<pid_t>(std::stol(pid_text));
-      if (pid != ::getpid() && !ProcessIsDead(pid)) continue;
       std::error_code rm;
       if (fs::remove_all(it->path(), rm) > 0 && !rm) ++removed;
     }
   }
   return removed;
+}
+
+// ---------------------------------------------------------------------------------------
+// Output locks
+
+namespace {
+
+struct HeldLock {
+  int fd = -1;
+  int count = 0;
+  fs::path lock_path;
+};
+
+std::mutex& LockRegistryMutex() {
+  static std::mutex mutex;
+  return mutex;
+}
+std::map<std::string, HeldLock>& LockRegistry() {
+  static std::map<std::string, HeldLock> registry;
+  return registry;
+}
+
+// The lock file's path made absolute with its directory resolved, so that two spellings
+// of one output ("runs/a", "./runs/a/") share a key.
+std::string LockKey(const fs::path& lock_path) {
+  std::error_code ec;
+  fs::path dir = fs::weakly_canonical(fs::absolute(DirectoryOf(lock_path), ec), ec);
+  return (dir / lock_path.filename()).string();
+}
+
+std::string HolderText(int fd) {
+  char buf[256] = {};
+  const ssize_t n = ::pread(fd, buf, sizeof buf - 1, 0);
+  std::string text = n > 0 ? std::string(buf, static_cast<std::size_t>(n)) : std::string();
+  while (!text.empty() && (text.back() == '\n' || text.back() == '\r')) text.pop_back();
+  return text.empty() ? std::string("holder unknown") : Excerpt(text, 120);
+}
+
+}  // namespace
+
+fs::path OutputLock::LockPathFor(const fs::path& target) {
+  fs::path t = target.lexically_normal();
+  if (!t.has_filename()) t = t.parent_path();
+  return DirectoryOf(t) / StrCat(".", t.filename().string(), ".omnicml-lock");
+}
+
+bool OutputLock::HeldByThisProcess(const fs::path& target) {
+  const std::string key = LockKey(LockPathFor(target));
+  std::lock_guard<std::mutex> guard(LockRegistryMutex());
+  return LockRegistry().count(key) > 0;
+}
+
+OutputLock::OutputLock(const fs::path& target, std::string_view flag) {
+  const fs::path lock_path = LockPathFor(target);
+  key_ = LockKey(lock_path);
+  std::lock_guard<std::mutex> guard(LockRegistryMutex());
+  auto& registry = LockRegistry();
+  if (auto it = registry.find(key_); it != registry.end()) {
+    ++it->second.count;
+    return;
+  }
+  // A directory output may be made with its parents: they are made now, to hold the lock.
+  std::error_code ec;
+  fs::create_directories(DirectoryOf(lock_path), ec);
+  for (int attempt = 0; attempt < 100; ++attempt) {
+    const int fd =
+        ::open(lock_path.c_str(), O_RDWR | O_CREAT | O_NOFOLLOW | O_CLOEXEC | O_NOCTTY, 0666);
+    if (fd < 0) {
+      throw Error(StrCat(flag, " '", target.string(), "': cannot create the lock file '",
+                         lock_path.string(), "': ", ErrnoText(errno)));
+    }
+    if (::flock(fd, LOCK_EX | LOCK_NB) != 0) {
+      const int err = errno;
+      const std::string holder = HolderText(fd);
+      ::close(fd);
+      if (err == EWOULDBLOCK) {
+        throw Error(StrCat(flag, " '", target.string(), "': in use by another writer (", holder,
+                           "; lock file '", lock_path.string(),
+                           "'); wait for it to finish or choose another path"));
+      }
+      throw Error(StrCat(flag, " '", target.string(), "': cannot lock '", lock_path.string(),
+                         "': ", ErrnoText(err)));
+    }
+    // The previous holder may have removed the file between our open and our lock: then
+    // we hold a lock on a file nobody else can find; start again.
+    struct stat opened {}, named {};
+    if (::fstat(fd, &opened) != 0 || ::lstat(lock_path.c_str(), &named) != 0 ||
+        opened.st_ino != named.st_ino || opened.st_dev != named.st_dev) {
+      ::close(fd);
+      continue;
+    }
+    char host[256] = {};
+    ::gethostname(host, sizeof host - 1);
+    const std::string holder = StrCat("pid ", static_cast<long>(::getpid()), " on host ", host, "\n");
+    if (::ftruncate(fd, 0) == 0) {
+      [[maybe_unused]] const ssize_t n = ::pwrite(fd, holder.data(), holder.size(), 0);
+    }
+    registry[key_] = HeldLock{fd, 1, lock_path};
+    return;
+  }
+  throw Error(StrCat(flag, " '", target.string(), "': cannot lock '", lock_path.string(),
+                     "': the lock file keeps changing"));
+}
+
+OutputLock::~OutputLock() {
+  std::lock_guard<std::mutex> guard(LockRegistryMutex());
+  auto& registry = LockRegistry();
+  auto it = registry.find(key_);
+  if (it == registry.end() || --it->second.count > 0) return;
+  // Unlink while holding the lock; a waiter that opened the old file sees the inode
+  // change and starts again.
+  ::unlink(it->second.lock_path.c_str());
+  ::close(it->second.fd);
+  registry.erase(it);
+}
+
+// ---------------------------------------------------------------------------------------
+// Staged directories
+
+void CheckReplaceableDirectory(const fs::path& target, std::string_view flag,
+                               const std::vector<std::string>& markers) {
+  const std::string problem = OutputNodeProblem(target, /*directory=*/true);
+  if (!problem.empty()) throw Error(StrCat(flag, " '", target.string(), "': ", problem));
+  std::error_code ec;
+  if (!fs::exists(fs::symlink_status(target, ec)) || fs::is_empty(target, ec)) return;
+  for (const std::string& marker : markers) {
+    if (fs::exists(fs::symlink_status(target / marker, ec))) return;
+  }
+  std::string names;
+  for (const std::string& m : markers) names += (names.empty() ? "" : ", ") + m;
+  throw Error(StrCat(flag, " '", target.string(),
+                     "': exists, is not empty and is not an output of this kind (none of ", names,
+                     "); the whole directory would be replaced: choose a new or empty directory"));
+}
+
+StagedDirectory::StagedDirectory(fs::path target, std::string_view flag,
+                                 std::vector<std::string> markers)
+    : target_([&] {
+        fs::path t = target.lexically_normal();
+        if (!t.has_filename()) t = t.parent_path();
+        return t;
+      }()),
+      flag_(flag),
+      lock_(target_, flag) {
+  const std::string name = target_.filename().string();
+  if (name.empty() || name == "." || name == "..") {
+    throw Error(StrCat(flag, " '", target.string(), "': name a directory (not '.' or '..')"));
+  }
+  CheckReplaceableDirectory(target_, flag, markers);
+  RemoveStaleStagingDirs(target_);
+  staging_ = StagingDirFor(target_, ::getpid());
+  std::error_code ec;
+  fs::create_directories(DirectoryOf(target_), ec);
+  if (ec) {
+    throw Error(StrCat(flag, " '", target_.string(), "': cannot create its parent: ", ec.message()));
+  }
+  fs::remove_all(staging_, ec);
+  if (!fs::create_directory(staging_, ec) || ec) {
+    throw Error(StrCat(flag, " '", target_.string(), "': cannot create '", staging_.string(),
+                       "': ", ec ? ec.message() : "exists"));
+  }
+}
+
+StagedDirectory::~StagedDirectory() {
+  if (done_) return;
+  std::error_code ec;
+  fs::remove_all(staging_, ec);
+}
+
+void StagedDirectory::Commit() {
+  if (done_) return;
+  SyncFileSystem(staging_);  // every file durable before the directory appears by name
+  const fs::path parent = DirectoryOf(target_);
+  std::error_code ec;
+  if (fs::exists(fs::symlink_status(target_, ec))) {
+    const std::string problem = OutputNodeProblem(target_, /*directory=*/true);
+    if (!problem.empty()) throw Error(StrCat(flag_, " '", target_.string(), "': ", problem));
+    // Swap the new directory in atomically, then delete the old one (now under the
+    // staging name).
+    if (::renameat2(AT_FDCWD, staging_.c_str(), AT_FDCWD, target_.c_str(), RENAME_EXCHANGE) ==
+        0) {
+      done_ = true;
+      SyncDirectory(parent);
+      fs::remove_all(staging_, ec);
+      return;
+    }
+    // File systems without RENAME_EXCHANGE: move the old directory aside first.
+    const fs::path old = StrCat(target_.string(), ".old-", static_cast<long>(::getpid()));
+    fs::remove_all(old, ec);
+    fs::rename(target_, old, ec);
+    if (ec) {
+      throw Error(StrCat(flag_, " '", target_.string(), "': cannot move the old directory aside: ",
+                         ec.message()));
+    }
+    fs::rename(staging_, target_, ec);
+    if (ec) {
+      std::error_code back;
+      fs::rename(old, target_, back);  // keep the old directory where it was
+      throw Error(StrCat(flag_, " '", target_.string(), "': cannot rename '", staging_.string(),
+                         "' onto it: ", ec.message()));
+    }
+    done_ = true;
+    SyncDirectory(parent);
+    fs::remove_all(old, ec);
+    return;
+  }
+  fs::rename(staging_, target_, ec);
+  if (ec) {
+    throw Error(StrCat(flag_, " '", target_.string(), "': cannot rename '", staging_.string(),
+                       "' onto it: ", ec.message()));
+  }
+  done_ = true;
+  SyncDirectory(parent);
+}
+
+namespace {
+
+std::string HexDigest(const unsigned char* digest, unsigned int size) {
+  static const char* kHex = "0123456789abcdef";
+  std::string out;
+  for (unsigned int i = 0; i < size; ++i) {
+    out += kHex[digest[i] >> 4];
+    out += kHex[digest[i] & 15];
+  }
+  return out;
+}
+
+}  // namespace
+
+std::string Sha256Hex(std::span<const std::uint8_t> bytes) {
+  unsigned char digest[EVP_MAX_MD_SIZE];
+  unsigned int size = 0;
+  if (::EVP_Digest(bytes.data(), bytes.size(), digest, &size, ::EVP_sha256(), nullptr) != 1) {
+    throw InternalError("SHA-256 failed");
+  }
+  return HexDigest(digest, size);
+}
+
+std::string Sha256OfFile(const fs::path& path) {
+  const int fd = OpenRegularFile(path, "file");
+  std::unique_ptr<EVP_MD_CTX, void (*)(EVP_MD_CTX*)> ctx(::EVP_MD_CTX_new(), ::EVP_MD_CTX_free);
+  if (!ctx || ::EVP_DigestInit_ex(ctx.get(), ::EVP_sha256(), nullptr) != 1) {
+    ::close(fd);
+    throw InternalError("SHA-256 failed");
+  }
+  std::vector<unsigned char> buffer(1 << 20);
+  for (;;) {
+    const ssize_t n = ::read(fd, buffer.data(), buffer.size());
+    if (n < 0 && errno == EINTR) continue;
+    if (n < 0) {
+      const int err = errno;
+      ::close(fd);
+      ReadFail("file", path, StrCat("read error: ", ErrnoText(err)));
+    }
+    if (n == 0) break;
+    ::EVP_DigestUpdate(ctx.get(), buffer.data(), static_cast<std::size_t>(n));
+  }
+  ::close(fd);
+  unsigned char digest[EVP_MAX_MD_SIZE];
+  unsigned int size = 0;
+  ::EVP_DigestFinal_ex(ctx.get(), digest, &size);
+  return HexDigest(digest, size);
 }
 
 void SyncDirectory(const fs::path& dir) {
@@ -173,24 +480,57 @@ void SyncFileSystem(const fs::path& path) {
   if (rc != 0) Fail("cannot sync", path, ErrnoText(err));
 }
 
+namespace {
+
+// Creates the temporary of `temp` locked before it has a name: an O_TMPFILE file is
+// locked, then linked under `temp`, so a sweeper never sees it unlocked. On file systems
+// without O_TMPFILE the named file is created and locked at once. Returns the open,
+// locked descriptor, or -1 with errno set.
+int CreateLockedTemporary(const fs::path& dir, const fs::path& temp) {
+  const int anon = ::open(dir.c_str(), O_TMPFILE | O_WRONLY | O_CLOEXEC, 0666);
+  if (anon >= 0) {
+    if (::flock(anon, LOCK_EX) == 0) {
+      const std::string proc = StrCat("/proc/self/fd/", anon);
+      if (::linkat(AT_FDCWD, proc.c_str(), AT_FDCWD, temp.c_str(), AT_SYMLINK_FOLLOW) == 0) {
+        return anon;
+      }
+      const int err = errno;
+      if (err == EEXIST) {
+        ::close(anon);
+        errno = EEXIST;
+        return -1;
+      }
+    }
+    ::close(anon);  // no /proc or no link support: the named way below
+  }
+  const int fd = ::open(temp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0666);
+  if (fd < 0) return -1;
+  ::flock(fd, LOCK_EX);
+  return fd;
+}
+
+}  // namespace
+
 AtomicFile::AtomicFile(fs::path target, FileSync sync) : target_(std::move(target)), sync_(sync) {
-  SweepDirectoryOnce(DirectoryOf(target_));
+  done_ = true;  // nothing to remove until the temporary exists
+  if (const std::string problem = OutputNodeProblem(target_, false); !problem.empty()) {
+    Fail("cannot create", target_, problem);
+  }
+  const fs::path dir = DirectoryOf(target_);
+  SweepDirectoryOnce(dir);
   int err = 0;
   for (int attempt = 0; attempt < 100; ++attempt) {
     temp_ = TempPathFor(target_, ::getpid(), temp_counter.fetch_add(1));
-    const int fd = ::open(temp_.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0666);
-    if (fd >= 0) {
-      ::close(fd);
+    fd_ = CreateLockedTemporary(dir, temp_);
+    if (fd_ >= 0) {
       err = 0;
       break;
     }
     err = errno;
     if (err != EEXIST) break;
   }
-  if (err != 0) {
-    done_ = true;  // nothing to remove
-    Fail("cannot create", target_, ErrnoText(err));
-  }
+  if (err != 0) Fail("cannot create", target_, ErrnoText(err));
+  done_ = false;
   out_.open(temp_, std::ios::binary | std::ios::trunc);
   if (!out_) {
     Discard();
@@ -211,15 +551,15 @@ void AtomicFile::Commit() {
     Fail("write error", target_, "the data could not be written (disk full?)");
   }
   // Make the data durable before the rename makes it visible under the target name.
-  if (sync_ == FileSync::kFsync) {
-    const int fd = ::open(temp_.c_str(), O_RDONLY | O_CLOEXEC);
-    if (fd < 0 || ::fsync(fd) != 0) {
-      const int err = errno;
-      if (fd >= 0) ::close(fd);
-      Discard();
-      Fail("cannot write", target_, StrCat("fsync failed: ", ErrnoText(err)));
-    }
-    ::close(fd);
+  if (sync_ == FileSync::kFsync && ::fsync(fd_) != 0) {
+    const int err = errno;
+    Discard();
+    Fail("cannot write", target_, StrCat("fsync failed: ", ErrnoText(err)));
+  }
+  // The target may have been replaced by a device, FIFO or link since the start.
+  if (const std::string problem = OutputNodeProblem(target_, false); !problem.empty()) {
+    Discard();
+    Fail("cannot replace", target_, problem);
   }
   if (::rename(temp_.c_str(), target_.c_str()) != 0) {
     const int err = errno;
@@ -227,6 +567,8 @@ void AtomicFile::Commit() {
     Fail("cannot rename the temporary file onto it", target_, ErrnoText(err));
   }
   done_ = true;
+  ::close(fd_);
+  fd_ = -1;
   if (sync_ == FileSync::kFsync) SyncDirectory(DirectoryOf(target_));
 }
 
@@ -234,7 +576,9 @@ void AtomicFile::Discard() {
   if (done_) return;
   done_ = true;
   if (out_.is_open()) out_.close();
-  ::unlink(temp_.c_str());
+  ::unlink(temp_.c_str());  // before the lock goes, so no sweeper races for it
+  if (fd_ >= 0) ::close(fd_);
+  fd_ = -1;
 }
 
 void WriteFileAtomic(const fs::path& path, std::string_view content, FileSync sync) {
@@ -335,10 +679,27 @@ std::vector<std::uint8_t> ReadBinaryFile(const fs::path& path, std::uintmax_t ma
 }
 
 std::string Excerpt(std::string_view text, std::size_t max_chars) {
-  std::string out(text.substr(0, std::min(text.size(), max_chars)));
-  for (char& c : out) {
-    const auto u = static_cast<unsigned char>(c);
-    if (u < 0x20 || u == 0x7f) c = '?';
+  const std::string_view cut = text.substr(0, std::min(text.size(), max_chars));
+  std::string out;
+  out.reserve(cut.size());
+  // Valid UTF-8 sequences are kept; control characters and every byte that is not part of
+  // a valid sequence become '?', so no raw binary reaches a terminal or a log.
+  for (std::size_t i = 0; i < cut.size();) {
+    const auto u = static_cast<unsigned char>(cut[i]);
+    if (u < 0x80) {
+      out += (u < 0x20 || u == 0x7f) ? '?' : static_cast<char>(u);
+      ++i;
+      continue;
+    }
+    const std::size_t length = u >= 0xF0 ? 4 : u >= 0xE0 ? 3 : u >= 0xC2 ? 2 : 0;
+    if (length > 0 && i + length <= cut.size() &&
+        FirstNonUtf8Line(cut.substr(i, length)) == 0) {
+      out.append(cut.substr(i, length));
+      i += length;
+    } else {
+      out += '?';
+      ++i;
+    }
   }
   if (text.size() > max_chars) out += "...";
   return out;
@@ -444,9 +805,16 @@ fs::path OutputParentOf(const fs::path& path) {
 
 }  // namespace
 
+void CheckOutputNode(const fs::path& path, std::string_view flag, bool directory) {
+  if (path.empty()) return;
+  const std::string problem = OutputNodeProblem(path, directory);
+  if (!problem.empty()) throw Error(StrCat(flag, " '", path.string(), "': ", problem));
+}
+
 void CheckOutputFile(const fs::path& path, std::string_view flag,
                      const fs::path& will_create_dir) {
   if (path.empty()) return;
+  CheckOutputNode(path, flag);
   const fs::file_status st = StatusOrThrow(path, flag);
   if (fs::is_directory(st)) throw Error(StrCat(flag, " '", path.string(), "': is a directory"));
   if (fs::exists(st) && !fs::is_regular_file(st)) {
@@ -475,6 +843,7 @@ void CheckOutputFile(const fs::path& path, std::string_view flag,
 
 void CheckOutputDirectory(const fs::path& path, std::string_view flag) {
   if (path.empty()) return;
+  CheckOutputNode(path, flag, /*directory=*/true);
   const fs::file_status st = StatusOrThrow(path, flag);
   if (fs::exists(st)) {
     if (!fs::is_directory(st)) {

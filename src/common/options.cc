@@ -10,6 +10,7 @@
 #include <yaml-cpp/yaml.h>
 
 #include "omnicml/common/file_io.h"
+#include "omnicml/common/yaml_io.h"
 
 namespace omnicml {
 
@@ -144,7 +145,7 @@ OptionValue Decode(BinaryReader& in, const char* what, int depth) {
 OptionValue ParseOptionYaml(const std::string& text, const std::string& source) {
   YAML::Node root;
   try {
-    root = YAML::Load(text);
+    root = LoadYaml(text, source);
   } catch (const YAML::Exception& e) {
     throw Error(StrCat(source, ":", e.mark.line + 1, ": YAML syntax error: ", e.msg));
   }

@@ -6,6 +6,7 @@
 #include <cstring>
 #include <random>
 
+#include "descriptors/internal/descriptor_util.h"
 #include "omnicml/common/common.h"
 
 namespace omnicml {
@@ -193,6 +194,37 @@ double DescriptorExtractor::Distance(const Descriptor& a, const Descriptor& b) c
   }
   if (a.features.empty()) throw Error("Distance: empty feature vectors");
   return Distance(a.features.data(), b.features.data(), a.features.size());
+}
+
+namespace internal {
+void CheckValidMask(const cv::Mat& panorama, const cv::Mat& valid_mask) {
+  if (valid_mask.type() != CV_8UC1 || valid_mask.size() != panorama.size()) {
+    throw Error(StrCat("valid mask is ", valid_mask.cols, "x", valid_mask.rows, " with ",
+                       valid_mask.channels(), " channel(s), expected 8-bit grey of the panorama's ",
+                       panorama.cols, "x", panorama.rows));
+  }
+  if (cv::countNonZero(valid_mask) == 0) throw Error("valid mask has no valid pixel");
+}
+}  // namespace internal
+
+Descriptor DescriptorExtractor::ComputeMasked(const cv::Mat& panorama,
+                                              const cv::Mat& valid_mask) const {
+  if (valid_mask.empty()) return Compute(panorama);
+  if (panorama.empty()) return Compute(panorama);  // Compute reports the empty image
+  internal::CheckValidMask(panorama, valid_mask);
+  if (cv::countNonZero(valid_mask) == valid_mask.rows * valid_mask.cols) return Compute(panorama);
+  // Fill invalid pixels with the mean of their row's valid pixels.
+  cv::Mat filled = panorama.clone();
+  const cv::Scalar global = cv::mean(panorama, valid_mask);
+  for (int r = 0; r < filled.rows; ++r) {
+    const cv::Mat row_mask = valid_mask.row(r);
+    const cv::Scalar mean =
+        cv::countNonZero(row_mask) > 0 ? cv::mean(panorama.row(r), row_mask) : global;
+    cv::Mat row = filled.row(r);
+    cv::Mat invalid = row_mask == 0;
+    row.setTo(mean, invalid);
+  }
+  return Compute(filled);
 }
 
 double DescriptorExtractor::Similarity(double distance, double e_max) {

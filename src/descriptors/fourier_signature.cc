@@ -62,7 +62,89 @@ ComplexBuffer AllocComplex(int n) {
   return ComplexBuffer(fftwf_alloc_complex(static_cast<std::size_t>(n)));
 }
 
+// Zero mean, unit variance over the valid entries of s (valid[c] != 0); invalid entries
+// become 0 (the mean). Without `normalize`, invalid entries become the valid mean.
+void NormalizeValid(float* s, const std::vector<char>& valid, bool normalize) {
+  const int width = static_cast<int>(valid.size());
+  double mean = 0, var = 0;
+  int n = 0;
+  for (int c = 0; c < width; ++c) {
+    if (!valid[c]) continue;
+    mean += s[c];
+    ++n;
+  }
+  mean = n > 0 ? mean / n : 0.0;
+  if (!normalize) {
+    for (int c = 0; c < width; ++c) {
+      if (!valid[c]) s[c] = static_cast<float>(mean);
+    }
+    return;
+  }
+  for (int c = 0; c < width; ++c) {
+    if (valid[c]) var += (s[c] - mean) * (s[c] - mean);
+  }
+  var = n > 0 ? var / n : 0.0;
+  const double inv_std = var > 1e-14 ? 1.0 / std::sqrt(var) : 0.0;
+  for (int c = 0; c < width; ++c) {
+    s[c] = valid[c] ? static_cast<float>((s[c] - mean) * inv_std) : 0.0f;
+  }
+}
+
 }  // namespace
+
+cv::Mat FourierSignature::MaskedBandSignals(const cv::Mat& panorama,
+                                            const cv::Mat& valid_mask) const {
+  cv::Mat grey;
+  if (panorama.channels() == 3) {
+    cv::cvtColor(panorama, grey, cv::COLOR_BGR2GRAY);
+  } else {
+    grey = panorama;
+  }
+  const int width = grey.cols, height = grey.rows, bands = options_.bands;
+  const std::size_t w = static_cast<std::size_t>(width);
+  std::vector<std::uint32_t> sums(static_cast<std::size_t>(bands) * w, 0u);
+  std::vector<std::uint32_t> counts(sums.size(), 0u);
+  for (int b = 0; b < bands; ++b) {
+    for (int r = b * height / bands; r < (b + 1) * height / bands; ++r) {
+      const std::uint8_t* row = grey.ptr<std::uint8_t>(r);
+      const std::uint8_t* m = valid_mask.ptr<std::uint8_t>(r);
+      for (int c = 0; c < width; ++c) {
+        if (!m[c]) continue;
+        sums[b * w + c] += row[c];
+        counts[b * w + c] += 1;
+      }
+    }
+  }
+  // Column gain from the column's valid pixels (as BandSignals, floored at 1e-3).
+  std::vector<double> column_gain(w, 1.0);
+  if (options_.normalize_columns) {
+    for (std::size_t c = 0; c < w; ++c) {
+      std::uint64_t sum = 0, count = 0;
+      for (int b = 0; b < bands; ++b) {
+        sum += sums[b * w + c];
+        count += counts[b * w + c];
+      }
+      if (count > 0) column_gain[c] = 1.0 / std::max(sum / (255.0 * count), 1e-3);
+    }
+  }
+  cv::Mat signals(bands, width, CV_32FC1);
+  std::vector<char> valid(w);
+  for (int b = 0; b < bands; ++b) {
+    float* s = signals.ptr<float>(b);
+    for (std::size_t c = 0; c < w; ++c) {
+      const std::uint32_t n = counts[b * w + c];
+      valid[c] = n > 0;
+      s[c] = n > 0 ? static_cast<float>(sums[b * w + c] / (255.0 * n) * column_gain[c]) : 0.0f;
+    }
+    NormalizeValid(s, valid, options_.normalize_bands);
+  }
+  return signals;
+}
+
+Descriptor FourierSignature::ComputeMasked(const cv::Mat& panorama,
+                                           const cv::Mat& valid_mask) const {
+  return Spectrum(BandSignals(panorama, valid_mask));
+}
 
 std::string ToString(FourierDistance d) { return d == FourierDistance::kL1 ? "l1" : "l2"; }
 
@@ -87,9 +169,14 @@ FourierSignature::FourierSignature(const FourierOptions& options) : options_(opt
   options_.Validate();
 }
 
-cv::Mat FourierSignature::BandSignals(const cv::Mat& panorama) const {
+cv::Mat FourierSignature::BandSignals(const cv::Mat& panorama, const cv::Mat& valid_mask) const {
   const int min_width = 2 * (options_.first_harmonic() + options_.coefficients);
   internal::CheckDescriptorInput(panorama, "FourierSignature", min_width, options_.bands);
+  if (!valid_mask.empty()) {
+    internal::CheckValidMask(panorama, valid_mask);
+    if (cv::countNonZero(valid_mask) < valid_mask.rows * valid_mask.cols)
+      return MaskedBandSignals(panorama, valid_mask);
+  }
   cv::Mat grey;
   if (panorama.channels() == 3) {
     cv::cvtColor(panorama, grey, cv::COLOR_BGR2GRAY);
@@ -143,7 +230,10 @@ cv::Mat FourierSignature::BandSignals(const cv::Mat& panorama) const {
 }
 
 Descriptor FourierSignature::Compute(const cv::Mat& panorama) const {
-  const cv::Mat signals = BandSignals(panorama);
+  return Spectrum(BandSignals(panorama));
+}
+
+Descriptor FourierSignature::Spectrum(const cv::Mat& signals) const {
   const int width = signals.cols, bands = options_.bands, k = options_.coefficients;
   const int m0 = options_.first_harmonic();
   fftwf_plan plan = PlanCache::Get().Forward(width);

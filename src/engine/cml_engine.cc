@@ -66,6 +66,10 @@ void CmlEngineOptions::Validate() const {
     throw Error(StrCat("CmlEngineOptions.panorama_width/panorama_height must both be 0 or both > 0, got ",
                        panorama_width, " x ", panorama_height));
   }
+  if (panorama_width > kMaxPanoramaSidePx || panorama_height > kMaxPanoramaSidePx) {
+    throw Error(StrCat("CmlEngineOptions.panorama_width/panorama_height must be at most ",
+                       kMaxPanoramaSidePx, ", got ", panorama_width, " x ", panorama_height));
+  }
   if (!IsFinitePose(initial_pose)) throw Error("CmlEngineOptions.initial_pose must be finite");
   try {
     RepairCovariance(initial_covariance, 1e-12, "CmlEngineOptions.initial_covariance");
@@ -138,7 +142,7 @@ void CmlEngine::MakeUnwrapper() {
   unwrapper_.reset();
   if (session_.camera.kind == ImageKind::kRawRing) {
     unwrapper_ = std::make_unique<OmniUnwrapper>(session_.camera.calibration, session_.camera.image_width,
-                                                 session_.camera.image_height);
+                                                 session_.camera.image_height, session_.camera.mask);
   }
 }
 
@@ -194,7 +198,7 @@ void CmlEngine::BeginSession(const SessionInfo& info) {
   std::unique_ptr<OmniUnwrapper> unwrapper;
   if (info.camera.kind == ImageKind::kRawRing) {
     unwrapper = std::make_unique<OmniUnwrapper>(info.camera.calibration, info.camera.image_width,
-                                                info.camera.image_height);
+                                                info.camera.image_height, info.camera.mask);
   }
   // Bring the model up to date with what the next frame's query would see anyway, so the
   // emptiness test below reads a settled model (same result with or without worker).
@@ -355,7 +359,11 @@ Descriptor CmlEngine::DescribeBehindBarrier(const Frame& frame, std::int64_t t,
     stats->unwrap_us = MicrosSince(t0);
     // 4. Describe.
     t0 = Clock::now();
-    y = extractor_->Compute(panorama);
+    // Pixels outside a clipped ring or under the user mask do not count (descriptor.h).
+    y = unwrapper_ != nullptr && unwrapper_->valid_fraction() < 1.0
+            ? extractor_->ComputeMasked(panorama, PrepareMask(unwrapper_->valid_mask(), panorama.cols,
+                                                              panorama.rows))
+            : extractor_->Compute(panorama);
     stats->describe_us = MicrosSince(t0);
   } catch (...) {
     updater_->WaitUntilApplied(t);  // never leave the worker running between calls

@@ -108,6 +108,64 @@ OmniCalibration ReadCalibration(BinaryReader& in) {
   return c;
 }
 
+// The camera model's fields after the ring calibration (format 14): model, fisheye,
+// equirectangular, then the user mask (rows, cols, bytes; 0 x 0 when none).
+void WriteCamera(BinaryWriter& out, const CameraModel& camera) {
+  const CameraCalibration& c = camera.calibration;
+  WriteCalibration(out, c.ring);
+  out.Write<std::int32_t>(static_cast<std::int32_t>(c.model));
+  const FisheyeCalibration& f = c.fisheye;
+  for (const double v : {f.center_x_px, f.center_y_px, f.circle_radius_px, f.field_of_view_deg,
+                         f.min_elevation_deg, f.max_elevation_deg, f.azimuth0_rad}) {
+    out.Write<double>(v);
+  }
+  out.Write<std::int32_t>(static_cast<std::int32_t>(f.projection));
+  out.Write<std::int32_t>(static_cast<std::int32_t>(f.direction));
+  out.Write<std::int32_t>(f.panorama_width);
+  out.Write<std::int32_t>(f.panorama_height);
+  const EquirectangularCalibration& q = c.equirectangular;
+  for (const double v : {q.min_elevation_deg, q.max_elevation_deg, q.azimuth0_rad}) out.Write<double>(v);
+  out.Write<std::int32_t>(static_cast<std::int32_t>(q.direction));
+  out.Write<std::int32_t>(q.panorama_width);
+  out.Write<std::int32_t>(q.panorama_height);
+  const cv::Mat mask = camera.mask.empty() ? cv::Mat() : camera.mask.clone();  // continuous
+  out.Write<std::int32_t>(mask.rows);
+  out.Write<std::int32_t>(mask.cols);
+  if (!mask.empty()) out.WriteBytes(std::span<const std::uint8_t>(mask.data, mask.total()));
+}
+
+void ReadCamera(BinaryReader& in, CameraModel& camera) {
+  CameraCalibration& c = camera.calibration;
+  c.ring = ReadCalibration(in);
+  c.model = ReadEnum<CameraModelType>(in, "camera.model", 0, 2);
+  FisheyeCalibration& f = c.fisheye;
+  for (double* v : {&f.center_x_px, &f.center_y_px, &f.circle_radius_px, &f.field_of_view_deg,
+                    &f.min_elevation_deg, &f.max_elevation_deg, &f.azimuth0_rad}) {
+    *v = in.Read<double>("camera.fisheye");
+  }
+  f.projection = ReadEnum<FisheyeProjection>(in, "camera.fisheye.projection", 0, 1);
+  f.direction = ReadEnum<RingDirection>(in, "camera.fisheye.direction", 0, 1);
+  f.panorama_width = in.Read<std::int32_t>("camera.fisheye.panorama_width");
+  f.panorama_height = in.Read<std::int32_t>("camera.fisheye.panorama_height");
+  EquirectangularCalibration& q = c.equirectangular;
+  for (double* v : {&q.min_elevation_deg, &q.max_elevation_deg, &q.azimuth0_rad}) {
+    *v = in.Read<double>("camera.equirectangular");
+  }
+  q.direction = ReadEnum<RingDirection>(in, "camera.equirectangular.direction", 0, 1);
+  q.panorama_width = in.Read<std::int32_t>("camera.equirectangular.panorama_width");
+  q.panorama_height = in.Read<std::int32_t>("camera.equirectangular.panorama_height");
+  const auto rows = in.Read<std::int32_t>("camera.mask.rows");
+  const auto cols = in.Read<std::int32_t>("camera.mask.cols");
+  if (rows < 0 || cols < 0 || rows > 65536 || cols > 65536) in.Fail("camera.mask", "invalid size");
+  camera.mask = cv::Mat();
+  if (rows > 0 && cols > 0) {
+    const std::vector<std::uint8_t> bytes =
+        in.ReadBytes(static_cast<std::size_t>(rows) * static_cast<std::size_t>(cols), "camera.mask");
+    camera.mask = cv::Mat(rows, cols, CV_8UC1);
+    std::copy(bytes.begin(), bytes.end(), camera.mask.data);
+  }
+}
+
 [[noreturn]] void FailFile(const std::string& path, const std::string& message) {
   throw Error(StrCat(path, ": ", message));
 }
@@ -180,7 +238,7 @@ void EngineStateAccess::Write(BinaryWriter& out, const CmlEngine& e) {
   out.Write<std::int32_t>(static_cast<std::int32_t>(s.camera.kind));
   out.Write<std::int32_t>(s.camera.image_width);
   out.Write<std::int32_t>(s.camera.image_height);
-  WriteCalibration(out, s.camera.calibration);
+  WriteCamera(out, s.camera);
   out.Write<std::int32_t>(static_cast<std::int32_t>(s.start_mode));
   out.Write<bool>(s.has_prev_odom);
   WritePose(out, s.prev_odom);
@@ -242,7 +300,7 @@ std::unique_ptr<CmlEngine> EngineStateAccess::Read(BinaryReader& in) {
   s.camera.kind = ReadEnum<ImageKind>(in, "session.camera.kind", 0, 1);
   s.camera.image_width = in.Read<std::int32_t>("session.camera.image_width");
   s.camera.image_height = in.Read<std::int32_t>("session.camera.image_height");
-  s.camera.calibration = ReadCalibration(in);
+  ReadCamera(in, s.camera);
   s.start_mode = ReadEnum<SessionStartMode>(in, "session.start_mode", 0, 2);
   s.has_prev_odom = in.Read<bool>("session.has_prev_odom");
   s.prev_odom = ReadPose(in, "session.prev_odom");

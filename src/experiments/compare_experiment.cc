@@ -313,11 +313,9 @@ CompareExperimentResult RunCompareExperiment(const CompareExperimentOptions& opt
   // static freezes the map after the last day that builds it: day 1, or the last survey day.
   const int freeze_after_session = std::max(f.survey.days, 1) - 1;
   const std::filesystem::path out_dir = f.out_dir.empty() ? DefaultRunDir("compare") : f.out_dir;
-  const bool created = !std::filesystem::exists(out_dir);
-  if (!created && !std::filesystem::is_directory(out_dir)) {
-    throw Error(StrCat("--out '", out_dir.string(), "' exists and is not a directory"));
-  }
-  std::vector<std::filesystem::path> made;  // removed again if a later step fails
+  // The whole comparison is assembled in a staging directory and renamed into place at
+  // the end (common/file_io.h StagedDirectory): a failure or a kill leaves the old one.
+  StagedDirectory staged(out_dir, "--out", RunDirectoryMarkers());
   const std::vector<ForgettingMode> modes = {ForgettingMode::kPassive, ForgettingMode::kActive,
                                              ForgettingMode::kStatic};
   // The three modes are independent runs (each with its own frame source and engine,
@@ -326,10 +324,9 @@ CompareExperimentResult RunCompareExperiment(const CompareExperimentOptions& opt
   const int jobs = std::clamp(
       options.jobs > 0 ? options.jobs : static_cast<int>(std::thread::hardware_concurrency()), 1,
       static_cast<int>(modes.size()));
-  std::vector<char> dir_made(modes.size(), 0);
   CheckOutputDirectory(options.map_out_dir, "--map-out");
   std::vector<std::vector<std::uint8_t>> map_bytes(modes.size());
-  try {
+  {
     auto run_mode = [&](std::size_t index) {
       const ForgettingMode mode = modes[index];
       CompareModeResult result;
@@ -341,10 +338,10 @@ CompareExperimentResult RunCompareExperiment(const CompareExperimentOptions& opt
       CmlEngine engine(engine_options);
       auto source = OpenFrameSource(f.input);
       RunRecorderOptions ro;
-      ro.run_dir = out_dir / result.mode;
+      ro.run_dir = staged.path() / result.mode;
+      ro.stage = false;  // inside the staging directory
       ro.title = "omnicml run (" + result.mode + " forgetting)";
       ro.input_description = f.input.Describe();
-      const bool dir_existed = std::filesystem::exists(ro.run_dir);
       RunRecorder recorder(ro);
       SessionEndHook freeze;
       if (mode == ForgettingMode::kStatic) {
@@ -362,7 +359,6 @@ CompareExperimentResult RunCompareExperiment(const CompareExperimentOptions& opt
         throw Error(StrCat("the input (", f.input.Describe(), ") has no frames"));
       engine.Finish();
       recorder.Commit(engine, {{"wall time", FormatFixed(summary.wall_s, 1) + " s"}});
-      if (!dir_existed) dir_made[index] = 1;
       FramesTable table;
       table.stage_names = StageNames();
       // The errors cover the days after the survey (survey.h); views@step all frames.
@@ -405,9 +401,6 @@ CompareExperimentResult RunCompareExperiment(const CompareExperimentOptions& opt
       for (int w = 0; w < jobs; ++w) threads.emplace_back(worker, w);
       for (auto& t : threads) t.join();
     }
-    for (std::size_t i = 0; i < modes.size(); ++i) {
-      if (dir_made[i]) made.push_back(out_dir / ToString(modes[i]));
-    }
     for (const auto& e : errors) {
       if (e) std::rethrow_exception(e);
     }
@@ -428,6 +421,8 @@ CompareExperimentResult RunCompareExperiment(const CompareExperimentOptions& opt
               "still queued); views_end: at the end, queued updates applied (the saved map)\n";
       out.table_text = head.str() + FormatCompareTable(results, steps);
     }
+    // The maps first (each renamed into place whole), the run directory last, so a
+    // comparison directory never names maps that were not written.
     if (!options.map_out_dir.empty()) {
       std::filesystem::create_directories(options.map_out_dir);
       for (std::size_t i = 0; i < modes.size(); ++i) {
@@ -435,19 +430,13 @@ CompareExperimentResult RunCompareExperiment(const CompareExperimentOptions& opt
                         map_bytes[i]);
       }
     }
-    WriteFileAtomic(out_dir / "table.txt", out.table_text);
-    WriteFileAtomic(out_dir / "report.html",
-                    RenderCompareReport(out.input, results, steps, out.table_text));
+    WriteFileAtomic(staged.path() / "table.txt", out.table_text, FileSync::kDeferred);
+    WriteFileAtomic(staged.path() / "report.html",
+                    RenderCompareReport(out.input, results, steps, out.table_text),
+                    FileSync::kDeferred);
+    staged.Commit();
     out.modes = std::move(results);
     return out;
-  } catch (...) {
-    std::error_code ec;
-    for (const auto& dir : made) std::filesystem::remove_all(dir, ec);
-    if (created) {
-      std::filesystem::remove(out_dir / "table.txt", ec);
-      if (std::filesystem::is_empty(out_dir, ec)) std::filesystem::remove(out_dir, ec);
-    }
-    throw;
   }
 }
 

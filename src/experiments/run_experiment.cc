@@ -92,7 +92,20 @@ RunExperimentResult RunExperiment(const RunExperimentOptions& o) {
   CheckOutputDirectory(run_dir, "--out");
   CheckOutputParent(o.map_out, "--map-out", run_dir);
   CheckOutputParent(o.trajectory_out, "--trajectory-out", run_dir);
+  CheckReplaceableDirectory(run_dir, "--out", RunDirectoryMarkers());
+  CheckRunOutputPlacement("--map-out", o.map_out, run_dir);
+  CheckRunOutputPlacement("--trajectory-out", o.trajectory_out, run_dir);
   if (f.log_every_frames < 1) throw Error("--log-every must be >= 1");
+  // A second writer of the same outputs refuses now, not after the run.
+  std::vector<std::unique_ptr<OutputLock>> locks;
+  locks.push_back(std::make_unique<OutputLock>(run_dir, "--out"));
+  for (const auto& [flag, path] : {std::pair{"--map-out", o.map_out},
+                                   std::pair{"--trajectory-out", o.trajectory_out}}) {
+    // A file in the run directory is covered by the run directory's lock.
+    if (!path.empty() && !LiesInRunDirectory(path, run_dir)) {
+      locks.push_back(std::make_unique<OutputLock>(path, flag));
+    }
+  }
 
   f.survey.Validate();
   // Read the survey trajectory before the first frame (a bad line fails at once).
@@ -191,16 +204,10 @@ RunExperimentResult RunExperiment(const RunExperimentOptions& o) {
                        change_days.empty() ? std::string("no day after the map's first")
                                            : ChangeDetectionTotals(change_days));
   }
+  // The map commits with the run directory (run_recorder.h).
+  if (!o.map_out.empty()) recorder.AddOutput("--map-out", o.map_out, std::move(map_bytes));
   recorder.Commit(*engine, notes);
-  if (!world && !result.run_dir.empty()) {
-    // Never leave the files of an earlier simulated run in this run directory.
-    for (const char* name : {"change_detection.csv", "change_cells.csv"}) {
-      std::error_code ec;
-      std::filesystem::remove(std::filesystem::path(result.run_dir) / name, ec);
-    }
-  }
   result.change_detection = change_days;
-  if (!o.map_out.empty()) WriteFileAtomic(o.map_out, map_bytes);
 
   FramesTable table;
   table.stage_names = StageNames();

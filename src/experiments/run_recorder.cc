@@ -10,6 +10,8 @@
 #include <sstream>
 #include <system_error>
 
+#include <yaml-cpp/yaml.h>
+
 #include "omnicml/common/common.h"
 #include "omnicml/evaluation/evaluation.h"
 #include "omnicml/experiments/run_report.h"
@@ -46,25 +48,66 @@ std::string FormatDuration(double seconds) {
 
 }  // namespace
 
+const std::vector<std::string>& RunDirectoryMarkers() {
+  static const std::vector<std::string> kMarkers = {"frames.csv", "outputs.yaml", "config.yaml",
+                                                    "report.html", "table.txt"};
+  return kMarkers;
+}
+
+namespace {
+
+// Where output `path` lies relative to `run_dir`: 0 outside, 1 directly in it, 2 deeper.
+int PlacementIn(const fs::path& path, const fs::path& run_dir) {
+  std::error_code ec;
+  const fs::path parent = fs::weakly_canonical(fs::absolute(path).parent_path(), ec);
+  const fs::path run = fs::weakly_canonical(fs::absolute(run_dir), ec);
+  const fs::path rel = parent.lexically_relative(run);
+  if (rel.empty() || *rel.begin() == "..") return 0;
+  return rel == "." ? 1 : 2;
+}
+
+}  // namespace
+
+bool LiesInRunDirectory(const fs::path& path, const fs::path& run_dir) {
+  return !path.empty() && !run_dir.empty() && PlacementIn(path, run_dir) == 1;
+}
+
+void CheckRunOutputPlacement(const std::string& flag, const fs::path& path,
+                             const fs::path& run_dir) {
+  if (path.empty() || run_dir.empty()) return;
+  if (PlacementIn(path, run_dir) == 2) {
+    throw Error(StrCat(flag, " '", path.string(), "': lies in a subdirectory of the run directory '",
+                       run_dir.string(), "', which a run replaces whole; write it directly in "
+                       "the run directory or outside it"));
+  }
+}
+
 RunRecorder::RunRecorder(RunRecorderOptions options) : options_(std::move(options)) {
   if (!options_.run_dir.empty()) {
-    std::error_code ec;
-    if (!fs::exists(options_.run_dir)) {
+    if (options_.stage) {
+      staged_ = std::make_unique<StagedDirectory>(options_.run_dir, "--out", RunDirectoryMarkers());
+      write_dir_ = staged_->path();
+    } else {
+      std::error_code ec;
       fs::create_directories(options_.run_dir, ec);
-      if (ec)
+      if (ec) {
         throw Error(StrCat("cannot create run directory '", options_.run_dir.string(),
                            "': ", ec.message()));
-      created_dir_ = true;
-    } else if (!fs::is_directory(options_.run_dir)) {
-      throw Error(StrCat("--out '", options_.run_dir.string(), "' exists and is not a directory"));
+      }
+      write_dir_ = options_.run_dir;
     }
-    frames_csv_ = std::make_unique<AtomicFile>(options_.run_dir / "frames.csv");
+    // The files of the run directory are made durable at once when it is committed.
+    frames_csv_ = std::make_unique<AtomicFile>(write_dir_ / "frames.csv", FileSync::kDeferred);
     WriteFramesCsvHeader(frames_csv_->stream(), StageNames());
-    events_csv_ = std::make_unique<AtomicFile>(options_.run_dir / "events.csv");
+    events_csv_ = std::make_unique<AtomicFile>(write_dir_ / "events.csv", FileSync::kDeferred);
     WriteEventsCsvHeader(events_csv_->stream());
   }
   if (!options_.trajectory_path.empty()) {
-    trajectory_ = std::make_unique<AtomicFile>(options_.trajectory_path);
+    trajectory_write_path_ = WritePathFor("--trajectory-out", options_.trajectory_path);
+    trajectory_ = std::make_unique<AtomicFile>(
+        trajectory_write_path_, trajectory_write_path_ == options_.trajectory_path
+                                    ? FileSync::kFsync
+                                    : FileSync::kDeferred);
     trajectory_->stream() << "# omnicml trajectory (TUM): stamp x y z qx qy qz qw\n";
   }
 }
@@ -74,10 +117,24 @@ RunRecorder::~RunRecorder() {
   frames_csv_.reset();  // removes the temporaries
   trajectory_.reset();
   events_csv_.reset();
-  if (created_dir_) {
-    std::error_code ec;
-    if (fs::is_empty(options_.run_dir, ec) && !ec) fs::remove(options_.run_dir, ec);
-  }
+  staged_.reset();  // removes the staging directory
+}
+
+fs::path RunRecorder::WritePathFor(const std::string& flag, const fs::path& path) {
+  CheckRunOutputPlacement(flag, path, options_.run_dir);
+  if (staged_ && PlacementIn(path, options_.run_dir) == 1) return write_dir_ / path.filename();
+  locks_.push_back(std::make_unique<OutputLock>(path, flag));
+  return path;
+}
+
+void RunRecorder::AddOutput(const std::string& flag, const fs::path& path,
+                            std::vector<std::uint8_t> bytes) {
+  Output o;
+  o.flag = flag;
+  o.path = path;
+  o.write_path = WritePathFor(flag, path);
+  o.bytes = std::move(bytes);
+  outputs_.push_back(std::move(o));
 }
 
 void RunRecorder::Record(const Frame& frame, const FrameResult& result) {
@@ -172,13 +229,17 @@ void RunRecorder::Commit(const CmlEngine& engine,
     all_notes.emplace_back("map events missing from events.csv",
                            StrCat(events_lost_, " (more than model.events.max_events in one frame)"));
   }
-  std::vector<std::unique_ptr<AtomicFile>> files;
-  if (!options_.run_dir.empty()) {
-    auto config = std::make_unique<AtomicFile>(options_.run_dir / "config.yaml");
+  std::vector<std::unique_ptr<AtomicFile>> files;    // in write_dir_
+  std::vector<std::unique_ptr<AtomicFile>> outside;  // beside their own targets
+  const auto in_run_dir = [&](const std::string& name) {
+    return std::make_unique<AtomicFile>(write_dir_ / name, FileSync::kDeferred);
+  };
+  if (!write_dir_.empty()) {
+    auto config = in_run_dir("config.yaml");
     config->stream() << RunConfigYaml(options_.input_description, engine.options());
     files.push_back(std::move(config));
 
-    auto days = std::make_unique<AtomicFile>(options_.run_dir / "days.csv");
+    auto days = in_run_dir("days.csv");
     WriteRunDaysCsv(days->stream(), records_, engine.model(), skipped_frames_);
     files.push_back(std::move(days));
 
@@ -189,32 +250,75 @@ void RunRecorder::Commit(const CmlEngine& engine,
           std::pair{"odometry.tum", TumContent::kOdometry}}) {
       if (content != TumContent::kEstimate && !HasTumContent(records_, content)) {
         std::error_code ec;
-        fs::remove(options_.run_dir / name, ec);
+        fs::remove(write_dir_ / name, ec);
         continue;
       }
-      auto tum = std::make_unique<AtomicFile>(options_.run_dir / name);
+      auto tum = in_run_dir(name);
       WriteTum(tum->stream(), records_, content);
       files.push_back(std::move(tum));
     }
 
     for (const auto& [name, content] : extra_files_) {
-      auto extra = std::make_unique<AtomicFile>(options_.run_dir / name);
+      auto extra = in_run_dir(name);
       extra->stream() << content;
       files.push_back(std::move(extra));
     }
 
     if (options_.write_report) {
-      auto html = std::make_unique<AtomicFile>(options_.run_dir / "report.html");
+      auto html = in_run_dir("report.html");
       html->stream() << RenderRunReport(options_.title, options_.input_description, records_,
                                         engine, all_notes, skipped_frames_);
       files.push_back(std::move(html));
     }
   }
-  // Everything is written; rename into place.
+  // Further outputs, and outputs.yaml recording each with its SHA-256.
+  YAML::Emitter manifest;
+  manifest << YAML::BeginSeq;
+  const auto record = [&](const std::string& flag, const fs::path& path, std::uintmax_t bytes,
+                          const std::string& sha256, bool staged) {
+    manifest << YAML::BeginMap << YAML::Key << "flag" << YAML::Value << flag << YAML::Key
+             << "path" << YAML::Value << YAML::DoubleQuoted << path.string() << YAML::Key
+             << "in_run_directory" << YAML::Value << staged << YAML::Key << "bytes"
+             << YAML::Value << bytes << YAML::Key << "sha256" << YAML::Value << sha256
+             << YAML::EndMap;
+  };
+  for (const Output& o : outputs_) {
+    const bool staged = o.write_path != o.path;
+    auto file = std::make_unique<AtomicFile>(o.write_path,
+                                             staged ? FileSync::kDeferred : FileSync::kFsync);
+    file->stream().write(reinterpret_cast<const char*>(o.bytes.data()),
+                         static_cast<std::streamsize>(o.bytes.size()));
+    record(o.flag, o.path, o.bytes.size(), Sha256Hex(o.bytes), staged);
+    (staged ? files : outside).push_back(std::move(file));
+  }
+  if (trajectory_) {
+    trajectory_->stream().flush();
+    if (!trajectory_->stream()) {
+      throw Error(StrCat(options_.trajectory_path.string(),
+                         ": write error: the data could not be written (disk full?)"));
+    }
+    std::error_code ec;
+    const std::uintmax_t size = fs::file_size(trajectory_->temp_path(), ec);
+    record("--trajectory-out", options_.trajectory_path, ec ? 0 : size,
+           Sha256OfFile(trajectory_->temp_path()),
+           trajectory_write_path_ != options_.trajectory_path);
+  }
+  manifest << YAML::EndSeq;
+  if (!write_dir_.empty() && (!outputs_.empty() || trajectory_)) {
+    auto file = in_run_dir("outputs.yaml");
+    file->stream() << "# Files this run wrote besides its own (path as given; check one with "
+                      "`sha256sum PATH`)\n"
+                   << manifest.c_str() << "\n";
+    files.push_back(std::move(file));
+  }
+  // Everything is written. Rename into place: the run directory's files (inside the
+  // staging directory, not yet visible), the files outside it, then the run directory.
   if (frames_csv_) frames_csv_->Commit();
-  if (trajectory_) trajectory_->Commit();
   if (events_csv_) events_csv_->Commit();
   for (auto& f : files) f->Commit();
+  if (trajectory_) trajectory_->Commit();
+  for (auto& f : outside) f->Commit();
+  if (staged_) staged_->Commit();
   committed_ = true;
 }
 

@@ -42,10 +42,13 @@ SurveyPoses SurveyPoses::Read(const std::filesystem::path& path) {
     if (first == std::string::npos || line[first] == '#') continue;
     std::istringstream is(line);
     double v[8];
-    for (double& x : v) {
+    for (int k = 0; k < 8; ++k) {
+      double& x = v[k];
       if (!(is >> x)) {
+        // The line itself is not quoted: the file may be anything given by mistake.
         throw Error(StrCat(path.string(), ":", line_no,
-                           ": expected 8 numbers: stamp x y z qx qy qz qw, got '", Excerpt(line), "'"));
+                           ": expected 8 numbers: stamp x y z qx qy qz qw (number ", k + 1,
+                           " is missing or not a number)"));
       }
       if (!std::isfinite(x)) throw Error(StrCat(path.string(), ":", line_no, ": non-finite number"));
     }

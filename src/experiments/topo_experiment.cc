@@ -70,6 +70,10 @@ TopoExperimentResult RunTopoExperiment(const TopoExperimentOptions& experiment) 
     }
   }
   CheckOutputDirectory(a.out_dir, "--out");
+  // Locked and checked now; written to a staging directory renamed into place at the end
+  // (common/file_io.h StagedDirectory), so a failure leaves the old directory or none.
+  const std::vector<std::string> markers = {"summary.md", "topo_config.yaml", "frames.csv"};
+  StagedDirectory staged(a.out_dir, "--out", markers);
   TopologicalOptions options = a.localizer;
   options.histogram.bins = a.bins;
   options.histogram.filter_width = a.filter_width;
@@ -134,10 +138,12 @@ TopoExperimentResult RunTopoExperiment(const TopoExperimentOptions& experiment) 
   TopologicalLocalizer localizer(map, options);
   CrossSequenceResult r = RunCrossSequence(source.get(), &localizer, cross, route.get());
 
-  fs::create_directories(a.out_dir);
-  const fs::path out(a.out_dir);
-  WriteFileAtomic(out / "places.yaml", AdjacencyMapYaml(map));
-  WriteFileAtomic(out / "topo_config.yaml", ConfigYaml(a, options, cross, places_from));
+  const fs::path out = staged.path();
+  const auto write = [](const fs::path& path, const std::string& text) {
+    WriteFileAtomic(path, text, FileSync::kDeferred);  // durable at staged.Commit()
+  };
+  write(out / "places.yaml", AdjacencyMapYaml(map));
+  write(out / "topo_config.yaml", ConfigYaml(a, options, cross, places_from));
   auto name = [&](int p) { return p < 0 ? std::string() : map.places()[p].name; };
   // The columns stamp_s,index,gt_x_m,gt_y_m,gt_phi_rad,<place> of a labelled frame.
   auto labelled_cells = [&](std::ostream& csv, const TopologicalFrameResult& f) {
@@ -169,7 +175,7 @@ TopoExperimentResult RunTopoExperiment(const TopoExperimentOptions& experiment) 
       for (const auto& v : f.decision.bands) csv << "," << FormatRoundTrip(v.distance_nn);
       csv << "\n";
     }
-    WriteFileAtomic(out / "frames.csv", csv.str());
+    write(out / "frames.csv", csv.str());
   }
   {
     // The reference images (the ref_* columns of frames.csv index this table).
@@ -180,7 +186,7 @@ TopoExperimentResult RunTopoExperiment(const TopoExperimentOptions& experiment) 
       labelled_cells(csv, r.reference_frames[i]);
       csv << "\n";
     }
-    WriteFileAtomic(out / "references.csv", csv.str());
+    write(out / "references.csv", csv.str());
   }
   const std::string input = a.log.empty() ? a.world : a.log;
   const std::string title =
@@ -211,7 +217,8 @@ TopoExperimentResult RunTopoExperiment(const TopoExperimentOptions& experiment) 
     }
     table += os.str() + "\n";
   }
-  WriteFileAtomic(out / "summary.md", table);
+  write(out / "summary.md", table);
+  staged.Commit();
   TopoExperimentResult result;
   result.cross = std::move(r);
   result.places = static_cast<int>(map.size());

@@ -116,8 +116,9 @@ std::vector<AntWorldRow> ReadAntWorldCsv(const std::string& csv) {
     bool ok = fields.size() == 5;
     for (std::size_t i = 0; ok && i < 5; ++i) ok = NormalizeHeader(fields[i]) == expected[i];
     if (!ok) {
-      throw Error(StrCat(csv, ":1: header is '", Excerpt(line),
-                         "', expected 'X [mm], Y [mm], Z [mm], Heading [degrees], Filename'"));
+      // The line itself is not quoted: the file may be anything given by mistake.
+      throw Error(StrCat(csv, ":1: not an AntWorld CSV: the header line is not 'X [mm], Y [mm], "
+                              "Z [mm], Heading [degrees], Filename'"));
     }
   }
   const fs::path dir = fs::path(csv).parent_path();

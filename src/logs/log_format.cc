@@ -15,9 +15,11 @@
 
 #include <yaml-cpp/yaml.h>
 #include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "logs/internal/csv_util.h"
 #include "omnicml/common/common.h"
+#include "omnicml/common/yaml_io.h"
 #include "omnicml/common/file_io.h"
 #include "omnicml/common/limits.h"
 #include "omnicml/unwrap/omni_unwrapper.h"
@@ -102,42 +104,6 @@ class YamlFile {
   std::string path_;
 };
 
-OmniCalibration ParseCalibration(const YamlFile& file, const YAML::Node& node) {
-  file.CheckMap(node, "camera.calibration",
-                {"center_x_px", "center_y_px", "inner_radius_px", "outer_radius_px", "azimuth0_rad",
-                 "direction", "elevation", "panorama_width", "panorama_height"});
-  const std::string where = "camera.calibration";
-  OmniCalibration c;
-  c.center_x_px = file.Double(file.Required(node, "center_x_px", where), "center_x_px");
-  c.center_y_px = file.Double(file.Required(node, "center_y_px", where), "center_y_px");
-  c.inner_radius_px = file.Double(file.Required(node, "inner_radius_px", where), "inner_radius_px");
-  c.outer_radius_px = file.Double(file.Required(node, "outer_radius_px", where), "outer_radius_px");
-  c.azimuth0_rad = file.Double(file.Required(node, "azimuth0_rad", where), "azimuth0_rad");
-  const YAML::Node direction = file.Required(node, "direction", where);
-  const std::string d = file.String(direction, "direction");
-  if (d == "counter_clockwise") {
-    c.direction = RingDirection::kCounterClockwise;
-  } else if (d == "clockwise") {
-    c.direction = RingDirection::kClockwise;
-  } else {
-    file.Fail(direction,
-              StrCat("unknown direction '", d, "' (expected counter_clockwise or clockwise)"));
-  }
-  const YAML::Node elevation = file.Required(node, "elevation", where);
-  const std::string e = file.String(elevation, "elevation");
-  if (e == "linear") {
-    c.elevation = ElevationMapping::kLinear;
-  } else if (e == "linear_inverted") {
-    c.elevation = ElevationMapping::kLinearInverted;
-  } else {
-    file.Fail(elevation,
-              StrCat("unknown elevation '", e, "' (expected linear or linear_inverted)"));
-  }
-  c.panorama_width = file.Int(file.Required(node, "panorama_width", where), "panorama_width");
-  c.panorama_height = file.Int(file.Required(node, "panorama_height", where), "panorama_height");
-  return c;
-}
-
 // Validates a camera model; `fail` prefixes the message with the place of the problem.
 template <typename Fail>
 void CheckCamera(const CameraModel& camera, Fail fail) {
@@ -208,7 +174,19 @@ std::string YamlQuoted(const std::string& s) {
 std::vector<std::string> ListSessionDirs(const std::string& log_dir) {
   std::error_code ec;
   if (!fs::is_directory(log_dir, ec)) throw Error(StrCat(log_dir, ": not a directory"));
-  if (fs::exists(fs::path(log_dir) / "session.yaml", ec)) return {log_dir};
+  // A session.yaml that is present but unusable (a symbolic-link loop) is named as such.
+  const auto present = [](const fs::path& yaml) {
+    std::error_code lec;
+    if (!fs::exists(fs::symlink_status(yaml, lec))) return false;
+    std::error_code sec;
+    (void)fs::status(yaml, sec);
+    if (sec && sec != std::errc::no_such_file_or_directory) {
+      throw Error(StrCat(yaml.string(), ": ", sec.message()));
+    }
+    if (sec) throw Error(StrCat(yaml.string(), ": dangling symbolic link"));
+    return true;
+  };
+  if (present(fs::path(log_dir) / "session.yaml")) return {log_dir};
   std::vector<std::string> dirs;
   for (const auto& entry : fs::directory_iterator(log_dir, ec)) {
     if (!entry.is_directory()) continue;
@@ -221,7 +199,7 @@ std::vector<std::string> ListSessionDirs(const std::string& log_dir) {
   if (dirs.empty()) throw Error(StrCat(log_dir, ": no session directory (and no session.yaml)"));
   for (const auto& dir : dirs) {
     const std::string yaml = (fs::path(dir) / "session.yaml").string();
-    if (!fs::exists(yaml, ec))
+    if (!present(yaml))
       throw Error(StrCat(yaml, ": missing file (every session directory needs one)"));
   }
   return dirs;
@@ -234,8 +212,9 @@ std::unique_ptr<LineReader> OpenFramesCsv(const std::string& path) {
   std::string header;
   if (!in->Next(&header)) throw Error(StrCat(path, ":1: empty file (expected the header line)"));
   if (header != kFramesCsvHeader) {
-    throw Error(StrCat(path, ":1: header is '", Excerpt(header), "', expected '", kFramesCsvHeader,
-                       "'"));
+    // The line itself is not quoted: the file may be anything (a key file given by mistake).
+    throw Error(StrCat(path, ":1: not a frames.csv file: the header line is not '",
+                       kFramesCsvHeader, "'"));
   }
   return in;
 }
@@ -256,7 +235,7 @@ SessionInfo ReadSessionYaml(const std::string& path) {
   const std::string text = ReadTextFile(path, kMaxTextFileBytes, "session file");
   YAML::Node root;
   try {
-    root = YAML::Load(text);
+    root = LoadYaml(text, path);
   } catch (const YAML::Exception& e) {
     throw Error(StrCat(path, ":", e.mark.line + 1, ": YAML syntax error: ", e.msg));
   }
@@ -274,27 +253,56 @@ SessionInfo ReadSessionYaml(const std::string& path) {
   if (root["start_time_s"]) info.start_time_s = file.Double(root["start_time_s"], "start_time_s");
 
   const YAML::Node camera = file.Required(root, "camera", "session");
-  file.CheckMap(camera, "camera", {"model", "image_width", "image_height", "calibration"});
+  file.CheckMap(camera, "camera",
+                {"model", "image_width", "image_height", "calibration", "mask_image"});
   const YAML::Node model = file.Required(camera, "model", "camera");
   const std::string model_name = file.String(model, "model");
+  CameraModelType model_type = CameraModelType::kRing;
   if (model_name == "panorama") {
     info.camera.kind = ImageKind::kPanorama;
-  } else if (model_name == "omni_ring") {
-    info.camera.kind = ImageKind::kRawRing;
   } else {
-    file.Fail(model,
-              StrCat("unknown camera model '", model_name, "' (expected panorama or omni_ring)"));
+    info.camera.kind = ImageKind::kRawRing;
+    try {
+      model_type = CameraModelTypeFromString(model_name);
+    } catch (const Error&) {
+      file.Fail(model, StrCat("unknown camera model '", model_name,
+                              "' (expected panorama, omni_ring, fisheye or equirectangular)"));
+    }
   }
   info.camera.image_width = file.Int(file.Required(camera, "image_width", "camera"), "image_width");
   info.camera.image_height =
       file.Int(file.Required(camera, "image_height", "camera"), "image_height");
   if (info.camera.kind == ImageKind::kRawRing) {
-    info.camera.calibration =
-        ParseCalibration(file, file.Required(camera, "calibration", "camera"));
-  } else if (camera["calibration"]) {
-    file.Fail(camera["calibration"], "'calibration' is only meaningful for model omni_ring");
+    // Every key of the model is required in session.yaml (camera_model.h).
+    info.camera.calibration = ParseCameraCalibration(
+        model_type, path, file.Required(camera, "calibration", "camera"), "camera.calibration",
+        true);
+  } else {
+    for (const char* key : {"calibration", "mask_image"}) {
+      if (camera[key]) {
+        file.Fail(camera[key], StrCat("'", key, "' is only meaningful for a raw camera model"));
+      }
+    }
   }
   CheckCamera(info.camera, [&](const std::string& what) { file.Fail(camera, what); });
+  if (camera["mask_image"]) {
+    info.camera.mask_image = file.String(camera["mask_image"], "mask_image");
+    const fs::path mask_path = fs::path(path).parent_path() / info.camera.mask_image;
+    cv::Mat mask;
+    try {
+      mask = ReadImage(mask_path.string());
+    } catch (const Error& e) {
+      file.Fail(camera["mask_image"], StrCat("camera.mask_image: ", e.what()));
+    }
+    if (mask.channels() == 3) cv::cvtColor(mask, mask, cv::COLOR_BGR2GRAY);
+    if (mask.cols != info.camera.image_width || mask.rows != info.camera.image_height) {
+      file.Fail(camera["mask_image"],
+                StrCat("camera.mask_image: '", mask_path.string(), "' is ", mask.cols, "x",
+                       mask.rows, ", the camera's images are ", info.camera.image_width, "x",
+                       info.camera.image_height));
+    }
+    info.camera.mask = mask;
+  }
 
   const YAML::Node start = file.Required(root, "start", "session");
   file.CheckMap(start, "start", {"mode", "pose", "covariance_diagonal"});
@@ -327,23 +335,15 @@ std::string SessionYamlText(const SessionInfo& info) {
   os << "day_label: " << YamlQuoted(info.day_label) << "\n";
   os << "start_time_s: " << FormatRoundTrip(info.start_time_s) << "\n";
   os << "camera:\n";
-  os << "  model: " << (info.camera.kind == ImageKind::kRawRing ? "omni_ring" : "panorama") << "\n";
+  os << "  model: "
+     << (info.camera.kind == ImageKind::kRawRing ? ToString(info.camera.calibration.model)
+                                                 : std::string("panorama"))
+     << "\n";
   os << "  image_width: " << info.camera.image_width << "\n";
   os << "  image_height: " << info.camera.image_height << "\n";
   if (info.camera.kind == ImageKind::kRawRing) {
-    const OmniCalibration& c = info.camera.calibration;
-    os << "  calibration:\n";
-    os << "    center_x_px: " << FormatRoundTrip(c.center_x_px) << "\n";
-    os << "    center_y_px: " << FormatRoundTrip(c.center_y_px) << "\n";
-    os << "    inner_radius_px: " << FormatRoundTrip(c.inner_radius_px) << "\n";
-    os << "    outer_radius_px: " << FormatRoundTrip(c.outer_radius_px) << "\n";
-    os << "    azimuth0_rad: " << FormatRoundTrip(c.azimuth0_rad) << "\n";
-    os << "    direction: "
-       << (c.direction == RingDirection::kClockwise ? "clockwise" : "counter_clockwise") << "\n";
-    os << "    elevation: "
-       << (c.elevation == ElevationMapping::kLinearInverted ? "linear_inverted" : "linear") << "\n";
-    os << "    panorama_width: " << c.panorama_width << "\n";
-    os << "    panorama_height: " << c.panorama_height << "\n";
+    os << "  calibration:\n" << info.camera.calibration.YamlFields("    ");
+    if (!info.camera.mask_image.empty()) os << "  mask_image: " << YamlQuoted(info.camera.mask_image) << "\n";
   }
   os << "start:\n";
   os << "  mode: " << ToString(info.start.mode) << "\n";
@@ -565,7 +565,8 @@ LogWriter::LogWriter(const std::string& log_dir, bool overwrite) : overwrite_(ov
   if (fs::exists(log_dir_, ec) && !overwrite_) {
     throw Error(StrCat(log_dir_, ": already exists (remove it or ask to overwrite)"));
   }
-  // Staging directories of killed writers of the same log (dead pid, or ours recycled).
+  lock_ = std::make_unique<OutputLock>(log_dir_, "--out");
+  // Staging directories of killed writers of the same log (we hold its lock).
   RemoveStaleStagingDirs(log_dir_);
   partial_dir_ = StagingDirFor(log_dir_, ::getpid()).string();
   fs::create_directories(partial_dir_, ec);
@@ -602,7 +603,10 @@ void LogWriter::BeginSession(const SessionInfo& info) {
   CheckCamera(info.camera, fail);
   CheckStart(info.start, fail);
   if (!std::isfinite(info.start_time_s)) fail("start_time_s is not finite");
-  const std::string yaml = SessionYamlText(info);
+  SessionInfo stored = info;
+  // A mask is stored next to session.yaml as mask.png.
+  stored.camera.mask_image = stored.camera.mask.empty() ? "" : "mask.png";
+  const std::string yaml = SessionYamlText(stored);
 
   CloseSession();
   session_dir_ = (fs::path(partial_dir_) / name).string();
@@ -610,6 +614,12 @@ void LogWriter::BeginSession(const SessionInfo& info) {
   fs::create_directory(session_dir_, ec);
   if (ec) throw Error(StrCat(session_dir_, ": cannot create directory: ", ec.message()));
   WriteFileAtomic(fs::path(session_dir_) / "session.yaml", yaml, FileSync::kDeferred);
+  if (!stored.camera.mask.empty()) {
+    std::vector<std::uint8_t> png;
+    cv::imencode(".png", stored.camera.mask, png);
+    WriteFileAtomic(fs::path(session_dir_) / stored.camera.mask_image, png,
+                    FileSync::kDeferred);
+  }
   csv_ = std::make_unique<AtomicFile>(fs::path(session_dir_) / "frames.csv", FileSync::kDeferred);
   csv_->stream() << kFramesCsvHeader << "\n";
   if (!csv_->stream()) throw Error(StrCat(session_dir_, "/frames.csv: cannot write"));

@@ -17,6 +17,7 @@
 
 #include "omnicml/common/common.h"
 #include "omnicml/common/file_io.h"
+#include "omnicml/common/yaml_io.h"
 #include "omnicml/live/odometry_buffer.h"
 #include "omnicml/logs/log_format.h"
 #include "omnicml/unwrap/omni_unwrapper.h"
@@ -112,7 +113,7 @@ SessionInfo ParseSessionMessage(const std::string& text, const std::string& sour
                                 double* stamp_offset_s) {
   YAML::Node root;
   try {
-    root = YAML::Load(text);
+    root = LoadYaml(text, source + ": session message");
   } catch (const YAML::Exception& e) {
     throw Error(StrCat(source, ": session message: YAML syntax error: ", e.msg));
   }

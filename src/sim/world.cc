@@ -12,6 +12,7 @@
 #include "sim/internal/sim_builtin_worlds.h"
 #include "omnicml/geometry/planar_geometry.h"
 #include "omnicml/common/common.h"
+#include "omnicml/common/yaml_io.h"
 #include "omnicml/common/file_io.h"
 
 namespace omnicml {
@@ -440,7 +441,7 @@ int World::FindWindow(const std::string& n) const {
 World ParseWorld(const std::string& yaml_text, const std::string& source) {
   YAML::Node root;
   try {
-    root = YAML::Load(yaml_text);
+    root = LoadYaml(yaml_text, source);
   } catch (const YAML::ParserException& e) {
     throw Error(StrCat(source, ":", e.mark.line + 1, ": YAML syntax error: ", e.msg));
   }

@@ -17,60 +17,17 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include "unwrap/internal/circle_fit.h"
+#include "unwrap/internal/png_decode.h"
 #include "omnicml/common/binary_io.h"
 #include "omnicml/common/common.h"
+#include "omnicml/common/yaml_io.h"
 #include "omnicml/common/file_io.h"
+#include "omnicml/common/limits.h"
 
 namespace omnicml {
 namespace {
 
 namespace fs = std::filesystem;
-
-// Geometry shared by the forward and the inverse maps.
-//
-// Pixel centres: raw pixel (row i, column j) sits at (x, y) = (j, i) (origin at the
-// centre of the top-left pixel, as cv::remap assumes). Panorama column c is centred on
-// robot azimuth alpha = 2 pi c / W; panorama row r is a radial bin of width
-// dr = (outer - inner) / H whose centre lies at outer - (r + 0.5) dr (kLinear) or
-// inner + (r + 0.5) dr (kLinearInverted), so the H rows tile [inner, outer] exactly.
-// Image-plane angle theta (from +x towards +y, clockwise on screen) of azimuth alpha:
-//   theta = azimuth0 - alpha  for kCounterClockwise (counter-clockwise on screen),
-//   theta = azimuth0 + alpha  for kClockwise.
-struct RingGeometry {
-  explicit RingGeometry(const OmniCalibration& c)
-      : cx(c.center_x_px),
-        cy(c.center_y_px),
-        inner(c.inner_radius_px),
-        outer(c.outer_radius_px),
-        azimuth0(c.azimuth0_rad),
-        sign(c.direction == RingDirection::kCounterClockwise ? -1.0 : 1.0),
-        inverted(c.elevation == ElevationMapping::kLinearInverted),
-        width(c.panorama_width),
-        height(c.panorama_height),
-        dr((c.outer_radius_px - c.inner_radius_px) / c.panorama_height) {}
-
-  double RadiusOfRow(double row) const {
-    return inverted ? inner + (row + 0.5) * dr : outer - (row + 0.5) * dr;
-  }
-  double RowOfRadius(double radius) const {
-    return inverted ? (radius - inner) / dr - 0.5 : (outer - radius) / dr - 0.5;
-  }
-  double ThetaOfColumn(double column) const { return azimuth0 + sign * kTwoPi * column / width; }
-  // Column in [0, W) of image-plane angle theta.
-  double ColumnOfTheta(double theta) const {
-    double alpha = std::fmod(sign * (theta - azimuth0), kTwoPi);
-    if (alpha < 0.0) alpha += kTwoPi;
-    double column = alpha * width / kTwoPi;
-    if (column >= width) column -= width;
-    return column;
-  }
-
-  double cx, cy, inner, outer, azimuth0, sign;
-  bool inverted;
-  int width, height;
-  double dr;
-};
 
 // Render paints raw pixels whose centre lies up to half a pixel outside [inner, outer]:
 // Unwrap's bilinear samples of the first and last panorama rows (half a radial bin inside
@@ -320,25 +277,20 @@ void OmniCalibration::Validate() const {
                  " must be finite and exceed inner_radius_px = ", inner_radius_px));
   Require(finite(azimuth0_rad),
           StrCat("calibration: azimuth0_rad = ", azimuth0_rad, " is not finite"));
-  Require(panorama_width >= 2 && panorama_width <= 65536,
-          StrCat("calibration: panorama_width = ", panorama_width, " must be in [2, 65536]"));
-  Require(panorama_height >= 1 && panorama_height <= 65536,
-          StrCat("calibration: panorama_height = ", panorama_height, " must be in [1, 65536]"));
+  Require(panorama_width >= 2 && panorama_width <= kMaxPanoramaSidePx,
+          StrCat("calibration: panorama_width = ", panorama_width, " must be in [2, ",
+                 kMaxPanoramaSidePx, "]"));
+  Require(panorama_height >= 1 && panorama_height <= kMaxPanoramaSidePx,
+          StrCat("calibration: panorama_height = ", panorama_height, " must be in [1, ",
+                 kMaxPanoramaSidePx, "]"));
+  Require(static_cast<std::uint64_t>(panorama_width) * static_cast<std::uint64_t>(panorama_height) <=
+              kMaxImagePixels,
+          StrCat("calibration: panorama_width x panorama_height = ", panorama_width, " x ",
+                 panorama_height, " exceeds ", kMaxImagePixels, " pixels"));
 }
 
 void OmniCalibration::ValidateFor(int image_width, int image_height) const {
-  Validate();
-  Require(image_width >= 2 && image_height >= 2,
-          StrCat("calibration: image size ", image_width, "x", image_height, " is too small"));
-  // Pixel areas span [-0.5, size - 0.5]; every sample of the ring must fall inside.
-  constexpr double kSlack = 1e-9;
-  const bool fits = center_x_px - outer_radius_px >= -0.5 - kSlack &&
-                    center_x_px + outer_radius_px <= image_width - 0.5 + kSlack &&
-                    center_y_px - outer_radius_px >= -0.5 - kSlack &&
-                    center_y_px + outer_radius_px <= image_height - 0.5 + kSlack;
-  Require(fits, StrCat("calibration leaves the image: ring of outer_radius_px ", outer_radius_px,
-                       " around (", center_x_px, ", ", center_y_px, ") does not fit in a ",
-                       image_width, "x", image_height, " image"));
+  CameraCalibration(*this).ValidateFor(image_width, image_height);
 }
 
 OmniCalibration OmniCalibration::FromYamlFile(const std::string& path) {
@@ -346,7 +298,7 @@ OmniCalibration OmniCalibration::FromYamlFile(const std::string& path) {
   const std::string text = ReadTextFile(path, kMaxTextFileBytes, "calibration file");
   YAML::Node root;
   try {
-    root = YAML::Load(text);
+    root = LoadYaml(text, path);
   } catch (const YAML::ParserException& e) {
     throw Error(StrCat(path, ":", e.mark.line + 1, ": YAML syntax error: ", e.msg));
   } catch (const YAML::Exception& e) {
@@ -392,55 +344,76 @@ void OmniCalibration::ToYamlFile(const std::string& path) const {
 // ---------------------------------------------------------------------------------------
 // OmniUnwrapper
 
-OmniUnwrapper::OmniUnwrapper(const OmniCalibration& calibration, int image_width, int image_height)
-    : calibration_(calibration), image_width_(image_width), image_height_(image_height) {
-  calibration_.ValidateFor(image_width, image_height);
-  const RingGeometry g(calibration_);
-
-  // Forward maps: panorama pixel (r, c) -> raw (x, y).
-  map_x_.create(g.height, g.width, CV_32FC1);
-  map_y_.create(g.height, g.width, CV_32FC1);
-  std::vector<double> cos_theta(g.width), sin_theta(g.width);
-  for (int c = 0; c < g.width; ++c) {
-    const double theta = g.ThetaOfColumn(c);
-    cos_theta[c] = std::cos(theta);
-    sin_theta[c] = std::sin(theta);
+OmniUnwrapper::OmniUnwrapper(const CameraCalibration& calibration, int image_width,
+                             int image_height, const cv::Mat& user_mask)
+    : camera_(calibration), image_width_(image_width), image_height_(image_height) {
+  camera_.ValidateFor(image_width, image_height);
+  if (!user_mask.empty() && (user_mask.type() != CV_8UC1 || user_mask.cols != image_width ||
+                             user_mask.rows != image_height)) {
+    throw Error(StrCat("mask image is ", TypeName(user_mask), " but the camera needs 8-bit grey of ",
+                       image_width, "x", image_height));
   }
-  for (int r = 0; r < g.height; ++r) {
-    const double radius = g.RadiusOfRow(r);
+  const int width = camera_.panorama_width(), height = camera_.panorama_height();
+  const bool equirect = camera_.model == CameraModelType::kEquirectangular;
+  border_mode_ = equirect ? cv::BORDER_WRAP : cv::BORDER_REPLICATE;
+
+  // Forward maps: panorama pixel (r, c) -> raw (x, y); a pixel is valid when its sample
+  // lies inside the image (always for the equirectangular model, which wraps around in x)
+  // and on a non-zero pixel of the user mask.
+  map_x_.create(height, width, CV_32FC1);
+  map_y_.create(height, width, CV_32FC1);
+  valid_mask_.create(height, width, CV_8UC1);
+  int valid = 0;
+  for (int r = 0; r < height; ++r) {
     float* mx = map_x_.ptr<float>(r);
     float* my = map_y_.ptr<float>(r);
-    for (int c = 0; c < g.width; ++c) {
-      mx[c] = static_cast<float>(g.cx + radius * cos_theta[c]);
-      my[c] = static_cast<float>(g.cy + radius * sin_theta[c]);
+    std::uint8_t* v = valid_mask_.ptr<std::uint8_t>(r);
+    for (int c = 0; c < width; ++c) {
+      const cv::Point2d p = PanoramaToImage(camera_, c, r, image_width, image_height);
+      mx[c] = static_cast<float>(p.x);
+      my[c] = static_cast<float>(p.y);
+      bool ok = equirect || (p.x >= -0.5 && p.x <= image_width - 0.5 && p.y >= -0.5 &&
+                             p.y <= image_height - 0.5);
+      if (ok && !user_mask.empty()) {
+        const int xi = std::clamp(static_cast<int>(std::lround(p.x)), 0, image_width - 1);
+        const int yi = std::clamp(static_cast<int>(std::lround(p.y)), 0, image_height - 1);
+        ok = user_mask.at<std::uint8_t>(yi, xi) != 0;
+      }
+      v[c] = ok ? 255 : 0;
+      valid += ok ? 1 : 0;
     }
   }
+  valid_fraction_ = static_cast<double>(valid) / (static_cast<double>(width) * height);
+  if (valid == 0) throw Error("the mask image leaves no valid panorama pixel");
 
   // Inverse maps: raw (x, y) -> coordinates in the panorama padded by one wrapped column on
   // each side (Render), so bilinear sampling wraps around azimuth. Rows are clamped to
-  // [0, H-1] (replicating the first and last row up to the ring's edges). A raw pixel is
-  // painted when its centre lies within kRenderMarginPx of the annulus [inner, outer]
-  // (the pixel touches the ring); the others point far outside the padded panorama and
-  // get the background value.
+  // [0, H-1] (replicating the first and last row up to the band's edges). A raw pixel is
+  // painted when it lies within about kRenderMarginPx of the ring or band; the others
+  // point far outside the padded panorama and get the background.
+  // kRenderMarginPx in rows at the band's first and last row (the larger of the two).
+  const auto rows_per_px = [&](double row) {
+    const cv::Point2d a = PanoramaToImage(camera_, 0, row - 0.5, image_width, image_height);
+    const cv::Point2d b = PanoramaToImage(camera_, 0, row + 0.5, image_width, image_height);
+    return 1.0 / std::max(1e-9, std::hypot(a.x - b.x, a.y - b.y));
+  };
+  const double margin_rows = kRenderMarginPx * std::max(rows_per_px(0.0), rows_per_px(height - 1.0));
   constexpr float kOutside = -1000.0f;
   inv_map_x_.create(image_height, image_width, CV_32FC1);
   inv_map_y_.create(image_height, image_width, CV_32FC1);
   for (int y = 0; y < image_height; ++y) {
     float* ix = inv_map_x_.ptr<float>(y);
     float* iy = inv_map_y_.ptr<float>(y);
-    const double dy = y - g.cy;
     for (int x = 0; x < image_width; ++x) {
-      const double dx = x - g.cx;
-      const double radius = std::hypot(dx, dy);
-      if (radius < g.inner - kRenderMarginPx || radius > g.outer + kRenderMarginPx) {
+      const std::optional<cv::Point2d> q =
+          ImageToPanorama(camera_, cv::Point2d(x, y), image_width, image_height, margin_rows);
+      if (!q) {
         ix[x] = kOutside;
         iy[x] = kOutside;
         continue;
       }
-      const double column = g.ColumnOfTheta(std::atan2(dy, dx));
-      const double row = std::clamp(g.RowOfRadius(radius), 0.0, static_cast<double>(g.height - 1));
-      ix[x] = static_cast<float>(column + 1.0);
-      iy[x] = static_cast<float>(row);
+      ix[x] = static_cast<float>(q->x + 1.0);
+      iy[x] = static_cast<float>(std::clamp(q->y, 0.0, static_cast<double>(height - 1)));
     }
   }
 
@@ -519,7 +492,7 @@ cv::Mat OmniUnwrapper::Unwrap(const cv::Mat& raw) const {
                        "); expected 8-bit grey or BGR"));
   }
   cv::Mat panorama;
-  cv::remap(raw, panorama, map_x_, map_y_, cv::INTER_LINEAR, cv::BORDER_REPLICATE);
+  cv::remap(raw, panorama, map_x_, map_y_, cv::INTER_LINEAR, border_mode_);
   return panorama;
 }
 
@@ -527,7 +500,7 @@ cv::Mat OmniUnwrapper::Render(const cv::Mat& panorama, const cv::Scalar& backgro
   if (panorama.empty()) throw Error("Render: the panorama is empty");
   if (panorama.channels() > 4)
     throw Error(StrCat("Render: unsupported panorama (", TypeName(panorama), ")"));
-  const cv::Size size(calibration_.panorama_width, calibration_.panorama_height);
+  const cv::Size size(camera_.panorama_width(), camera_.panorama_height());
   const cv::Mat resized = ResizePanorama(panorama, size);
   cv::Mat padded;
   cv::copyMakeBorder(resized, padded, 0, 0, 1, 1, cv::BORDER_WRAP);
@@ -540,264 +513,6 @@ cv::Mat OmniUnwrapper::Render(const cv::Mat& panorama, const cv::Scalar& backgro
     OMNICML_CHECK(raw_rect.data == raw(rect).data) << "remap reallocated its output";
   }
   return raw;
-}
-
-// ---------------------------------------------------------------------------------------
-// Auto-calibration
-
-namespace {
-
-// Edge points found along rays from a centre.
-struct RingEdges {
-  std::vector<cv::Point2d> inner;
-  std::vector<cv::Point2d> outer;
-};
-
-constexpr int kRays = 360;          // rays around the centre
-constexpr double kRayStepPx = 1.0;  // sample spacing along a ray
-// Samples either side of a threshold crossing searched for the gradient peak.
-constexpr int kRefineHalfWindow = 4;
-
-// Position (in samples, sub-sample) of the strongest gradient of sign `sign` within
-// [lo, hi] of profile p; parabolic refinement of the peak.
-double GradientPeak(const float* p, int n, int lo, int hi, double sign) {
-  lo = std::max(lo, 1);
-  hi = std::min(hi, n - 2);
-  int best = -1;
-  double best_value = 0.0;
-  for (int i = lo; i <= hi; ++i) {
-    const double g = sign * (p[i + 1] - p[i - 1]);
-    if (g > best_value) {
-      best_value = g;
-      best = i;
-    }
-  }
-  if (best < 0) return -1.0;
-  double offset = 0.0;
-  if (best - 1 >= 1 && best + 1 <= n - 2) {
-    const double gm = sign * (p[best] - p[best - 2]);
-    const double g0 = best_value;
-    const double gp = sign * (p[best + 2] - p[best]);
-    const double denom = gm - 2.0 * g0 + gp;
-    if (denom < 0.0) offset = std::clamp(0.5 * (gm - gp) / denom, -0.5, 0.5);
-  }
-  return best + offset;
-}
-
-// Casts kRays rays from `center` over the (float, smoothed) grey image. Along each ray the
-// inner edge is the first dark->bright crossing of `threshold` from the centre, the outer
-// edge the first dark->bright crossing coming in from the image border; each is refined
-// to the gradient peak nearby. Rays that start bright (centre not in the hole, or the ring
-// cut by the image border) give no point for that boundary.
-RingEdges FindRingEdges(const cv::Mat& grey, cv::Point2d center, double threshold) {
-  const double w = grey.cols - 1.0;
-  const double h = grey.rows - 1.0;
-  const double max_len =
-      std::max({std::hypot(center.x, center.y), std::hypot(w - center.x, center.y),
-                std::hypot(center.x, h - center.y), std::hypot(w - center.x, h - center.y)});
-  const int samples = static_cast<int>(std::ceil(max_len / kRayStepPx)) + 1;
-  cv::Mat map_x(kRays, samples, CV_32FC1), map_y(kRays, samples, CV_32FC1);
-  std::vector<int> valid(kRays, 0);
-  std::vector<double> cos_a(kRays), sin_a(kRays);
-  for (int k = 0; k < kRays; ++k) {
-    const double a = kTwoPi * k / kRays;
-    cos_a[k] = std::cos(a);
-    sin_a[k] = std::sin(a);
-    float* mx = map_x.ptr<float>(k);
-    float* my = map_y.ptr<float>(k);
-    int n = 0;
-    for (int i = 0; i < samples; ++i) {
-      const double x = center.x + i * kRayStepPx * cos_a[k];
-      const double y = center.y + i * kRayStepPx * sin_a[k];
-      mx[i] = static_cast<float>(x);
-      my[i] = static_cast<float>(y);
-      if (x >= 0.0 && x <= w && y >= 0.0 && y <= h && n == i) n = i + 1;
-    }
-    valid[k] = n;
-  }
-  cv::Mat profiles;
-  cv::remap(grey, profiles, map_x, map_y, cv::INTER_LINEAR, cv::BORDER_REPLICATE);
-
-  RingEdges edges;
-  for (int k = 0; k < kRays; ++k) {
-    const float* p = profiles.ptr<float>(k);
-    const int n = valid[k];
-    if (n < 8) continue;
-    // Inner boundary: from the centre outwards.
-    int inner_cross = -1;
-    if (p[0] < threshold) {
-      for (int i = 1; i < n; ++i) {
-        if (p[i] >= threshold) {
-          inner_cross = i;
-          break;
-        }
-      }
-    }
-    // Outer boundary: from the image border inwards.
-    int outer_cross = -1;
-    if (p[n - 1] < threshold) {
-      for (int i = n - 2; i >= 0; --i) {
-        if (p[i] >= threshold) {
-          outer_cross = i;
-          break;
-        }
-      }
-    }
-    auto add = [&](std::vector<cv::Point2d>& out, double s) {
-      if (s < 0.0) return;
-      const double t = s * kRayStepPx;
-      out.emplace_back(center.x + t * cos_a[k], center.y + t * sin_a[k]);
-    };
-    if (inner_cross > 0 && outer_cross > inner_cross) {
-      add(edges.inner, GradientPeak(p, n, inner_cross - kRefineHalfWindow,
-                                    inner_cross + kRefineHalfWindow, +1.0));
-    }
-    if (outer_cross > 0 && outer_cross > inner_cross) {
-      add(edges.outer, GradientPeak(p, n, outer_cross - kRefineHalfWindow,
-                                    outer_cross + kRefineHalfWindow, -1.0));
-    }
-  }
-  return edges;
-}
-
-double MedianDistance(const std::vector<cv::Point2d>& points, cv::Point2d center) {
-  std::vector<double> d;
-  d.reserve(points.size());
-  for (const cv::Point2d& p : points) d.push_back(std::hypot(p.x - center.x, p.y - center.y));
-  std::nth_element(d.begin(), d.begin() + static_cast<std::ptrdiff_t>(d.size() / 2), d.end());
-  return d[d.size() / 2];
-}
-
-std::vector<cv::Point2d> Inliers(const std::vector<cv::Point2d>& points,
-                                 const std::vector<char>& is_inlier) {
-  std::vector<cv::Point2d> out;
-  for (std::size_t i = 0; i < points.size(); ++i) {
-    if (is_inlier[i]) out.push_back(points[i]);
-  }
-  return out;
-}
-
-constexpr int kMinEdgePoints = 24;    // per boundary
-constexpr double kLossScalePx = 1.0;  // robust loss scale
-constexpr double kMinInlierThresholdPx = 2.0;
-
-}  // namespace
-
-AutoCalibrationResult AutoCalibrate(const cv::Mat& raw, const OmniCalibration& initial) {
-  if (raw.empty()) throw Error("AutoCalibrate: the image is empty");
-  if (raw.cols < 16 || raw.rows < 16) {
-    throw Error(StrCat("AutoCalibrate: image of ", raw.cols, "x", raw.rows,
-                       " is too small to hold a ring"));
-  }
-  if (raw.depth() != CV_8U || (raw.channels() != 1 && raw.channels() != 3)) {
-    throw Error(StrCat("AutoCalibrate: unsupported image (", TypeName(raw),
-                       "); expected 8-bit grey or BGR"));
-  }
-  initial.Validate();
-
-  // Smoothed grey copy (never blur `raw` in place: a grey input shares its pixels).
-  cv::Mat grey_in;
-  if (raw.channels() == 3) {
-    cv::cvtColor(raw, grey_in, cv::COLOR_BGR2GRAY);
-  } else {
-    grey_in = raw;
-  }
-  cv::Mat grey8;
-  cv::GaussianBlur(grey_in, grey8, cv::Size(0, 0), 1.5);
-
-  // Two classes (dark: outside and hole; bright: the ring) by Otsu; the crossing threshold
-  // sits a third of the way from the dark level to the ring level, so dark texture inside
-  // the ring rarely reaches it.
-  cv::Mat mask;
-  const double otsu = cv::threshold(grey8, mask, 0, 255, cv::THRESH_BINARY | cv::THRESH_OTSU);
-  cv::Mat inverse_mask = 255 - mask;
-  const auto median_of = [&](const cv::Mat& m) {
-    cv::Mat hist;
-    const int channels[] = {0};
-    const int bins[] = {256};
-    const float range[] = {0.f, 256.f};
-    const float* ranges[] = {range};
-    cv::calcHist(&grey8, 1, channels, m, hist, 1, bins, ranges);
-    const double total = cv::sum(hist)[0];
-    if (total < 1.0) return std::nan("");  // empty class: a uniform image
-    double acc = 0.0;
-    for (int i = 0; i < 256; ++i) {
-      acc += hist.at<float>(i);
-      if (acc >= 0.5 * total) return static_cast<double>(i);
-    }
-    return 255.0;
-  };
-  const double dark = median_of(inverse_mask);
-  const double bright = median_of(mask);
-  if (!(bright - dark >= 10.0)) {
-    throw Error(
-        StrCat("AutoCalibrate: no ring found (no contrast between ring and background: levels ",
-               dark, " and ", bright, ", Otsu threshold ", otsu, ")"));
-  }
-  const double threshold = dark + (bright - dark) / 3.0;
-
-  // Coarse centre: centroid of the bright region.
-  cv::threshold(grey8, mask, threshold, 255, cv::THRESH_BINARY);
-  const cv::Moments m = cv::moments(mask, true);
-  if (m.m00 < 1.0) throw Error("AutoCalibrate: no ring found (no bright region)");
-  cv::Point2d center(m.m10 / m.m00, m.m01 / m.m00);
-
-  cv::Mat grey;
-  grey8.convertTo(grey, CV_32F);
-
-  // Two rounds: edges from the coarse centre, robust fits per boundary; then edges again
-  // from the fitted centre (the inner search needs a centre inside the hole).
-  internal::CircleFitReport inner_fit, outer_fit;
-  RingEdges edges;
-  for (int round = 0; round < 2; ++round) {
-    edges = FindRingEdges(grey, center, threshold);
-    if (static_cast<int>(edges.outer.size()) < kMinEdgePoints) {
-      throw Error(StrCat("AutoCalibrate: no ring found (only ", edges.outer.size(),
-                         " outer edge points; is the background outside the ring dark?)"));
-    }
-    outer_fit = internal::FitConcentricCircles(
-        {edges.outer}, {center, {MedianDistance(edges.outer, center)}},
-        internal::RobustLoss::kCauchy, kLossScalePx, kMinInlierThresholdPx);
-    center = outer_fit.circles.center_px;
-  }
-  if (static_cast<int>(edges.inner.size()) < kMinEdgePoints) {
-    throw Error(StrCat("AutoCalibrate: no ring found (only ", edges.inner.size(),
-                       " inner edge points; is the hole inside the ring dark?)"));
-  }
-  inner_fit = internal::FitConcentricCircles(
-      {edges.inner}, {center, {MedianDistance(edges.inner, center)}}, internal::RobustLoss::kCauchy,
-      kLossScalePx, kMinInlierThresholdPx);
-
-  // Joint concentric fit on the inliers of both boundaries (Huber loss).
-  const std::vector<cv::Point2d> inner_in = Inliers(edges.inner, inner_fit.is_inlier[0]);
-  const std::vector<cv::Point2d> outer_in = Inliers(edges.outer, outer_fit.is_inlier[0]);
-  if (static_cast<int>(inner_in.size()) < kMinEdgePoints ||
-      static_cast<int>(outer_in.size()) < kMinEdgePoints) {
-    throw Error(StrCat("AutoCalibrate: no ring found (", inner_in.size(), " inner and ",
-                       outer_in.size(), " outer edge points agree with a circle)"));
-  }
-  const internal::CircleFitReport joint = internal::FitConcentricCircles(
-      {inner_in, outer_in},
-      {outer_fit.circles.center_px, {inner_fit.circles.radii_px[0], outer_fit.circles.radii_px[0]}},
-      internal::RobustLoss::kHuber, kLossScalePx, kMinInlierThresholdPx);
-
-  AutoCalibrationResult result;
-  result.calibration = initial;
-  result.calibration.center_x_px = joint.circles.center_px.x;
-  result.calibration.center_y_px = joint.circles.center_px.y;
-  result.calibration.inner_radius_px = joint.circles.radii_px[0];
-  result.calibration.outer_radius_px = joint.circles.radii_px[1];
-  result.inner_residual_px = joint.rms_px[0];
-  result.outer_residual_px = joint.rms_px[1];
-  result.inner_inliers = joint.inliers[0];
-  result.outer_inliers = joint.inliers[1];
-  if (!(result.calibration.inner_radius_px > 0.0) ||
-      !(result.calibration.outer_radius_px > result.calibration.inner_radius_px)) {
-    throw Error(StrCat("AutoCalibrate: no ring found (fitted radii ",
-                       result.calibration.inner_radius_px, " and ",
-                       result.calibration.outer_radius_px, " px are inconsistent)"));
-  }
-  return result;
 }
 
 // ---------------------------------------------------------------------------------------
@@ -815,6 +530,14 @@ cv::Mat PreparePanorama(const cv::Mat& panorama, int width, int height) {
   if (width == 0 || height == 0 || (width == panorama.cols && height == panorama.rows))
     return panorama;
   return ResizePanorama(panorama, cv::Size(width, height));
+}
+
+cv::Mat PrepareMask(const cv::Mat& valid_mask, int width, int height) {
+  if (valid_mask.cols == width && valid_mask.rows == height) return valid_mask;
+  cv::Mat resized = PreparePanorama(valid_mask, width, height);
+  cv::Mat out;
+  cv::threshold(resized, out, 127, 255, cv::THRESH_BINARY);
+  return out;
 }
 
 cv::Mat ReadImage(const std::string& path) {
@@ -836,12 +559,21 @@ cv::Mat ReadImage(const std::string& path) {
     throw Error(StrCat("image file '", path, "' is unreadable: ", problem));
   }
   cv::Mat image;
-  try {
-    // Decoder warnings (libpng, libjpeg) go to OpenCV's logger, which stays quiet below
-    // its error level; failures surface here as an empty image.
-    image = cv::imdecode(bytes, cv::IMREAD_UNCHANGED);
-  } catch (const cv::Exception& e) {
-    throw Error(StrCat("image file '", path, "' is unreadable: ", e.what()));
+  if (SupportedImageFormat(bytes) == "PNG") {
+    // libpng directly: its messages go into the one-line error, never to stderr.
+    std::string problem;
+    image = internal::DecodePng(bytes, &problem);
+    if (image.empty()) {
+      throw Error(StrCat("image file '", path, "' is unreadable: PNG: ", Excerpt(problem, 200)));
+    }
+  } else {
+    try {
+      // Decoder warnings (libjpeg) go to OpenCV's logger, which stays quiet below its error
+      // level; failures surface here as an empty image.
+      image = cv::imdecode(bytes, cv::IMREAD_UNCHANGED);
+    } catch (const cv::Exception& e) {
+      throw Error(StrCat("image file '", path, "' is unreadable: ", e.what()));
+    }
   }
   if (image.empty()) {
     throw Error(

@@ -1,10 +1,13 @@
 #include "omnicml/common/file_io.h"
 
 #include <sys/stat.h>
+#include <sys/types.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
+#include <span>
 #include <filesystem>
 #include <fstream>
 #include <random>
@@ -106,7 +109,7 @@ TEST(AtomicFile, ExceptionBeforeCommitLeavesTargetAndNoTemporary) {
 }
 
 // Failures name the path, leave no temporary and do not touch the target: a missing
-// directory, a target that is a non-empty directory (rename fails), and (when not root)
+// directory, a target that is a directory (refused before anything is written), and (when not root)
 // a directory without write permission.
 TEST(AtomicFile, FailuresNamePathAndLeaveNoTemporary) {
   const fs::path dir = FreshDir("fail");
@@ -117,7 +120,7 @@ TEST(AtomicFile, FailuresNamePathAndLeaveNoTemporary) {
   fs::create_directories(busy / "inside");
   const std::string message = ErrorOf([&] { WriteFileAtomic(busy, "x"); });
   EXPECT_THAT(message, HasSubstr(busy.string()));
-  EXPECT_THAT(message, HasSubstr("rename"));
+  EXPECT_THAT(message, HasSubstr("is a directory"));
   EXPECT_TRUE(fs::is_directory(busy / "inside"));
   EXPECT_EQ(Entries(dir), (std::vector<std::string>{"busy"}));
   EXPECT_EQ(Entries(busy), (std::vector<std::string>{"inside"}));
@@ -161,9 +164,53 @@ TEST(AtomicFile, ConcurrentReaderSeesOldOrNew) {
   EXPECT_EQ(Entries(dir), (std::vector<std::string>{"out.txt"}));
 }
 
-// Temporary names are recognisable; a writer of a target removes the temporaries of dead
-// processes and keeps those of live ones.
-TEST(AtomicFile, StaleTemporariesOfDeadProcessesAreRemoved) {
+// A child process that takes OutputLock(target) and holds it until told to exit; the
+// parent waits until the lock is taken (a byte on a pipe), not for a time.
+class LockHolder {
+ public:
+  explicit LockHolder(const fs::path& target) {
+    int ready[2], quit[2];
+    if (::pipe(ready) != 0 || ::pipe(quit) != 0) throw Error("pipe failed");
+    pid_ = ::fork();
+    if (pid_ == 0) {
+      ::close(ready[0]);
+      ::close(quit[1]);
+      char c = 'x';
+      try {
+        OutputLock lock(target, "--out");
+        [[maybe_unused]] ssize_t n = ::write(ready[1], &c, 1);
+        n = ::read(quit[0], &c, 1);  // until the parent closes its end
+      } catch (...) {
+        ::_exit(3);
+      }
+      ::_exit(0);
+    }
+    ::close(ready[1]);
+    ::close(quit[0]);
+    quit_ = quit[1];
+    char c = 0;
+    if (::read(ready[0], &c, 1) != 1) throw Error("lock holder failed");
+    ::close(ready[0]);
+  }
+  ~LockHolder() { Release(); }
+  void Release() {
+    if (pid_ <= 0) return;
+    ::close(quit_);
+    int status = 0;
+    ::waitpid(pid_, &status, 0);
+    pid_ = -1;
+  }
+  pid_t pid() const { return pid_; }
+
+ private:
+  pid_t pid_ = -1;
+  int quit_ = -1;
+};
+
+// Temporary names are recognisable; a writer removes the temporaries nobody holds a lock
+// on, whatever their pid says (a live pid may belong to another PID namespace), and keeps
+// those of writers still at work.
+TEST(AtomicFile, StaleTemporariesAreRecognisedByTheirLockNotTheirPid) {
   const fs::path dir = FreshDir("stale");
   const fs::path target = dir / "map.omnicml";
   pid_t pid = 0;
@@ -174,35 +221,145 @@ TEST(AtomicFile, StaleTemporariesOfDeadProcessesAreRemoved) {
   EXPECT_FALSE(IsAtomicTempName("map.omnicml"));
   EXPECT_FALSE(IsAtomicTempName(TempPathFor(target, 1, 0).filename().string(), "other"));
 
-  const pid_t dead = DeadPid();
-  const fs::path stale = TempPathFor(target, dead, 3);
-  const fs::path live = TempPathFor(target, 1, 3);  // init is alive
-  std::ofstream(stale) << "leftover of a killed run";
-  std::ofstream(live) << "in flight elsewhere";
-  EXPECT_EQ(RemoveStaleTemporaries(target), 1);
-  EXPECT_FALSE(fs::exists(stale));
-  EXPECT_TRUE(fs::exists(live));
+  AtomicFile writing(target);  // at work: its temporary is locked
+  writing.stream() << "new map";
+  const fs::path stale_dead = TempPathFor(target, DeadPid(), 3);
+  const fs::path stale_live_pid = TempPathFor(target, 1, 3);  // init lives, but holds no lock
+  std::ofstream(stale_dead) << "leftover of a killed run";
+  std::ofstream(stale_live_pid) << "leftover of a writer in another PID namespace";
+  EXPECT_EQ(RemoveStaleTemporaries(target), 2);
+  EXPECT_FALSE(fs::exists(stale_dead));
+  EXPECT_FALSE(fs::exists(stale_live_pid));
+  EXPECT_TRUE(fs::exists(writing.temp_path()));
+  writing.Commit();
+  EXPECT_EQ(Slurp(target), "new map");
 
   // The first write into a directory sweeps it.
   const fs::path dir2 = FreshDir("stale_sweep");
-  const fs::path stale2 = TempPathFor(dir2 / "a.csv", dead, 0);
+  const fs::path stale2 = TempPathFor(dir2 / "a.csv", 1, 0);
   std::ofstream(stale2) << "x";
   WriteFileAtomic(dir2 / "a.csv", "new");
   EXPECT_EQ(Entries(dir2), (std::vector<std::string>{"a.csv"}));
 }
 
-// Staging directories of dead writers (and of this pid) are removed; live ones are kept.
-TEST(StagingDir, StaleOnesAreRemoved) {
+// An output file is a regular file or nothing: AtomicFile refuses FIFOs, sockets,
+// directories and symbolic links (to a regular file too) naming the path, leaves them as
+// they were and leaves no temporary.
+TEST(AtomicFile, RefusesTargetsThatAreNotRegularFiles) {
+  const fs::path dir = FreshDir("non_regular");
+  const fs::path fifo = dir / "fifo";
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
+  const fs::path real = dir / "real.txt";
+  std::ofstream(real) << "precious";
+  const fs::path link = dir / "link";
+  fs::create_symlink(real, link);
+  const fs::path sub = dir / "sub";
+  fs::create_directory(sub);
+  for (const auto& [path, reason] : {std::pair{fifo, "is a FIFO"}, std::pair{link, "symbolic link"},
+                                     std::pair{sub, "is a directory"}}) {
+    SCOPED_TRACE(path.string());
+    const std::string message = ErrorOf([&] { WriteFileAtomic(path, "new"); });
+    EXPECT_THAT(message, HasSubstr(path.string()));
+    EXPECT_THAT(message, HasSubstr(reason));
+  }
+  EXPECT_TRUE(fs::is_fifo(fs::symlink_status(fifo)));
+  EXPECT_TRUE(fs::is_symlink(fs::symlink_status(link)));
+  EXPECT_EQ(Slurp(real), "precious");
+  EXPECT_EQ(Entries(dir), (std::vector<std::string>{"fifo", "link", "real.txt", "sub"}));
+  EXPECT_EQ(Entries(sub), std::vector<std::string>{});
+  // A node swapped in while the file is being written is refused at the rename.
+  const fs::path target = dir / "late.txt";
+  AtomicFile file(target);
+  file.stream() << "data";
+  ASSERT_EQ(::mkfifo(target.c_str(), 0600), 0);
+  EXPECT_THAT(ErrorOf([&] { file.Commit(); }), HasSubstr("is a FIFO"));
+  EXPECT_TRUE(fs::is_fifo(fs::symlink_status(target)));
+}
+
+// A second process asking for a locked output is refused naming the path and the
+// holder's pid; the lock is shared within a process and its file removed on release.
+TEST(OutputLock, SecondWriterRefusedNamingTheHolder) {
+  const fs::path dir = FreshDir("lock");
+  const fs::path target = dir / "map.omnicml";
+  {
+    LockHolder holder(target);
+    EXPECT_TRUE(fs::exists(OutputLock::LockPathFor(target)));
+    const std::string message = ErrorOf([&] { OutputLock lock(target, "--map-out"); });
+    EXPECT_THAT(message, HasSubstr("--map-out '" + target.string() + "'"));
+    EXPECT_THAT(message, HasSubstr(StrCat("pid ", holder.pid())));
+    EXPECT_THAT(message, HasSubstr("in use by another writer"));
+    EXPECT_FALSE(OutputLock::HeldByThisProcess(target));
+    holder.Release();
+    OutputLock mine(target, "--map-out");
+    EXPECT_TRUE(OutputLock::HeldByThisProcess(dir / "." / "map.omnicml"));
+    OutputLock again(target, "--map-out");  // same process: shared
+  }
+  EXPECT_EQ(Entries(dir), std::vector<std::string>{});
+}
+
+// Staging directories of a target are removed by a writer holding (or able to take) the
+// target's lock, whatever pid they name; while another process holds it they are kept.
+TEST(StagingDir, StaleOnesAreRemovedUnderTheTargetsLock) {
   const fs::path dir = FreshDir("staging");
   const fs::path target = dir / "log";
-  const pid_t dead = DeadPid();
-  fs::create_directories(StagingDirFor(target, dead) / "day_01");
-  fs::create_directories(dir / StrCat("log.old-", dead));
-  fs::create_directories(StagingDirFor(target, 1));  // a live process
-  fs::create_directories(StagingDirFor(dir / "other", dead));
+  fs::create_directories(StagingDirFor(target, DeadPid()) / "day_01");
+  fs::create_directories(dir / "log.old-77");
+  fs::create_directories(StagingDirFor(target, 1));  // a live pid, but no lock held
+  fs::create_directories(StagingDirFor(dir / "other", 5));
   EXPECT_EQ(StagingDirFor(dir / "log/", 42).filename(), "log.partial-42");
-  EXPECT_EQ(RemoveStaleStagingDirs(target), 2);
-  EXPECT_EQ(Entries(dir), (std::vector<std::string>{"log.partial-1", StrCat("other.partial-", dead)}));
+  {
+    LockHolder holder(target);
+    EXPECT_EQ(RemoveStaleStagingDirs(target), 0);
+  }
+  EXPECT_EQ(RemoveStaleStagingDirs(target), 3);
+  EXPECT_EQ(Entries(dir), (std::vector<std::string>{"other.partial-5"}));
+}
+
+// A staged directory appears whole at Commit, replacing an earlier output of its kind;
+// without Commit nothing changes; an unrelated non-empty directory is refused.
+TEST(StagedDirectory, CommitsWholeOrNotAtAll) {
+  const fs::path dir = FreshDir("staged");
+  const fs::path target = dir / "run";
+  const std::vector<std::string> markers = {"frames.csv"};
+  {
+    StagedDirectory staged(target, "--out", markers);
+    WriteFileAtomic(staged.path() / "frames.csv", "old", FileSync::kDeferred);
+    staged.Commit();
+  }
+  {
+    StagedDirectory staged(target, "--out", markers);
+    WriteFileAtomic(staged.path() / "frames.csv", "new", FileSync::kDeferred);
+    EXPECT_EQ(Slurp(target / "frames.csv"), "old");  // not yet
+  }  // no Commit: discarded
+  EXPECT_EQ(Slurp(target / "frames.csv"), "old");
+  EXPECT_EQ(Entries(dir), (std::vector<std::string>{"run"}));
+  {
+    StagedDirectory staged(target, "--out", markers);
+    WriteFileAtomic(staged.path() / "frames.csv", "new", FileSync::kDeferred);
+    WriteFileAtomic(staged.path() / "days.csv", "d", FileSync::kDeferred);
+    staged.Commit();
+  }
+  EXPECT_EQ(Slurp(target / "frames.csv"), "new");
+  EXPECT_EQ(Entries(target), (std::vector<std::string>{"days.csv", "frames.csv"}));
+  EXPECT_EQ(Entries(dir), (std::vector<std::string>{"run"}));
+  const fs::path home = dir / "home";
+  fs::create_directories(home);
+  std::ofstream(home / "thesis.tex") << "years of work";
+  EXPECT_THAT(ErrorOf([&] { StagedDirectory staged(home, "--out", markers); }),
+              HasSubstr("is not an output of this kind"));
+  EXPECT_EQ(Slurp(home / "thesis.tex"), "years of work");
+}
+
+// SHA-256 of the FIPS 180-2 test vector "abc", of bytes and of a file alike.
+TEST(Sha256, KnownVector) {
+  const std::string abc = "abc";
+  const std::string expected = "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad";
+  EXPECT_EQ(Sha256Hex(std::span<const std::uint8_t>(
+                reinterpret_cast<const std::uint8_t*>(abc.data()), abc.size())),
+            expected);
+  const fs::path dir = FreshDir("sha");
+  WriteFileAtomic(dir / "abc", abc);
+  EXPECT_EQ(Sha256OfFile(dir / "abc"), expected);
 }
 
 // Directories, FIFOs, devices (also behind a symbolic link), symbolic-link loops and
@@ -292,11 +449,15 @@ TEST(LineReader, MatchesGetlineAndBoundsLines) {
   EXPECT_LT(message.size(), 300u);
 }
 
-// Excerpt keeps messages on one short line.
+// Excerpt keeps messages on one short line of valid UTF-8: control characters and bytes
+// outside valid UTF-8 sequences become '?', valid multi-byte characters stay.
 TEST(Excerpt, CutsAndEscapes) {
   EXPECT_EQ(Excerpt("short"), "short");
   EXPECT_EQ(Excerpt(std::string(200, 'x')), std::string(80, 'x') + "...");
   EXPECT_EQ(Excerpt("a\nb\tc"), "a?b?c");
+  EXPECT_EQ(Excerpt("caf\xc3\xa9"), "caf\xc3\xa9");
+  EXPECT_EQ(Excerpt("k\xff\xfe\xe9y"), "k???y");
+  EXPECT_EQ(Excerpt("\xe2\x82"), "??");  // a cut sequence
 }
 
 }  // namespace
@@ -320,8 +481,8 @@ TEST(CheckOutput, RefusesWhatCannotBeWritten) {
     fs::path path;
     const char* reason;
   } bad_files[] = {{dir, "is a directory"},
-                   {fifo, "not a regular file"},
-                   {loop, "symbolic links"},
+                   {fifo, "is a FIFO (not a regular file)"},
+                   {loop, "is a symbolic link"},
                    {dir / "missing" / "map.omap", "does not exist"},
                    {file / "map.omap", "Not a directory"}};
   for (const auto& c : bad_files) {
@@ -345,11 +506,22 @@ TEST(CheckOutput, RefusesWhatCannotBeWritten) {
               HasSubstr("exists and is not a directory"));
   EXPECT_THAT(ErrorOf([&] { CheckOutputDirectory(file / "sub", "--out"); }),
               HasSubstr(file.string()));
-  EXPECT_THAT(ErrorOf([&] { CheckOutputDirectory(loop, "--out"); }), HasSubstr("symbolic links"));
+  EXPECT_THAT(ErrorOf([&] { CheckOutputDirectory(loop, "--out"); }),
+              HasSubstr("is a symbolic link"));
   const fs::path dangling = dir / "dangling";
   fs::create_symlink(dir / "nowhere", dangling);
   EXPECT_THAT(ErrorOf([&] { CheckOutputDirectory(dangling, "--out"); }),
-              HasSubstr("dangling symbolic link"));
+              HasSubstr("is a symbolic link"));
+  const fs::path to_dir = dir / "to_dir";
+  fs::create_directory_symlink(dir, to_dir);
+  EXPECT_THAT(ErrorOf([&] { CheckOutputDirectory(to_dir, "--out"); }),
+              HasSubstr("is a symbolic link"));
+  const fs::path to_file = dir / "to_file";
+  fs::create_symlink(file, to_file);
+  EXPECT_THAT(ErrorOf([&] { CheckOutputFile(to_file, "--map-out"); }),
+              HasSubstr("is a symbolic link"));
+  fs::remove(to_dir);
+  fs::remove(to_file);
   if (::geteuid() != 0) {  // root may write anywhere
     const fs::path locked = dir / "locked";
     fs::create_directory(locked);

@@ -259,5 +259,88 @@ TEST(FourierSignature, FlatPanoramaHasNoHeading) {
   EXPECT_FALSE(fs.RelativeHeading(flat, flat).has_value());
 }
 
+// A mask of the robot's mast: columns [c0, c0 + n) invalid in every row.
+cv::Mat ColumnBandMask(int width, int height, int c0, int n) {
+  cv::Mat mask(height, width, CV_8UC1, cv::Scalar(255));
+  mask.colRange(c0, c0 + n).setTo(0);
+  return mask;
+}
+
+// Whatever the masked pixels hold, the descriptor is the same: the distance between two
+// views is that of their unmasked parts.
+TEST(FourierSignatureMask, MaskedPixelsHaveNoInfluence) {
+  const FourierSignature fourier;
+  const cv::Mat a = MakeSyntheticPanorama(360, 60, 1);
+  const cv::Mat b = MakeSyntheticPanorama(360, 60, 2);
+  const cv::Mat mask = ColumnBandMask(360, 60, 100, 45);
+  // Rows 0-9 of a few columns elsewhere masked too (a cable), to cover partial columns.
+  cv::Mat mask2 = mask.clone();
+  mask2(cv::Rect(250, 0, 20, 10)).setTo(0);
+  std::mt19937 rng(5);
+  for (const cv::Mat& m : {mask, mask2}) {
+    cv::Mat a_noise = a.clone(), b_noise = b.clone();
+    cv::Mat junk(a.size(), a.type());
+    cv::randu(junk, cv::Scalar::all(0), cv::Scalar::all(255));
+    junk.copyTo(a_noise, m == 0);
+    cv::randu(junk, cv::Scalar::all(0), cv::Scalar::all(255));
+    junk.copyTo(b_noise, m == 0);
+    const Descriptor da = fourier.ComputeMasked(a, m), dan = fourier.ComputeMasked(a_noise, m);
+    const Descriptor db = fourier.ComputeMasked(b, m), dbn = fourier.ComputeMasked(b_noise, m);
+    EXPECT_LT(fourier.Distance(da, dan), 1e-6);
+    EXPECT_NEAR(fourier.Distance(da, db), fourier.Distance(dan, dbn), 1e-6);
+    // Without the mask the junk changes the descriptor.
+    EXPECT_GT(fourier.Distance(fourier.Compute(a), fourier.Compute(a_noise)), 1e-3);
+  }
+  // A full mask is the unmasked descriptor, bit for bit.
+  const cv::Mat all(60, 360, CV_8UC1, cv::Scalar(255));
+  EXPECT_EQ(fourier.ComputeMasked(a, all), fourier.Compute(a));
+}
+
+// A masked band of g of the columns shrinks the band spectra's energy by about g
+// (Parseval: the gap is at the band's mean), so distances shrink by about sqrt(1 - g).
+TEST(FourierSignatureMask, GapShrinksMagnitudesByItsFraction) {
+  FourierOptions options;
+  options.coefficients = 179;  // all harmonics of W = 360 but DC and Nyquist
+  const FourierSignature fourier(options);
+  const cv::Mat a = MakeSyntheticPanorama(360, 60, 3);
+  for (const int n : {36, 90}) {
+    const Descriptor d = fourier.ComputeMasked(a, ColumnBandMask(360, 60, 0, n));
+    double energy = 0;
+    for (const float f : d.features) energy += f * f;
+    // Normalised band signals: unit variance over the valid columns, zero in the gap, so
+    // sum_m |S[m]|^2 over the stored half spectrum is (1 - g) / 2 per band.
+    const double g = n / 360.0;
+    EXPECT_NEAR(energy, options.bands * (1.0 - g) / 2.0, 0.02 * options.bands) << n;
+  }
+}
+
+// The relative heading of two views of one place, turned by k columns, with the same
+// mask (fixed in the robot frame) on both, is still found within a column.
+TEST(FourierSignatureMask, RelativeHeadingUnderRollWithMask) {
+  const FourierSignature fourier;
+  const int width = 360;
+  const cv::Mat mask = ColumnBandMask(width, 60, 170, width / 8);
+  for (const std::uint32_t seed : {11u, 12u, 13u}) {
+    const cv::Mat before = MakeSyntheticPanorama(width, 60, seed);
+    for (const int k : {-90, -37, -5, 12, 45, 90}) {
+      const cv::Mat after = RollColumns(before, k);
+      const auto shift = fourier.RelativeShiftColumns(fourier.ComputeMasked(after, mask),
+                                                      fourier.ComputeMasked(before, mask));
+      ASSERT_TRUE(shift.has_value());
+      EXPECT_LT(ColumnError(*shift, (k % width + width) % width, width), 1.0)
+          << "seed " << seed << " k " << k;
+    }
+  }
+}
+
+// Bad masks are errors naming the mask.
+TEST(FourierSignatureMask, RejectsBadMask) {
+  const FourierSignature fourier;
+  const cv::Mat a = MakeSyntheticPanorama(360, 60, 1);
+  EXPECT_THROW(fourier.ComputeMasked(a, cv::Mat(60, 100, CV_8UC1, cv::Scalar(255))), Error);
+  EXPECT_THROW(fourier.ComputeMasked(a, cv::Mat(60, 360, CV_8UC1, cv::Scalar(0))), Error);
+  EXPECT_THROW(fourier.ComputeMasked(a, cv::Mat(60, 360, CV_32FC1, cv::Scalar(1))), Error);
+}
+
 }  // namespace
 }  // namespace omnicml

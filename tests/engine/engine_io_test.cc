@@ -105,6 +105,37 @@ TEST(EngineIo, RoundTripRestoresState) {
   EXPECT_EQ(files, 1);
 }
 
+// The session camera's model, fields and user mask are part of the saved state.
+TEST(EngineIo, RoundTripKeepsCameraModelAndMask) {
+  const fs::path dir = ScratchDir("camera");
+  CmlEngine engine(TestOptions());
+  SessionInfo info = PanoramaSession("d1", SessionStartMode::kKnownPose, Pose2::Zero());
+  FisheyeCalibration f;
+  f.center_x_px = 100.5;
+  f.center_y_px = 98.25;
+  f.circle_radius_px = 95.0;
+  f.field_of_view_deg = 200.0;
+  f.projection = FisheyeProjection::kEquisolid;
+  f.min_elevation_deg = -10.0;
+  f.max_elevation_deg = 60.0;
+  info.camera.kind = ImageKind::kRawRing;
+  info.camera.image_width = 200;
+  info.camera.image_height = 200;
+  info.camera.calibration = f;
+  info.camera.mask = cv::Mat(200, 200, CV_8UC1, cv::Scalar(255));
+  info.camera.mask(cv::Rect(100, 90, 100, 20)).setTo(0);
+  engine.BeginSession(info);
+  const fs::path file = dir / "engine.omnicml";
+  SaveEngine(engine, file.string());
+  const std::unique_ptr<CmlEngine> loaded = LoadEngine(file.string());
+  EXPECT_EQ(EncodeEngine(*loaded), EncodeEngine(engine));
+  // Another mask gives other bytes: the mask is stored, not dropped.
+  CmlEngine other(TestOptions());
+  info.camera.mask = cv::Mat(200, 200, CV_8UC1, cv::Scalar(255));  // a new buffer
+  other.BeginSession(info);
+  EXPECT_NE(EncodeEngine(other), EncodeEngine(engine));
+}
+
 // Save and load restore every option field: all of them set to random values different
 // from their defaults (common/options.h RandomizeOptions), for several seeds.
 TEST(EngineIo, RestoresEveryOptionField) {

@@ -66,7 +66,7 @@ SessionInfo RingSession() {
   info.camera.kind = ImageKind::kRawRing;
   info.camera.image_width = kRingSize;
   info.camera.image_height = kRingSize;
-  OmniCalibration& c = info.camera.calibration;
+  OmniCalibration& c = info.camera.calibration.ring;
   c.center_x_px = 19.5;
   c.center_y_px = 19.25;
   c.inner_radius_px = 4.0;
@@ -202,8 +202,8 @@ TEST_F(LogTest, RoundTripIsBitIdentical) {
       EXPECT_EQ(got.start.covariance, want.start.covariance);
     }
     if (want.camera.kind == ImageKind::kRawRing) {
-      const OmniCalibration& a = got.camera.calibration;
-      const OmniCalibration& b = want.camera.calibration;
+      const OmniCalibration& a = got.camera.calibration.ring;
+      const OmniCalibration& b = want.camera.calibration.ring;
       EXPECT_TRUE(SameBits(a.center_x_px, b.center_x_px));
       EXPECT_TRUE(SameBits(a.center_y_px, b.center_y_px));
       EXPECT_TRUE(SameBits(a.inner_radius_px, b.inner_radius_px));
@@ -328,9 +328,21 @@ TEST_F(LogTest, ReaderRejectsEachKindOfBadFileWithFileAndLine) {
       {"unknown camera model",
        [&](const std::string& d) {
          ReplaceLine(d + s0 + "session.yaml", FindLine(d + s0 + "session.yaml", "model:"),
-                     "  model: fisheye");
+                     "  model: pinhole");
        },
-       "day_01/session.yaml", "", "fisheye"},
+       "day_01/session.yaml", "", "pinhole"},
+      {"bad calibration field",
+       [&](const std::string& d) {
+         ReplaceLine(d + s1 + "session.yaml", FindLine(d + s1 + "session.yaml", "direction:"),
+                     "    direction: sideways");
+       },
+       "day_02/session.yaml", "", "camera.calibration.direction"},
+      {"key of another camera model",
+       [&](const std::string& d) {
+         const int l = FindLine(d + s1 + "session.yaml", "inner_radius_px:");
+         ReplaceLine(d + s1 + "session.yaml", l, "    field_of_view_deg: 180");
+       },
+       "day_02/session.yaml", "", "field_of_view_deg"},
       {"unknown yaml key",
        [&](const std::string& d) {
          WriteFile(d + s0 + "session.yaml", ReadFile(d + s0 + "session.yaml") + "colour: red\n");
@@ -402,6 +414,39 @@ TEST_F(LogTest, ReaderRejectsEachKindOfBadFileWithFileAndLine) {
       EXPECT_EQ(std::string(e.what()), message);
     }
   }
+}
+
+// A fisheye session with a user mask round-trips through session.yaml (model, every
+// calibration field, the mask image next to it).
+TEST_F(LogTest, FisheyeSessionWithMaskRoundTrips) {
+  SessionInfo info = RingSession();
+  FisheyeCalibration f;
+  f.center_x_px = 20.25;
+  f.center_y_px = 19.5;
+  f.circle_radius_px = 19.0;
+  f.field_of_view_deg = 235.0;
+  f.projection = FisheyeProjection::kEquisolid;
+  f.min_elevation_deg = -27.5;
+  f.max_elevation_deg = 80.0;
+  f.azimuth0_rad = 0.25;
+  f.panorama_width = kPanoWidth;
+  f.panorama_height = kPanoHeight;
+  info.camera.calibration = f;
+  info.camera.mask = cv::Mat(kRingSize, kRingSize, CV_8UC1, cv::Scalar(255));
+  info.camera.mask(cv::Rect(0, 0, 10, 5)).setTo(0);
+  const std::string dir = Path("fisheye");
+  {
+    LogWriter writer(dir);
+    writer.BeginSession(info);
+    for (const Frame& frame : MakeFrames(info, 3)) writer.Write(frame);
+    writer.Finish();
+  }
+  LogReader reader(dir);
+  const SessionInfo& got = reader.Session(0);
+  EXPECT_TRUE(got.camera.calibration == info.camera.calibration);
+  EXPECT_EQ(got.camera.mask_image, "mask.png");
+  ASSERT_EQ(got.camera.mask.size(), info.camera.mask.size());
+  EXPECT_EQ(cv::countNonZero(got.camera.mask != info.camera.mask), 0);
 }
 
 TEST_F(LogTest, ReaderStreamsImagesLazily) {

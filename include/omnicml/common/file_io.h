@@ -1,5 +1,5 @@
-// File input and output shared by every module: the one atomic writer and the bounded,
-// regular-file-only readers.
+// File input and output shared by every module: the one atomic writer, the output-path
+// checks, the output locks and the bounded, regular-file-only readers.
 //
 // Writing. Every output file goes through AtomicFile (or WriteFileAtomic, which wraps it):
 // the bytes go to a temporary file in the target's directory named
@@ -8,10 +8,32 @@
 // fsync'ed. A reader therefore sees either the old file or the complete new one, and
 // after a crash the target is one of the two. On any failure, or when the AtomicFile is
 // destroyed without Commit() (an exception unwound the stack), the temporary is removed
-// and the target is untouched. Temporaries left by a process killed with SIGKILL are
-// recognisable by IsAtomicTempName(); the next AtomicFile for the same target removes
-// those whose pid is no longer alive. Readers open files by their exact names, so they
-// never pick a temporary up.
+// and the target is untouched. The writer holds an flock on its temporary from before the
+// file has a name (O_TMPFILE, then linked) until it is renamed; temporaries left by a
+// process killed with SIGKILL are recognisable by IsAtomicTempName() and by a lock nobody
+// holds, and the next AtomicFile in the same directory removes them. Liveness is decided
+// by the lock, never by the pid, which may belong to another PID namespace or host.
+// Readers open files by their exact names, so they never pick a temporary up.
+//
+// What an output may be. An output path is a regular file or nothing (a new name in an
+// existing, writable directory); a directory output is a directory or nothing. Devices,
+// FIFOs, sockets, symbolic links (also to a regular file) and, for files, directories are
+// refused with an omnicml::Error naming the path: CheckOutputNode() before any work, and
+// AtomicFile again when it opens and when it renames, so nothing is ever renamed over a
+// device (/dev/null) or through a link.
+//
+// Two writers. OutputLock takes an advisory lock (flock) on ".<name>.omnicml-lock"
+// beside an output; a second process asking for the same output refuses at once with an
+// Error naming the path and the holder's pid and host. The lock file is removed on
+// release. The directories above the output are created when missing (a run directory
+// may be made with its parents).
+//
+// Directory outputs (a log, a run directory) are assembled in a staging directory
+// "<target>.partial-<pid>" (StagingDirFor, StagedDirectory) next to the target and
+// renamed onto it when complete (exchanged with an existing target, which is then
+// removed); the writer holds the target's OutputLock throughout, so a staging or
+// ".old-<pid>" sibling found by a writer holding that lock belongs to a dead process and
+// RemoveStaleStagingDirs() removes it.
 //
 // Reading. Inputs are read only when they are regular files: OpenRegularFile() opens
 // without blocking (a FIFO does not hang), then rejects directories, FIFOs, sockets,
@@ -20,17 +42,13 @@
 // a whole file by a byte limit checked against its size before anything is allocated,
 // a line-oriented file (CSV) by a per-line limit.
 //
-// Directory outputs (a log, a run directory) are assembled in a staging directory
-// "<target>.partial-<pid>" (StagingDirFor) next to the target and renamed onto it when
-// complete; the writer removes it on failure, and RemoveStaleStagingDirs() removes the
-// staging (and ".old-<pid>") directories of the same target left by killed processes.
-//
 // Error messages are one line and start with the path: "<path>: cannot read <what>:
 // <reason>", "<path>:<line>: line longer than N bytes (<what>)", "<path>: cannot
 // create: <reason>". Excerpt() shortens a quoted piece of bad input.
 //
-// Thread-safety: the free functions are thread-safe; AtomicFile and LineReader are
-// thread-compatible (one thread at a time per object).
+// Thread-safety: the free functions are thread-safe; AtomicFile, StagedDirectory and
+// LineReader are thread-compatible (one thread at a time per object); OutputLock is
+// thread-safe (a process holds one lock per output, shared by its OutputLock objects).
 #ifndef OMNICML_COMMON_FILE_IO_H_
 #define OMNICML_COMMON_FILE_IO_H_
 
@@ -95,6 +113,7 @@ class AtomicFile {
   std::filesystem::path target_;
   std::filesystem::path temp_;
   std::ofstream out_;
+  int fd_ = -1;  // the temporary, holding the flock that marks it as in use
   FileSync sync_ = FileSync::kFsync;
   bool done_ = false;
 };
@@ -113,20 +132,91 @@ std::filesystem::path TempPathFor(const std::filesystem::path& target, pid_t pid
 // Stores the pid in *pid when given.
 bool IsAtomicTempName(std::string_view file_name, std::string_view name = {},
                       pid_t* pid = nullptr);
-// Removes temporaries of `target` (same directory, same name) whose process is dead.
-// Returns how many were removed; never throws.
+// Removes temporaries of `target` (same directory, same name) whose writer is gone (their
+// lock is free). Returns how many were removed; never throws.
 int RemoveStaleTemporaries(const std::filesystem::path& target);
 
 // "<target>.partial-<pid>": where a directory output is assembled before the rename.
 std::filesystem::path StagingDirFor(const std::filesystem::path& target, pid_t pid);
 // Removes "<target>.partial-<pid>" and "<target>.old-<pid>" directories (siblings of
-// `target`) whose process is dead or is this process (a leftover of an earlier writer
-// with a recycled pid). Returns how many were removed; never throws.
+// `target`) when this process holds, or can take, the target's OutputLock: every writer
+// of `target` holds that lock, so such a directory belongs to a dead writer. Does nothing
+// while another process holds the lock. Returns how many were removed; never throws.
 int RemoveStaleStagingDirs(const std::filesystem::path& target);
 
-// Checks, before any work starts, that an output file can be written: `path` is not a
-// directory and, if it exists, a regular file (after following symbolic links; a loop is
-// an error), and its directory exists and is writable. `flag` names the output in the
+// An advisory lock on one output (a file or a directory), held from construction to
+// destruction: flock on "<dir>/.<name>.omnicml-lock", which records "pid <pid> host
+// <host>" of the holder and is removed on release. Several OutputLock objects of one
+// process on the same output share the lock. Throws omnicml::Error "<flag> '<target>': in
+// use by another writer (pid P on host H; lock file L)" when another process holds it,
+// or naming the lock file when it cannot be created. Locks are advisory: they order
+// omnicml writers, not other programs.
+class OutputLock {
+ public:
+  OutputLock(const std::filesystem::path& target, std::string_view flag);
+  ~OutputLock();
+  OutputLock(const OutputLock&) = delete;
+  OutputLock& operator=(const OutputLock&) = delete;
+
+  // The lock file of `target`.
+  static std::filesystem::path LockPathFor(const std::filesystem::path& target);
+  // True when this process holds the lock of `target`.
+  static bool HeldByThisProcess(const std::filesystem::path& target);
+
+ private:
+  std::string key_;
+};
+
+// A directory output assembled under "<target>.partial-<pid>" and renamed onto `target`
+// by Commit(). Lifecycle: construct (takes the target's OutputLock, removes stale
+// staging directories, creates the staging directory) -> write files into path() (with
+// FileSync::kDeferred: Commit makes them durable at once) -> Commit() or destruction
+// (removes the staging directory). An existing target is replaced whole (exchanged
+// atomically where the file system can, then removed), so it must be empty or hold one
+// of `markers` (a file an earlier output of the same kind wrote, e.g. "frames.csv"):
+// an unrelated non-empty directory is refused rather than deleted.
+// Throws omnicml::Error "<flag> '<target>': ..." (not a directory, a symbolic link, an
+// unrelated directory, cannot create, rename failure).
+class StagedDirectory {
+ public:
+  StagedDirectory(std::filesystem::path target, std::string_view flag,
+                  std::vector<std::string> markers);
+  ~StagedDirectory();
+  StagedDirectory(const StagedDirectory&) = delete;
+  StagedDirectory& operator=(const StagedDirectory&) = delete;
+
+  const std::filesystem::path& path() const { return staging_; }
+  const std::filesystem::path& target() const { return target_; }
+  // Makes every file under path() durable (syncfs), renames the staging directory onto
+  // the target and removes the old target. Throws omnicml::Error; the target is then the
+  // old one. Idempotent.
+  void Commit();
+
+ private:
+  std::filesystem::path target_;
+  std::filesystem::path staging_;
+  std::string flag_;
+  OutputLock lock_;
+  bool done_ = false;
+};
+
+// Throws omnicml::Error "<flag> '<target>': ..." unless an existing `target` is a
+// directory that is empty or holds one of `markers` (what StagedDirectory replaces).
+void CheckReplaceableDirectory(const std::filesystem::path& target, std::string_view flag,
+                               const std::vector<std::string>& markers);
+
+// The type check of every output path, before any work: throws omnicml::Error
+// "<flag> '<path>': is a symbolic link" / "...: is a character device (not a regular
+// file)" / ... unless `path` does not exist or is (without following a final symbolic
+// link) a regular file, or a directory when `directory`. Creates nothing.
+void CheckOutputNode(const std::filesystem::path& path, std::string_view flag,
+                     bool directory = false);
+// What CheckOutputNode refuses, as text ("is a symbolic link", "is a FIFO (not a regular
+// file)", ...), or empty when `path` may be written.
+std::string OutputNodeProblem(const std::filesystem::path& path, bool directory = false);
+
+// Checks, before any work starts, that an output file can be written: CheckOutputNode,
+// and its directory exists and is writable. `flag` names the output in the
 // message ("--map-out"): "--map-out 'x': is a directory". Creates nothing. When the
 // directory is `will_create_dir` (a run directory that is made later), only that
 // directory's creatability is checked (CheckOutputDirectory). Throws omnicml::Error.
@@ -135,8 +225,15 @@ void CheckOutputFile(const std::filesystem::path& path, std::string_view flag,
 // Checks, before any work starts, that `path` can be an output directory: an existing
 // writable directory, or a path whose nearest existing ancestor is a writable directory
 // (so that it can be created); never a file, a dangling link or a link loop. Creates
-// nothing. Throws omnicml::Error "<flag> '<path>': ...".
+// nothing; refuses a symbolic link as the directory itself. Throws omnicml::Error
+// "<flag> '<path>': ...".
 void CheckOutputDirectory(const std::filesystem::path& path, std::string_view flag);
+
+// SHA-256 of `bytes` as 64 lowercase hex digits (what `sha256sum` prints).
+std::string Sha256Hex(std::span<const std::uint8_t> bytes);
+// SHA-256 of a regular file (read in pieces; OpenRegularFile's checks). Throws
+// omnicml::Error naming the path.
+std::string Sha256OfFile(const std::filesystem::path& path);
 
 // fsyncs a directory so that a rename or a new entry in it is durable. Best effort.
 void SyncDirectory(const std::filesystem::path& dir);

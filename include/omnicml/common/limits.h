@@ -39,6 +39,18 @@ inline constexpr double kMaxHeadingRad = 1e6;
 inline constexpr double kMaxPositionVarianceM2 = 1e12;
 inline constexpr double kMaxHeadingVarianceRad2 = 100.0;
 
+// Jobs of one sweep (`omnicml sweep`: inputs x seeds x option values), checked before
+// anything is expanded or written.
+inline constexpr std::int64_t kMaxSweepJobs = 10'000;
+// Pixels of one panorama side (width or height) in logs, calibrations and options: far
+// beyond any camera, small enough that a panorama's buffers fit in memory.
+inline constexpr int kMaxPanoramaSidePx = 16'384;
+// YAML documents: nodes visited with every alias expanded, and nesting depth. A
+// configuration has some hundreds of nodes; an alias bomb ("billion laughs") expands to
+// billions and is refused before it is materialised.
+inline constexpr std::int64_t kMaxYamlNodes = 1'000'000;
+inline constexpr int kMaxYamlDepth = 64;
+
 // Throws omnicml::Error "<name> must lie in [min, max] (got value)" unless
 // min <= value <= max. `name` is what the user wrote: a flag ("--days") or a key.
 inline void CheckLimit(std::string_view name, std::int64_t value, std::int64_t min,

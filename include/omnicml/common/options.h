@@ -494,7 +494,8 @@ template <class O>
 O DecodeOptions(BinaryReader& in, const char* what) {
   O options;
   const OptionValue value = DecodeOptionValue(in, what);
-  OptionsFromValue(value, OptionSource{what, true, {}}, &options);
+  // Errors name the file and the section: "<map file>: options:<key> ...".
+  OptionsFromValue(value, OptionSource{StrCat(in.source(), ": ", what), true, {}}, &options);
   return options;
 }
 

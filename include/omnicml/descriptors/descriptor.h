@@ -80,6 +80,16 @@ class DescriptorExtractor {
   // on an empty, too small or wrongly typed image.
   virtual Descriptor Compute(const cv::Mat& panorama) const = 0;
 
+  // The descriptor of a panorama of which only some pixels show the scene: `valid_mask`
+  // (CV_8UC1 of the panorama's size; 0 = invalid: outside a clipped ring, the robot's own
+  // body) or empty (all valid, same as Compute). Invalid pixels have no influence on the
+  // result: changing them leaves the descriptor unchanged. Default (histograms): each
+  // invalid pixel is replaced by the mean of the valid pixels of its row (of the whole
+  // panorama when the row has none), so masked areas add no structure of their own; the
+  // Fourier signature overrides it (fourier_signature.h). Throws omnicml::Error as Compute,
+  // or when the mask has the wrong size/type or no valid pixel.
+  virtual Descriptor ComputeMasked(const cv::Mat& panorama, const cv::Mat& valid_mask) const;
+
   // Distance E >= 0 between two feature vectors of equal length (0 for equal inputs).
   // The raw-pointer form serves contiguous storage of many descriptors: it is a tight,
   // vectorisable loop over plain floats (one virtual call per stored descriptor, none

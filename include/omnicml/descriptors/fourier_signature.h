@@ -127,11 +127,26 @@ class FourierSignature final : public DescriptorExtractor {
 
   const FourierOptions& options() const { return options_; }
 
+  // Masked panoramas (descriptor.h ComputeMasked): each band signal s_b[c] averages only
+  // the valid rows of column c in band b; a column with no valid row in a band is a gap.
+  // The column normalisation uses the valid pixels of the column, the band normalisation
+  // the band's valid columns, and gaps are set to the band's mean (0 after normalisation,
+  // the band mean otherwise), so they add nothing to the spectrum's shape and invalid
+  // pixels never change the result. Effect (docs/design.md "Masks"): the magnitudes of a
+  // band shrink with its valid fraction (Parseval), and the mask, fixed in the robot
+  // frame, does not turn with the robot, so two views of one place differing by a turn
+  // are no longer at distance 0; RelativeHeading correlates the gapped signals and still
+  // finds the turn while the gaps are a minority of the columns.
+  Descriptor ComputeMasked(const cv::Mat& panorama, const cv::Mat& valid_mask) const override;
+
   // The band signals s_b[c] (bands x W, CV_32FC1, after normalisation when enabled) the
-  // FFT is taken of: exposed for tests and plots.
-  cv::Mat BandSignals(const cv::Mat& panorama) const;
+  // FFT is taken of: exposed for tests and plots. `valid_mask` as ComputeMasked.
+  cv::Mat BandSignals(const cv::Mat& panorama, const cv::Mat& valid_mask = cv::Mat()) const;
 
  private:
+  cv::Mat MaskedBandSignals(const cv::Mat& panorama, const cv::Mat& valid_mask) const;
+  Descriptor Spectrum(const cv::Mat& signals) const;  // FFT of the band signals
+
   FourierOptions options_;
 };
 

@@ -60,10 +60,12 @@ namespace omnicml {
 //    model section's version 4 (its recent updates).
 // 12: option model.forget_unconfirmed_views.
 // 13: option descriptor.ifh.normalize_columns.
+// 14: the session camera's model (ring, fisheye, equirectangular), its fields and the
+//    user mask after the ring calibration.
 // The model's options keep these flat names in the file (model.e_max, model.forgetting,
 // ...) although YAML and C++ group them in sections (environment_model_options.h
 // FlatModelOptionsValue), so files of every version keep their bytes and load as before.
-inline constexpr std::uint32_t kEngineFormatVersion = 13;
+inline constexpr std::uint32_t kEngineFormatVersion = 14;
 // The 8 magic bytes (including the terminating NUL).
 inline constexpr char kEngineMagic[8] = {'O', 'M', 'N', 'I', 'C', 'M', 'L', '\0'};
 

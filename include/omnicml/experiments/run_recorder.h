@@ -23,9 +23,22 @@
 // an existing run directory so it never belongs to an earlier run. When asked, the
 // estimate goes to a further TUM file (trajectory_path, same content as trajectory.tum).
 //
-// If the recorder is destroyed without Commit() (an error unwound the stack), every
-// temporary file is removed and a run directory it created is removed when empty, so no
-// partial output remains.
+//   outputs.yaml     the files the run wrote outside its own set (--map-out,
+//                    --trajectory-out: AddOutput, trajectory_path) with their size and
+//                    SHA-256, so a run directory proves which map it wrote
+//                    (`sha256sum MAP` equals its sha256)
+//
+// A run commits as one unit. The run directory is assembled in a staging directory
+// beside it (StagedDirectory, "<run_dir>.partial-<pid>") and renamed into place by
+// Commit(), replacing an earlier run directory whole; an output file that lies directly
+// in the run directory is staged with it, one elsewhere is written under a temporary
+// name beside it. Commit() writes everything first (a full disk fails here, leaving the
+// old state), then renames the outside files, then the run directory: a run directory
+// that exists always names, in outputs.yaml, files that were completely written. The
+// recorder holds the outputs' locks (OutputLock) from construction, so a second writer
+// of the same run directory or file refuses at its start. If the recorder is destroyed
+// without Commit() (an error unwound the stack), the staging directory and every
+// temporary are removed: nothing partial remains, the old outputs are untouched.
 //
 // Thread-compatible: one thread drives the recorder.
 #ifndef OMNICML_EXPERIMENTS_RUN_RECORDER_H_
@@ -35,11 +48,13 @@
 #include <filesystem>
 #include <functional>
 #include <map>
+#include <memory>
 #include <optional>
 #include <string>
 #include <utility>
 #include <vector>
 
+#include "omnicml/common/file_io.h"
 #include "omnicml/engine/cml_engine.h"
 #include "omnicml/evaluation/evaluation.h"
 #include "omnicml/report/report.h"
@@ -53,12 +68,29 @@ const std::vector<std::string>& StageNames();
 // The FrameStats timings in StageNames() order.
 std::vector<double> StageTimes(const FrameStats& stats);
 
+// Files whose presence marks an existing directory as an earlier run directory, which a
+// new run may replace whole (StagedDirectory); any other non-empty directory is refused.
+const std::vector<std::string>& RunDirectoryMarkers();
+
+// Throws omnicml::Error "<flag> '<path>': ..." when output file `path` lies in a
+// subdirectory of `run_dir` (which a run replaces whole). Directly in run_dir or outside
+// it is fine.
+void CheckRunOutputPlacement(const std::string& flag, const std::filesystem::path& path,
+                             const std::filesystem::path& run_dir);
+// True when output file `path` lies directly in `run_dir`: it is then written into the
+// staging directory and committed with it (and locked by the run directory's lock).
+bool LiesInRunDirectory(const std::filesystem::path& path, const std::filesystem::path& run_dir);
+
 struct RunRecorderOptions {
   std::filesystem::path run_dir;          // "" = no run directory
   std::filesystem::path trajectory_path;  // "" = no TUM file
   std::string title = "omnicml run";      // report title
   std::string input_description;          // RunInput::Describe(), for config.yaml and the report
   bool write_report = true;               // report.html in run_dir
+  // true: run_dir is staged and committed whole (see the file comment); false: files
+  // go straight into run_dir, which the caller stages (compare's per-mode directories
+  // inside its own staging directory).
+  bool stage = true;
 };
 
 class RunRecorder {
@@ -99,13 +131,39 @@ class RunRecorder {
     extra_files_.emplace_back(name, std::move(content));
   }
 
+  // A further output file at `path` (e.g. the saved map of --map-out, named `flag` in
+  // errors), written by Commit with the run directory as the file comment says and
+  // recorded in outputs.yaml. Takes the file's OutputLock. Throws omnicml::Error when
+  // `path` lies in a subdirectory of the run directory (replaced whole by the commit) or
+  // another process holds its lock.
+  void AddOutput(const std::string& flag, const std::filesystem::path& path,
+                 std::vector<std::uint8_t> bytes);
+  // Where the run directory's files are being written until Commit (the staging
+  // directory, or run_dir when not staged).
+  const std::filesystem::path& write_dir() const { return write_dir_; }
+
   const std::vector<FrameRecord>& records() const { return records_; }
   const std::map<int, std::int64_t>& skipped_frames() const { return skipped_frames_; }
   const RunRecorderOptions& options() const { return options_; }
 
  private:
+  // An output file beside or inside the run directory (AddOutput, trajectory_path).
+  struct Output {
+    std::string flag;
+    std::filesystem::path path;        // as given
+    std::filesystem::path write_path;  // in the staging directory, or `path`
+    std::vector<std::uint8_t> bytes;
+  };
+  // Where `path` (an output named by `flag`) is written: inside the staging directory
+  // when it lies directly in the run directory, else itself.
+  std::filesystem::path WritePathFor(const std::string& flag, const std::filesystem::path& path);
+
   RunRecorderOptions options_;
-  bool created_dir_ = false;
+  std::unique_ptr<StagedDirectory> staged_;  // when options_.stage
+  std::filesystem::path write_dir_;
+  std::vector<std::unique_ptr<OutputLock>> locks_;
+  std::vector<Output> outputs_;
+  std::filesystem::path trajectory_write_path_;
   bool committed_ = false;
   std::unique_ptr<AtomicFile> frames_csv_;
   std::unique_ptr<AtomicFile> trajectory_;

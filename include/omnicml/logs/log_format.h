@@ -196,6 +196,8 @@ class LogWriter {
 
   std::string log_dir_;
   std::string partial_dir_;
+  // Held from construction to destruction: a second writer of the same log refuses.
+  std::unique_ptr<OutputLock> lock_;
   bool overwrite_ = false;
   bool finished_ = false;
   std::vector<std::string> session_names_;

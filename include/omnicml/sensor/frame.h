@@ -35,10 +35,18 @@ enum class ImageKind { kRawRing, kPanorama };
 
 // What a session's camera delivers.
 struct CameraModel {
+  // kRawRing: a raw camera image of `calibration`'s model (ring, fisheye or
+  // equirectangular; camera_model.h) that is unwrapped into the panorama.
   ImageKind kind = ImageKind::kPanorama;
   int image_width = 0;   // pixels of the delivered image
   int image_height = 0;
-  OmniCalibration calibration;  // meaningful for kRawRing only
+  CameraCalibration calibration;  // meaningful for kRawRing only
+  // Optional user mask (CV_8UC1, image size; kRawRing only): zero marks pixels that never
+  // show the scene (robot body, mounts, cables). Empty: every pixel is usable.
+  cv::Mat mask;
+  // The mask's file as named in session.yaml (relative to the session directory); "" when
+  // there is none.
+  std::string mask_image;
 };
 
 struct SessionInfo {

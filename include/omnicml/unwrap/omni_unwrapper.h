@@ -7,8 +7,9 @@
 // therefore rolls the panorama by k columns towards lower indices:
 //   after[c] = before[(c + k) mod W].
 //
-// OmniUnwrapper computes its sampling maps once at construction (cv::remap, bilinear)
-// and is then immutable: Unwrap and Render are safe to call from several threads.
+// OmniUnwrapper computes its sampling maps once at construction for any camera model of
+// camera_model.h (cv::remap, bilinear, fixed-point maps) and is then immutable: Unwrap
+// and Render are safe to call from several threads.
 #ifndef OMNICML_UNWRAP_OMNI_UNWRAPPER_H_
 #define OMNICML_UNWRAP_OMNI_UNWRAPPER_H_
 
@@ -18,57 +19,21 @@
 
 #include <opencv2/core.hpp>
 
+#include "omnicml/unwrap/auto_calibration.h"
+#include "omnicml/unwrap/camera_model.h"
+
 namespace omnicml {
-
-// How the ring's azimuth runs in the raw image as panorama columns increase.
-enum class RingDirection { kCounterClockwise, kClockwise };
-
-// How panorama rows map to ring radius.
-//  kLinear: radius linear in row, row 0 at the outer radius (the usual upward-looking
-//           mirror whose outer ring sees the highest elevation).
-//  kLinearInverted: row 0 at the inner radius.
-enum class ElevationMapping { kLinear, kLinearInverted };
-
-// Intrinsic calibration of a catadioptric ring image. Pixel coordinates have x to the
-// right and y downwards, origin at the centre of the top-left pixel.
-struct OmniCalibration {
-  double center_x_px = 320.0;
-  double center_y_px = 240.0;
-  double inner_radius_px = 40.0;   // radius of panorama's lowest/highest row edge
-  double outer_radius_px = 220.0;  // must exceed inner_radius_px
-  // Image-plane angle of panorama column 0, measured from the image x axis towards the
-  // image y axis (i.e. clockwise on screen), radians.
-  double azimuth0_rad = 0.0;
-  RingDirection direction = RingDirection::kCounterClockwise;
-  ElevationMapping elevation = ElevationMapping::kLinear;
-  int panorama_width = 720;   // azimuth bins (columns)
-  int panorama_height = 120;  // rows
-
-  // Throws omnicml::Error naming the field when a value is invalid (radii, sizes).
-  void Validate() const;
-  // Throws omnicml::Error when the ring does not fit inside an image of this size.
-  void ValidateFor(int image_width, int image_height) const;
-
-  // YAML round trip (keys equal member names; direction: counter_clockwise|clockwise;
-  // elevation: linear|linear_inverted). Unknown keys are an error naming the key.
-  static OmniCalibration FromYamlFile(const std::string& path);
-  void ToYamlFile(const std::string& path) const;
-};
-
-// Result of estimating centre and radii of the ring from an image.
-struct AutoCalibrationResult {
-  OmniCalibration calibration;  // the input template with centre and radii replaced
-  double inner_residual_px = 0; // RMS distance of inner-circle inliers to the fitted circle
-  double outer_residual_px = 0; // RMS distance of outer-circle inliers to the fitted circle
-  int inner_inliers = 0;
-  int outer_inliers = 0;
-};
 
 class OmniUnwrapper {
  public:
-  // Precomputes the maps for raw images of image_width x image_height pixels.
-  // Throws omnicml::Error if the calibration is invalid or leaves the image.
-  OmniUnwrapper(const OmniCalibration& calibration, int image_width, int image_height);
+  // Precomputes the maps for raw images of image_width x image_height pixels of the
+  // calibration's camera model (camera_model.h; an OmniCalibration converts to a ring).
+  // `user_mask` (optional, CV_8UC1 of the image size): zero marks pixels that never show
+  // the scene (the robot's body, mounts, cables); panorama pixels sampling them are
+  // invalid in valid_mask(). Throws omnicml::Error if the calibration is invalid, leaves
+  // the image (CameraCalibration::ValidateFor) or the mask has the wrong size or type.
+  OmniUnwrapper(const CameraCalibration& calibration, int image_width, int image_height,
+                const cv::Mat& user_mask = cv::Mat());
 
   // Raw ring (CV_8UC1 or CV_8UC3 of the construction size) -> panorama of the same type.
   // Throws omnicml::Error on an empty image, a wrong size or an unsupported type.
@@ -85,10 +50,22 @@ class OmniUnwrapper {
   // Throws omnicml::Error on an empty panorama or more than 4 channels.
   cv::Mat Render(const cv::Mat& panorama, const cv::Scalar& background = cv::Scalar::all(0)) const;
 
-  const OmniCalibration& calibration() const { return calibration_; }
+  // The ring calibration (meaningful when camera().model is kRing).
+  const OmniCalibration& calibration() const { return camera_.ring; }
+  const CameraCalibration& camera() const { return camera_; }
+
+  // Which panorama pixels show the scene (CV_8UC1, panorama size, 255 valid, 0 invalid):
+  // invalid where the sample falls outside the image (a clipped ring) or on a zero pixel
+  // of the user mask. Descriptors take it to ignore those pixels (descriptor.h).
+  const cv::Mat& valid_mask() const { return valid_mask_; }
+  // Fraction of valid panorama pixels, in (0, 1].
+  double valid_fraction() const { return valid_fraction_; }
 
  private:
-  OmniCalibration calibration_;
+  CameraCalibration camera_;
+  cv::Mat valid_mask_;
+  double valid_fraction_ = 1.0;
+  int border_mode_ = 0;  // cv::BORDER_REPLICATE, or cv::BORDER_WRAP for equirectangular
   int image_width_;
   int image_height_;
   // Sampling maps in OpenCV's fixed-point form (cv::convertMaps: CV_16SC2 positions in the
@@ -100,21 +77,6 @@ class OmniUnwrapper {
   std::vector<cv::Rect> render_rects_;
 };
 
-// Estimates centre and radii of the ring: edge points, then a robust circle fit (Ceres,
-// Huber loss) for the inner and the outer boundary. `initial` gives sizes, direction and
-// the other fields carried over. Throws omnicml::Error if no ring can be found.
-// Method: Gaussian blur; Otsu split into dark (outside, hole) and bright (ring) levels; a
-// crossing threshold a third of the way from dark to bright; rays from the bright
-// region's centroid: the first dark->bright crossing from the centre is an inner edge
-// point, the first coming in from the image border an outer one, each refined to the
-// sub-pixel peak of the radial gradient; per boundary a Cauchy-loss circle fit marks
-// inliers (|residual| <= max(2 px, 3 robust sigma)); the rays are cast again from the
-// fitted centre; finally one concentric fit (shared centre, Huber loss) of both
-// boundaries' inliers. Needs a ring brighter than a dark outside and a dark hole; the
-// outer circle may be cut by the image border (those rays are skipped). Deterministic;
-// about 10 ms of CPU for 640x480. Accepts CV_8UC1 or CV_8UC3 images.
-AutoCalibrationResult AutoCalibrate(const cv::Mat& raw, const OmniCalibration& initial = {});
-
 // Panoramic input (already unwrapped): returned as is, or resized (bilinear, INTER_AREA
 // when shrinking) to width x height when both are positive. Throws omnicml::Error on
 // an empty or 1x1 image or a negative size. Resizing keeps the column convention: output
@@ -122,6 +84,11 @@ AutoCalibrationResult AutoCalibrate(const cv::Mat& raw, const OmniCalibration& i
 // their azimuth and wrap around; plain cv::resize would shift them by a fraction of a
 // column). Render resamples panoramas of another size the same way.
 cv::Mat PreparePanorama(const cv::Mat& panorama, int width = 0, int height = 0);
+
+// A validity mask (OmniUnwrapper::valid_mask) resampled to a panorama of width x height as
+// PreparePanorama resamples the image: a pixel stays valid when at least half of what it
+// averages is valid. Returns the mask itself when the size already matches.
+cv::Mat PrepareMask(const cv::Mat& valid_mask, int width, int height);
 
 // Reads an image file as 8-bit grey or BGR: PNG, JPEG, BMP, TIFF, PBM/PGM/PPM/PAM or WebP,
 // recognised by their signature before any decoder runs (OpenCV's other decoders, DICOM

@@ -11,6 +11,7 @@
 #include <yaml-cpp/yaml.h>
 
 #include "omnicml/common/common.h"
+#include "omnicml/common/yaml_io.h"
 #include "omnicml/common/file_io.h"
 
 namespace omnicml {
@@ -321,7 +322,7 @@ OccupancyGrid LoadOccupancyGrid(const std::string& yaml_path) {
   const std::string text = ReadTextFile(yaml_path, kMaxTextFileBytes, "occupancy grid");
   YAML::Node root;
   try {
-    root = YAML::Load(text);
+    root = LoadYaml(text, yaml_path);
   } catch (const YAML::Exception& e) {
     throw Error(StrCat(yaml_path, ":", e.mark.line + 1, ": YAML error: ", e.msg));
   }

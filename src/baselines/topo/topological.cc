@@ -16,6 +16,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "omnicml/common/common.h"
+#include "omnicml/common/yaml_io.h"
 #include "omnicml/common/file_io.h"
 #include "omnicml/common/options.h"
 #include "omnicml/geometry/planar_geometry.h"
@@ -176,7 +177,7 @@ int AdjacencyMap::PlaceAt(const Eigen::Vector2d& p_m, const RoutePath* route) co
 AdjacencyMap ParseAdjacencyMap(const std::string& yaml_text, const std::string& source) {
   YAML::Node root;
   try {
-    root = YAML::Load(yaml_text);
+    root = LoadYaml(yaml_text, source);
   } catch (const YAML::ParserException& e) {
     throw Error(StrCat(source, ":", e.mark.line + 1, ": YAML syntax error: ", e.msg));
   }

@@ -14,6 +14,10 @@
 
 namespace omnicml::internal {
 
+// Throws omnicml::Error unless valid_mask is CV_8UC1 of the panorama's size with at
+// least one non-zero pixel (descriptor.cc).
+void CheckValidMask(const cv::Mat& panorama, const cv::Mat& valid_mask);
+
 // Throws omnicml::Error unless `image` is a non-empty CV_8UC1 or CV_8UC3 image of at
 // least min_width x min_height pixels. `who` names the caller in the message.
 inline void CheckDescriptorInput(const cv::Mat& image, const char* who, int min_width,

@@ -42,7 +42,7 @@ void AddRunInputFlags(CLI::App* cmd, RunSettings* f, bool with_forgetting) {
       },
       "Simulated images (with --world): raw_ring (default; the engine unwraps the rendered "
       "ring) | panorama (the rendered panorama itself, no ring and no unwrap: about 2x "
-      "faster; mean errors measured 2-5 % higher, docs/experiments.md)");
+      "faster; mean errors measured 2-5 % higher, docs/results.md)");
   cmd->add_flag("--skip-unreadable-frames", f->input.skip_unreadable_frames,
                 "Logs: skip (and count) frames that cannot be read instead of failing");
   cmd->add_option(

@@ -92,7 +92,7 @@ const CommandRegistration kRegistration{
           ->capture_default_str();
       cmd->add_flag("--ifh-normalize-columns", a->ifh_normalize_columns,
                     "ifh: divide each panorama column by its mean brightness first (lights "
-                    "that switch between the days; docs/experiments.md)");
+                    "that switch between the days; docs/results.md)");
       cmd->add_option("--grid-resolution", a->grid_resolution_m, "Occupancy grid cell size, m")
           ->capture_default_str();
       cmd->add_option("--particles", a->particles,

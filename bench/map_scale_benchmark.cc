@@ -504,7 +504,7 @@ void BM_ProcessFrameLike(benchmark::State& state) {
   std::sort(us.begin(), us.end());
   std::sort(cpu_us.begin(), cpu_us.end());
   // The thread's CPU time per frame: on a shared machine the wall-time tail is mostly
-  // other processes' (docs/experiments.md).
+  // other processes' (docs/results.md).
   state.counters["p50_cpu_us"] = cpu_us[cpu_us.size() / 2];
   state.counters["p99_cpu_us"] = cpu_us[std::min(cpu_us.size() - 1, cpu_us.size() * 99 / 100)];
   state.counters["views"] = static_cast<double>(f.model->NumViews());

@@ -1,7 +1,7 @@
 // Speed of the simulator: panorama ray casting, ring rendering, sensor noise, whole
 // frames (SimulatedFrameSource::Next) and the per-frame cost of the panorama the engine
 // sees (ring + unwrap against the direct panorama) for the built-in worlds, one core
-// (docs/experiments.md "Simulator speed").
+// (docs/results.md "Simulator speed").
 #include <string>
 #include <vector>
 

@@ -65,7 +65,7 @@ struct PoseGraphOptions {
   // and the graph then bent the reconstructed first lap back towards raw odometry. A view
   // matches within decimetres of its place, i.e. for a few frames after its creation, so
   // 50 (10 m at the simulator's 0.2 m a frame) only excludes the current pass; 20, 50,
-  // 100 and 200 give identical home_store runs (docs/experiments.md "Global pose graph
+  // 100 and 200 give identical home_store runs (docs/results.md "Global pose graph
   // with the first lap's closure").
   int min_loop_frames = 50;
   // At most one closure factor per this many frames (a revisit matches at every frame).

@@ -22,7 +22,7 @@
 // (The columns after the timings were added later; readers accept files without them.)
 // Errors are computed from the strongest component (what a robot would act on).
 //
-// Metrics and frames without an estimate (docs/experiments.md, "Metrics"): a frame is
+// Metrics and frames without an estimate (docs/outputs.md, "Definitions used everywhere"): a frame is
 // localized when the engine produced a pose for it (FrameResult::estimate; after a
 // global start there is none until the first confident p(x|y) seeds the tracker).
 // Coverage = localized frames / frames. Error statistics are over the localized frames
@@ -104,7 +104,7 @@ struct FrameRecord {
   // How the frame matched the map (engine runs; unknown in older files and MCL runs):
   // views with E < e_max (after top_k), -1 unknown; and the similarity S of the best of
   // them, 0 without a match, NaN unknown. p(x|y) enters the fusion only from S >=
-  // hypothesis_min_similarity (docs/experiments.md "Metrics").
+  // hypothesis_min_similarity (docs/outputs.md "Definitions used everywhere").
   int matches = -1;
   double best_similarity = kNaN;
 };

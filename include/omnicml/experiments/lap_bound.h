@@ -1,6 +1,6 @@
 // How accurate can a map built on dead reckoning become when its lap closes? The accuracy
 // that odometry with a given noise model and one loop closure allow on a route, whatever
-// the appearance front end (docs/experiments.md "What one lap closure can correct").
+// the appearance front end (docs/results.md "What one lap closure can correct").
 //
 // A lap p_0 .. p_T (p_T back at p_0's place) is driven with odometry increments
 // u_j = ComputeIncrement(p_j, p_{j+1}) perturbed by the motion model of docs/design.md

@@ -1,6 +1,6 @@
 // Survey mapping (`run` / `compare` --survey-days N [--survey-poses FILE]): the map of the
 // first N days is built from trusted poses, as [G] built its "old" map, and CML runs on
-// that map from day N + 1 on (docs/design.md "Survey mapping", docs/experiments.md).
+// that map from day N + 1 on (docs/design.md "Survey mapping", docs/results.md).
 //
 // Trusted poses come from the input's ground truth (the log's gt columns, or the
 // simulator) or from an external corrected trajectory in TUM format ("stamp x y z qx qy

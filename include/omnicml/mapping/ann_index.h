@@ -8,7 +8,7 @@
 // farthest returned vector is beyond the radius, then computes the extractor's exact
 // distance for the returned vectors only. Unlike view_index.h it is NOT exact: a true
 // match the graph search does not reach is missed (recall measured in
-// docs/experiments.md "Approximate retrieval").
+// docs/results.md "Approximate retrieval").
 //
 // Lifecycle: Reset (empty graph with parameters) -> Insert / Remove in any order ->
 // Clear. Vectors are labelled by the caller's ids (the model's view ids), so they stay

@@ -50,7 +50,7 @@ struct TrackerOptions {
   // intersection, the conservative default motion noise): position NEES mean about 0.5
   // on institute instead of 2, so 11.34 there is a gate at about 45 in consistent units,
   // which let aliased views pull the estimate metres away in one step. 3.0 is the 99 %
-  // gate at that consistency (11.34 x 0.5 / 2), measured in docs/experiments.md "The
+  // gate at that consistency (11.34 x 0.5 / 2), measured in docs/results.md "The
   // fusion gate". Also the unimodality radius (below) and the prior gate of p(x|y).
   double gamma = 3.0;
   // Components with normalised weight below w_min are dropped. Dimensionless.

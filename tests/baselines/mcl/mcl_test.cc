@@ -489,7 +489,7 @@ TEST(Mcl, DefaultFilterTracksEverySeed) {
 // institute, whose office lights switch between the days: with column-normalised
 // histograms and no relative heading (datasets/mcl/switching_lights.yaml) the filter
 // tracks day 2 from the known start on several seeds; the defaults jump 10-13 m there
-// (docs/experiments.md "institute with column-normalised histograms").
+// (docs/results.md "institute with column-normalised histograms").
 TEST(Mcl, InstituteTracksWithColumnNormalisedHistograms) {
   for (std::uint64_t seed : {1u, 2u, 3u}) {
     MclOptions o;

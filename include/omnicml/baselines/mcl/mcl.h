@@ -34,7 +34,7 @@
 //      (Probabilistic Robotics, Table 8.3); kWhenLost (default, beyond [W]) injects only
 //      while a lost detector fires, a share of the samples in the visibility areas of the
 //      retrieved references with their implied heading (sensor resetting).
-//      Measured on home_store (docs/baselines_results.md): with kEveryStep and
+//      Measured on home_store (docs/results.md): with kEveryStep and
 //      top_k 10, known-start tracking jumps 20-24 m to the mirror end of the store when
 //      retrieval aliases for 10-25 frames in a row (the true place's references drop to
 //      ranks 2-15, so xi = 0 there and the true cloud sits at the floor; injected
@@ -95,7 +95,7 @@ struct MclOptions {
   int num_particles = 5000;
   // Which injection rule; see MclInjection. Default kWhenLost ([W]'s kEveryStep
   // jumps to the mirror end of home_store on 3 of 5 seeds and 5-7 m on the other two,
-  // docs/baselines_results.md).
+  // docs/results.md).
   MclInjection injection = MclInjection::kWhenLost;
   // kEveryStep: random samples injected per step, uniform over the free cells ([W]: 50);
   // in [0, num_particles / 2].
@@ -157,7 +157,7 @@ struct MclOptions {
   // the reference by max_distance_from_reference_m instead. That cut-off was 2.5 m
   // before; 0.75 m (about two reference spacings on home_store) bounds the tracking
   // error: home_store seeds 1-5, max position error worst 1.9 m with 2.5 m, 1.2 m with
-  // 1.0 m, 0.79 m with 0.75 m (docs/baselines_results.md).
+  // 1.0 m, 0.79 m with 0.75 m (docs/results.md).
   // Since this session the cut-off follows the data: with
   // visibility.max_distance_from_reference_m = 0 (default) it is
   // visibility_radius_spacings times the references' median spacing along the route

@@ -117,7 +117,7 @@ AdjacencyMap PlacesFromRoute(const RoutePath& route, double place_length_m);
 enum class PlaceState { kConfident, kUncertain, kConfused };
 std::string ToString(PlaceState state);  // confident|uncertain|confused
 
-// The localizer's histogram defaults (docs/experiments.md "[UN] ..."): [UN]'s
+// The localizer's histogram defaults (docs/results.md "[UN] ..."): [UN]'s
 // six bands with the normalised r, g, b (chromaticity: unchanged when a room's lights
 // change its brightness) and 64 bins per band (near-grey walls put most chromaticity
 // values within a few hundredths of 1/3). Chosen among bins {32, 64} on home_store and
@@ -190,7 +190,7 @@ struct TopologicalOptions {
 };
 
 // [UN]'s bands and vote as published, on the defaults before the illumination
-// work (the "before" rows of docs/experiments.md): HLS L and S, unanimity; 64 bins,
+// work (the "before" rows of docs/results.md): HLS L and S, unanimity; 64 bins,
 // normalised r, g, b and 4 x 4 block averages as the defaults. As YAML (--config):
 // histogram: {hsv_saturation: false, relative_luminance: false}, max_dissenting_bands: 0.
 TopologicalOptions UlrichNourbakhshOptions();

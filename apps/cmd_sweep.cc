@@ -1,5 +1,5 @@
 // `omnicml sweep SPEC.yaml --out DIR [-j N] [--dry-run|--no-run]`: expands a sweep spec
-// (experiments/sweep.h; README "Sweeps") into a Snakemake workflow in DIR and runs it
+// (experiments/sweep.h; docs/guide.md "Sweeps") into a Snakemake workflow in DIR and runs it
 // locally with N parallel jobs, then collects the summary (summary.csv, summary.html).
 // Complete jobs are skipped on rerun. Prints the Snakemake command lines for running the
 // same workflow by hand and on a Slurm cluster.

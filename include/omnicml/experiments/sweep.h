@@ -4,7 +4,7 @@
 // `omnicml run` (or `compare`) writing its run directory; `collect` gathers every run's
 // summary into one CSV and an HTML report.
 //
-// Spec (README "Sweeps"; sample datasets/sweeps/forgetting_home_store.yaml). Keys:
+// Spec (docs/guide.md "Sweeps"; sample datasets/sweeps/forgetting_home_store.yaml). Keys:
 //   command: run                  # run | compare (default run)
 //   inputs:                       # at least one; each exactly one of world / logs
 //     - {world: home_store, days: 1, frames_per_day: 60, name: hs}   # name optional

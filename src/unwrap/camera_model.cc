@@ -3,9 +3,11 @@
 #include <algorithm>
 #include <cmath>
 #include <functional>
+#include <initializer_list>
 #include <map>
 #include <numbers>
 #include <sstream>
+#include <utility>
 
 #include <yaml-cpp/yaml.h>
 
@@ -104,41 +106,36 @@ class FieldParser {
   void Int(const char* key, int& out) {
     Field(key, [&](const YAML::Node& v) { out = Scalar<int>(v, key, "an integer"); });
   }
-  void Direction(const char* key, RingDirection& out) {
+  // A string field naming one of `names`; any other text fails with the choices listed.
+  template <class E>
+  void Enum(const char* key, E& out, std::initializer_list<std::pair<E, const char*>> names) {
     Field(key, [&](const YAML::Node& v) {
       const std::string s = Scalar<std::string>(v, key, "a string");
-      if (s == "counter_clockwise") {
-        out = RingDirection::kCounterClockwise;
-      } else if (s == "clockwise") {
-        out = RingDirection::kClockwise;
-      } else {
-        Fail(v, StrCat(where_, ".", key, ": '", s, "' is not counter_clockwise or clockwise"));
+      std::string choices;
+      for (const auto& [value, name] : names) {
+        if (s == name) {
+          out = value;
+          return;
+        }
+        choices += choices.empty() ? name : StrCat(" or ", name);
       }
+      Fail(v, StrCat(where_, ".", key, ": '", s, "' is not ", choices));
     });
+  }
+  void Direction(const char* key, RingDirection& out) {
+    Enum(key, out,
+         {{RingDirection::kCounterClockwise, "counter_clockwise"},
+          {RingDirection::kClockwise, "clockwise"}});
   }
   void Elevation(const char* key, ElevationMapping& out) {
-    Field(key, [&](const YAML::Node& v) {
-      const std::string s = Scalar<std::string>(v, key, "a string");
-      if (s == "linear") {
-        out = ElevationMapping::kLinear;
-      } else if (s == "linear_inverted") {
-        out = ElevationMapping::kLinearInverted;
-      } else {
-        Fail(v, StrCat(where_, ".", key, ": '", s, "' is not linear or linear_inverted"));
-      }
-    });
+    Enum(key, out,
+         {{ElevationMapping::kLinear, "linear"},
+          {ElevationMapping::kLinearInverted, "linear_inverted"}});
   }
   void Projection(const char* key, FisheyeProjection& out) {
-    Field(key, [&](const YAML::Node& v) {
-      const std::string s = Scalar<std::string>(v, key, "a string");
-      if (s == "equidistant") {
-        out = FisheyeProjection::kEquidistant;
-      } else if (s == "equisolid") {
-        out = FisheyeProjection::kEquisolid;
-      } else {
-        Fail(v, StrCat(where_, ".", key, ": '", s, "' is not equidistant or equisolid"));
-      }
-    });
+    Enum(key, out,
+         {{FisheyeProjection::kEquidistant, "equidistant"},
+          {FisheyeProjection::kEquisolid, "equisolid"}});
   }
 
   // After all fields: unknown keys are an error; with require_all, missing ones too.

@@ -8,7 +8,7 @@
 #include <CLI/CLI.hpp>
 
 #include "omnicml/engine/cml_engine.h"
-#include "omnicml/experiments/run_config.h"
+#include "omnicml/experiments/run_experiment.h"
 
 namespace omnicml::app {
 

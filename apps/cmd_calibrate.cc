@@ -13,7 +13,7 @@
 #include "omnicml/common/common.h"
 #include "omnicml/common/file_io.h"
 #include "omnicml/engine/calibration.h"
-#include "omnicml/experiments/run_config.h"
+#include "omnicml/run/run_config.h"
 
 namespace omnicml::app {
 namespace {

@@ -29,7 +29,7 @@
 #include "omnicml/common/common.h"
 #include "omnicml/descriptors/descriptor_factory.h"
 #include "omnicml/unwrap/omni_unwrapper.h"
-#include "omnicml/experiments/run_config.h"
+#include "omnicml/run/run_config.h"
 
 namespace omnicml::app {
 namespace {

@@ -17,7 +17,7 @@
 #include "omnicml/common/common.h"
 #include "omnicml/engine/engine_io.h"
 #include "omnicml/evaluation/evaluation.h"
-#include "omnicml/experiments/floor_plan.h"
+#include "omnicml/run/floor_plan.h"
 #include "omnicml/report/map_export.h"
 #include "omnicml/report/report.h"
 #include "omnicml/sim/world.h"

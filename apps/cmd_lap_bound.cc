@@ -20,7 +20,7 @@
 #include "omnicml/common/common.h"
 #include "omnicml/common/file_io.h"
 #include "omnicml/experiments/lap_bound.h"
-#include "omnicml/experiments/run_config.h"
+#include "omnicml/run/run_config.h"
 #include "omnicml/logs/log_format.h"
 #include "omnicml/sim/world.h"
 

@@ -52,9 +52,10 @@
 #include "omnicml/common/common.h"
 #include "omnicml/common/file_io.h"
 #include "omnicml/engine/engine_io.h"
-#include "omnicml/experiments/run_config.h"
-#include "omnicml/experiments/run_recorder.h"
-#include "omnicml/experiments/run_report.h"
+#include "omnicml/experiments/run_experiment.h"
+#include "omnicml/run/engine_driver.h"
+#include "omnicml/run/run_recorder.h"
+#include "omnicml/run/run_report.h"
 
 namespace omnicml {
 namespace {

@@ -1,5 +1,5 @@
 // Fuzzes the engine configuration YAML: the common/options.h schema reader of
-// CmlEngineOptions (what experiments/run_config.cc ParseEngineOptionsYaml calls), and a
+// CmlEngineOptions (what run/run_config.cc ParseEngineOptionsYaml calls), and a
 // dump + re-read of what it accepted (an accepted configuration must load back).
 #include "fuzz_util.h"
 #include "omnicml/common/options.h"

@@ -15,8 +15,8 @@
 #include "omnicml/common/common.h"
 #include "omnicml/engine/cml_engine.h"
 #include "omnicml/engine/engine_io.h"
-#include "omnicml/experiments/run_config.h"
-#include "omnicml/experiments/run_recorder.h"
+#include "omnicml/run/run_config.h"
+#include "omnicml/run/run_recorder.h"
 #include "omnicml/report/map_export.h"
 
 namespace omnicml::python {

@@ -1,12 +1,13 @@
-// Bindings of the experiments module: run (`omnicml run`: CML over logs or a simulated
-// world, the map carried from day to day) and compare (`omnicml compare`: the [G] Table 1
-// experiment, passive / active / static forgetting on the same input) through the library's
-// RunExperiment and RunCompareExperiment, so Python gets exactly the command's results;
-// their tables come back as numpy arrays. evaluate: the statistics of a run directory.
+// Bindings of the run layer and the experiments: run (`omnicml run`: CML over logs or a
+// simulated world, the map carried from day to day) through the in-memory run API
+// (run/cml_run.h: options as a value, records and engine returned in memory, a run
+// directory only with out_dir) and compare (`omnicml compare`: the [G] Table 1
+// experiment, passive / active / static forgetting on the same input) through
+// RunCompareExperiment, so Python gets exactly the commands' results; their tables come
+// back as numpy arrays. evaluate: the statistics of a run directory.
 //
-// The library functions take engine options as a configuration file and always write a
-// run directory: options given from Python go to a temporary YAML file, and without
-// out_dir the run directory is a temporary one, removed after its frames.csv was read.
+// compare always writes its directory (table, reports): without out_dir it is a
+// temporary one, removed after the call.
 #include <algorithm>
 #include <atomic>
 #include <cmath>
@@ -26,9 +27,11 @@
 #include "omnicml/common/file_io.h"
 #include "omnicml/engine/engine_io.h"
 #include "omnicml/evaluation/evaluation.h"
+#include "omnicml/experiments/change_detection.h"
 #include "omnicml/experiments/compare_experiment.h"
-#include "omnicml/experiments/run_config.h"
 #include "omnicml/experiments/run_experiment.h"
+#include "omnicml/run/cml_run.h"
+#include "omnicml/run/run_config.h"
 
 namespace omnicml::python {
 
@@ -170,14 +173,10 @@ void FillEvaluation(const EvaluationResult& e, RunResult* r) {
   r->overall = DayDict(e.overall);
 }
 
-// Input, engine options (a temporary configuration file under `tmp`), threads and
-// forgetting overrides, out_dir: the settings the library's experiments take.
-RunSettings MakeSettings(const py::object& logs, const std::string& world, int days, int first_day,
-                         int frames_per_day, std::uint64_t seed, const py::object& options,
-                         std::optional<int> threads, std::optional<std::string> forgetting,
-                         const std::filesystem::path& out_dir, bool quiet, const TempDir& tmp) {
-  RunSettings s;
-  RunInput& in = s.input;
+// The input of a run from the Python arguments.
+RunInput MakeInput(const py::object& logs, const std::string& world, int days, int first_day,
+                   int frames_per_day, std::uint64_t seed) {
+  RunInput in;
   if (!logs.is_none()) {
     if (py::isinstance<py::str>(logs) || py::hasattr(logs, "__fspath__")) {
       in.log_dirs.push_back(py::str(logs));
@@ -190,13 +189,32 @@ RunSettings MakeSettings(const py::object& logs, const std::string& world, int d
   in.first_day = first_day;
   in.frames_per_day = frames_per_day;
   in.seed = seed;
-  if (!options.is_none()) {
-    const std::filesystem::path config = tmp.path() / "config.yaml";
-    WriteFileAtomic(config, EngineOptionsToYaml(OptionsFromObject(options)));
-    s.overrides.config_path = config.string();
+  return in;
+}
+
+// Engine options (a value under the threads and forgetting overrides). Without options,
+// threads default as for the command (WithDefaultThreads); with options, their threads.
+OptionOverrides MakeOverrides(const std::optional<CmlEngineOptions>& base,
+                              std::optional<int> threads, std::optional<std::string> forgetting) {
+  OptionOverrides o;
+  o.threads = threads;
+  o.forgetting = std::move(forgetting);
+  if (base) {
+    if (!o.threads) o.threads = base->threads;
+    return o;
   }
-  s.overrides.threads = threads;
-  s.overrides.forgetting = forgetting;
+  return WithDefaultThreads(o);
+}
+
+// Input, engine options, threads and forgetting overrides, out_dir: the settings of compare.
+RunSettings MakeSettings(const py::object& logs, const std::string& world, int days, int first_day,
+                         int frames_per_day, std::uint64_t seed, const py::object& options,
+                         std::optional<int> threads, const std::filesystem::path& out_dir,
+                         bool quiet) {
+  RunSettings s;
+  s.input = MakeInput(logs, world, days, first_day, frames_per_day, seed);
+  if (!options.is_none()) s.base_options = OptionsFromObject(options);
+  s.overrides = MakeOverrides(s.base_options, threads, std::nullopt);
   s.out_dir = out_dir.string();
   s.quiet = quiet;
   s.no_progress_bar = true;
@@ -260,35 +278,49 @@ void BindExperiments(py::module_& m) {
                                "': the saved engine's options are used; only threads and "
                                "forgetting may change (drop options)"));
           }
-          TempDir tmp;
-          RunExperimentOptions o;
-          o.settings = MakeSettings(logs, world, days, first_day, frames_per_day, seed, options,
-                                    threads, forgetting,
-                                    out_dir.empty() ? tmp.path() / "run" : std::filesystem::path(out_dir),
-                                    quiet, tmp);
-          o.map_in = map_in;
-          o.map_out = map_out.empty() ? (tmp.path() / "map.omap").string() : map_out;
-          o.trajectory_out = trajectory_out;
-          RunExperimentResult r;
-          FramesTable table;
-          std::unique_ptr<CmlEngine> engine;
+          const RunInput input = MakeInput(logs, world, days, first_day, frames_per_day, seed);
+          std::optional<CmlEngineOptions> base;
+          if (!options.is_none()) base = OptionsFromObject(options);
+          // Resuming a saved engine changes only what is asked (MakeRunEngine).
+          OptionOverrides overrides;
+          if (map_in.empty()) {
+            overrides = MakeOverrides(base, threads, forgetting);
+          } else {
+            overrides.threads = threads;
+            overrides.forgetting = forgetting;
+          }
+          CmlRunSettings s;
+          s.outputs.run_dir = out_dir;
+          s.outputs.map_path = map_out;
+          s.outputs.trajectory_path = trajectory_out;
+          s.outputs.input_description = input.Describe() + (map_in.empty() ? "" : ", map " + map_in);
+          s.progress.quiet = quiet;
+          s.progress.label = "run";
+          s.keep_resumable_engine = true;
+          // A run directory of simulated input has the command's change detection files.
+          std::optional<ChangeDetectionObserver> changes;
+          if (!input.world.empty() && !out_dir.empty()) {
+            changes.emplace(input.world, input.first_day, input.seed);
+            s.observers.push_back(&*changes);
+          }
+          CmlRunResult r;
           {
             py::gil_scoped_release release;
-            r = RunExperiment(o);
-            table = ReadFramesCsv(std::filesystem::path(r.run_dir) / "frames.csv");
-            engine = LoadEngine(o.map_out);
+            input.Validate();
+            r = RunCml(MakeRunEngine(overrides, map_in, base.value_or(CmlEngineOptions{})), input,
+                       s);
           }
           RunResult out;
           out.label = "run";
-          out.run_dir = out_dir.empty() ? "" : r.run_dir;
-          out.frames = FramesDict(table.records);
+          out.run_dir = out_dir;
+          out.frames = FramesDict(r.records);
           FillEvaluation(r.evaluation, &out);
           out.wall_s = r.summary.wall_s;
           out.num_frames = r.summary.frames;
           out.num_sessions = r.summary.sessions;
-          out.views = static_cast<std::int64_t>(r.views);
-          out.components = static_cast<std::int64_t>(r.components);
-          out.engine = py::cast(std::move(engine));
+          out.views = static_cast<std::int64_t>(r.engine->model().NumViews());
+          out.components = static_cast<std::int64_t>(r.engine->model().NumComponents());
+          out.engine = py::cast(std::move(r.resumable_engine));
           return out;
         },
         py::arg("logs") = py::none(), py::arg("world") = "", py::arg("days") = 1,
@@ -297,7 +329,7 @@ void BindExperiments(py::module_& m) {
         py::arg("forgetting") = py::none(), py::arg("out_dir") = "", py::arg("map_in") = "",
         py::arg("map_out") = "", py::arg("trajectory_out") = "", py::arg("quiet") = true,
         "CML over the days in order, the map carried from day to day: `omnicml run` "
-        "(RunExperiment). Input: logs (a path or list) or world (built-in name or YAML) with "
+        "(the in-memory run API). Input: logs (a path or list) or world (built-in name or YAML) with "
         "days, first_day, frames_per_day (0 = 300) and seed. options: None, a dict, a YAML path "
         "or EngineOptions; threads, forgetting ('active', 'passive', 'static'): overrides, the "
         "only ones allowed with map_in (resume a saved engine). out_dir: keep the run "
@@ -312,9 +344,9 @@ void BindExperiments(py::module_& m) {
           TempDir tmp;
           CompareExperimentOptions o;
           o.settings = MakeSettings(logs, world, days, first_day, frames_per_day, seed, options,
-                                    threads, std::nullopt,
+                                    threads,
                                     out_dir.empty() ? tmp.path() / "compare" : std::filesystem::path(out_dir),
-                                    quiet, tmp);
+                                    quiet);
           o.steps = steps;
           o.jobs = jobs;
           CompareExperimentResult r;

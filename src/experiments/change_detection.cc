@@ -10,7 +10,7 @@
 
 #include "omnicml/common/common.h"
 #include "omnicml/evaluation/evaluation.h"
-#include "omnicml/experiments/run_report.h"
+#include "omnicml/run/run_report.h"
 #include "omnicml/sim/renderer.h"
 
 #include <opencv2/core.hpp>
@@ -335,6 +335,49 @@ std::string ChangeDetectionTotals(const std::vector<ChangeDetectionDay>& days) {
   };
   return StrCat(part("visible", vtp, vt), "; ", part("geometric", gtp, gt), " over ",
                 days.size(), " day(s)");
+}
+
+ChangeDetectionObserver::ChangeDetectionObserver(std::string world_name, int first_day,
+                                                 std::uint64_t seed,
+                                                 ChangeDetectionOptions options)
+    : world_name_(std::move(world_name)), first_day_(first_day), seed_(seed), options_(options) {}
+
+void ChangeDetectionObserver::OnSessionEnd(const CmlEngine& engine, int source_session,
+                                           const std::vector<FrameRecord>& records) {
+  if (!world_) world_ = LoadWorld(world_name_);
+  const int session = engine.session_state().session;
+  MapHealthOptions ho;
+  ho.cell_m = options_.cell_m;
+  const MapHealth health = ComputeMapHealth(engine.model(), session, ho);
+  if (health.first_session < 0 || health.first_session >= session) return;  // a first map
+  std::vector<Eigen::Vector2d> path;
+  for (const FrameRecord& r : records) {
+    if (r.session == session && r.has_truth) path.push_back(r.truth.head<2>());
+  }
+  const int day = first_day_ + source_session + 1;
+  const WorldDayChanges changes = ChangesOfDay(*world_, day, seed_);
+  ChangedSharesFn shares;
+  std::unique_ptr<VisibleChanges> visible;
+  if (day >= 2) {
+    visible = std::make_unique<VisibleChanges>(*world_, day, seed_, options_);
+    shares = [&visible](const Eigen::Vector2d& p) {
+      return ChangedShares{visible->SurfaceFraction(p), visible->LitFraction(p)};
+    };
+  }
+  days_.push_back(ScoreChangeDetection(health, changes, path, shares, options_));
+}
+
+void ChangeDetectionObserver::OnCommit(RunRecorder& recorder,
+                                       std::vector<std::pair<std::string, std::string>>* notes) {
+  std::ostringstream csv;
+  WriteChangeDetectionCsv(csv, days_);
+  recorder.AddFile("change_detection.csv", csv.str());
+  std::ostringstream cells_csv;
+  WriteChangeCellsCsv(cells_csv, days_, options_.cell_m);
+  recorder.AddFile("change_cells.csv", cells_csv.str());
+  notes->emplace_back("change detection (health changed/new vs the day events)",
+                      days_.empty() ? std::string("no day after the map's first")
+                                    : ChangeDetectionTotals(days_));
 }
 
 }  // namespace omnicml

@@ -13,11 +13,11 @@
 #include "omnicml/common/common.h"
 #include "omnicml/common/limits.h"
 #include "omnicml/engine/engine_io.h"
-#include "omnicml/experiments/floor_plan.h"
+#include "omnicml/run/floor_plan.h"
 #include "omnicml/experiments/replay.h"
 #include "omnicml/experiments/run_experiment.h"
-#include "omnicml/experiments/run_recorder.h"
-#include "omnicml/experiments/run_report.h"
+#include "omnicml/run/run_recorder.h"
+#include "omnicml/run/run_report.h"
 #include "omnicml/experiments/survey.h"
 #include "omnicml/report/map_export.h"
 #include "omnicml/report/report.h"
@@ -303,7 +303,8 @@ CompareExperimentResult RunCompareExperiment(const CompareExperimentOptions& opt
   f.input.Validate();
   CheckLimit("--jobs", options.jobs, 0, kMaxThreads);
   if (f.log_every_frames < 1) throw Error("--log-every must be >= 1");
-  const CmlEngineOptions base = ResolveEngineOptions(WithDefaultThreads(f.overrides));
+  const CmlEngineOptions base = ResolveEngineOptions(
+      WithDefaultThreads(f.overrides), f.base_options.value_or(CmlEngineOptions{}));
   f.survey.Validate();
   // One reading of the survey trajectory, shared (read-only) by the modes' threads.
   std::shared_ptr<const SurveyPoses> survey_poses;

@@ -666,7 +666,7 @@ void WriteMclRunDirectory(const MclExperimentOptions& a, const MclPrepared& p,
     WriteFramesCsvHeader(csv, MclStageNames());
     for (const FrameRecord& r : result.records) WriteFramesCsvRow(csv, r);
     WriteDaysCsv(add("days.csv"), result.records, MclStageNames());
-    // evo-ready TUM files on shared stamps (run_recorder.h).
+    // evo-ready TUM files on shared stamps (run/run_recorder.h).
     WriteTum(add("trajectory.tum"), result.records, TumContent::kEstimate);
     if (HasTumContent(result.records, TumContent::kGroundTruth))
       WriteTum(add("groundtruth.tum"), result.records, TumContent::kGroundTruth);

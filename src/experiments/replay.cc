@@ -11,8 +11,9 @@
 
 #include "omnicml/common/common.h"
 #include "omnicml/common/file_io.h"
-#include "omnicml/experiments/floor_plan.h"
+#include "omnicml/run/floor_plan.h"
 #include "omnicml/report/svg_plot.h"
+#include "omnicml/run/run_config.h"
 
 namespace omnicml {
 namespace fs = std::filesystem;
@@ -656,28 +657,6 @@ std::string ReadInputLine(const fs::path& run_dir) {
   return "";
 }
 
-// The forgetting mode of RUNDIR/config.yaml: the value of the first "forgetting:" key, or
-// of the "mode:" key of its section (model.forgetting.mode); "" when absent.
-std::string ReadForgetting(const fs::path& run_dir) {
-  const fs::path config = run_dir / "config.yaml";
-  std::error_code ec;
-  if (!fs::is_regular_file(config, ec)) return "";
-  LineReader in(config, "config");
-  std::string line;
-  bool in_section = false;
-  while (in.Next(&line)) {
-    const std::string wanted = in_section ? "mode:" : "forgetting:";
-    const std::size_t key = line.find(wanted);
-    if (key == std::string::npos || line.find_first_not_of(' ') != key) continue;
-    std::string value = line.substr(key + wanted.size());
-    value.erase(0, value.find_first_not_of(' '));
-    value = value.substr(0, value.find_first_of(" #"));
-    if (!value.empty() || in_section) return value;
-    in_section = true;  // "forgetting:" opens the section holding "mode:"
-  }
-  return "";
-}
-
 ReplayRun ReadRun(const fs::path& run_dir, std::string name) {
   ReplayRun run;
   run.name = std::move(name);
@@ -708,7 +687,7 @@ fs::path WriteReplay(const fs::path& dir, ReplayOptions options) {
                        "' is neither a run directory (frames.csv) nor a compare directory"));
   if (options.input.empty()) options.input = ReadInputLine(config_dir);
   if (runs.size() == 1 && runs.front().name.empty()) {
-    const std::string mode = ReadForgetting(config_dir);
+    const std::string mode = ReadRunForgetting(config_dir);
     runs.front().name = mode.empty() ? "run" : "run (" + mode + " forgetting)";
   }
   if (options.title == ReplayOptions{}.title)

@@ -19,6 +19,7 @@
 #include "omnicml/report/report.h"
 #include "omnicml/report/strip_plot.h"
 #include "omnicml/report/svg_plot.h"
+#include "omnicml/run/run_config.h"
 #include "omnicml/sim/world.h"
 
 namespace omnicml {
@@ -191,34 +192,6 @@ SweepRow RowFromRunDir(const fs::path& run_dir) {
     row.components = table.records.back().map_components;
   }
   return row;
-}
-
-// The forgetting mode in RUNDIR/config.yaml (the key `forgetting` at any depth, or its
-// section's `mode`), "" when the file or the key is missing.
-std::string ForgettingOfRun(const fs::path& run_dir) {
-  std::error_code ec;
-  if (!fs::is_regular_file(run_dir / "config.yaml", ec)) return "";
-  YAML::Node root;
-  try {
-    root = YAML::Load(ReadTextFile(run_dir / "config.yaml", 1 << 20));
-  } catch (const YAML::Exception&) {
-    return "";
-  }
-  std::function<std::string(const YAML::Node&)> find = [&](const YAML::Node& n) -> std::string {
-    if (!n.IsMap()) return "";
-    for (const auto& kv : n) {
-      if (kv.first.as<std::string>() == "forgetting" && kv.second.IsScalar())
-        return kv.second.as<std::string>();
-      // model.forgetting is a section whose `mode` is the forgetting mode.
-      if (kv.first.as<std::string>() == "forgetting" && kv.second.IsMap() &&
-          kv.second["mode"] && kv.second["mode"].IsScalar())
-        return kv.second["mode"].as<std::string>();
-      const std::string inner = find(kv.second);
-      if (!inner.empty()) return inner;
-    }
-    return "";
-  };
-  return find(root);
 }
 
 // Strip plots of the rows grouped by input and option values other than forgetting,
@@ -624,7 +597,7 @@ std::vector<SweepRow> CollectSweep(const fs::path& dir) {
       SweepRow row = RowFromRunDir(path);
       row.job = base.job;
       // compare: the mode's subdirectory; run: the forgetting mode the run used.
-      row.mode = mode.empty() ? ForgettingOfRun(path) : mode;
+      row.mode = mode.empty() ? ReadRunForgetting(path) : mode;
       row.status = complete ? "complete" : "incomplete";
       row.input = base.input;
       row.seed = base.seed;

@@ -18,13 +18,14 @@
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 
+#include "testing/cli_helpers.h"
 #include "omnicml/common/file_io.h"
 #include "omnicml/engine/cml_engine.h"
 #include "omnicml/engine/engine_io.h"
 #include "omnicml/evaluation/evaluation.h"
 #include "omnicml/logs/log_format.h"
 #include "omnicml/report/map_export.h"
-#include "omnicml/experiments/run_config.h"
+#include "omnicml/run/run_config.h"
 #include "omnicml/sim/simulator.h"
 
 namespace omnicml {
@@ -33,22 +34,8 @@ namespace fs = std::filesystem;
 
 constexpr int kFramesPerDay = 50;
 
-struct CommandResult {
-  int exit_code = -1;
-  std::string output;  // stdout and stderr
-};
-
-CommandResult RunOmnicml(const std::string& args) {
-  const std::string command = std::string(OMNICML_BINARY_DIR "/omnicml ") + args + " 2>&1";
-  CommandResult result;
-  FILE* pipe = ::popen(command.c_str(), "r");
-  if (pipe == nullptr) return result;
-  char buf[4096];
-  while (std::fgets(buf, sizeof buf, pipe) != nullptr) result.output += buf;
-  const int status = ::pclose(pipe);
-  result.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  return result;
-}
+using testing::CommandResult;
+using testing::RunOmnicml;
 
 // Files whose name marks them as temporaries of an atomic write.
 std::vector<std::string> TemporaryFiles(const fs::path& dir) {
@@ -84,10 +71,7 @@ std::vector<std::string> DeterministicRows(const fs::path& csv) {
 class CliEndToEnd : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
-    dir_ =
-        new fs::path(fs::temp_directory_path() / ("omnicml_cli_e2e_" + std::to_string(::getpid())));
-    fs::remove_all(*dir_);
-    fs::create_directories(*dir_);
+    dir_ = new fs::path(testing::FreshTempDir("omnicml_cli_e2e"));
     // A tiny two-day log of the built-in home_store world (panoramas, to keep it small).
     SimulatorOptions sim;
     sim.world = "home_store";

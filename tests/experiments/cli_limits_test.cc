@@ -16,6 +16,7 @@
 
 #include <gtest/gtest.h>
 
+#include "testing/cli_helpers.h"
 #include "omnicml/baselines/mcl/mcl.h"
 #include "omnicml/baselines/topo/topological.h"
 #include "omnicml/logs/log_format.h"
@@ -27,34 +28,10 @@ namespace fs = std::filesystem;
 
 constexpr int kFramesPerDay = 30;
 
-struct CommandResult {
-  int exit_code = -1;
-  std::string output;  // stdout and stderr
-};
-
-CommandResult RunOmnicml(const std::string& args) {
-  const std::string command = std::string(OMNICML_BINARY_DIR "/omnicml ") + args + " 2>&1";
-  CommandResult result;
-  FILE* pipe = ::popen(command.c_str(), "r");
-  if (pipe == nullptr) return result;
-  char buf[4096];
-  while (std::fgets(buf, sizeof buf, pipe) != nullptr) result.output += buf;
-  const int status = ::pclose(pipe);
-  result.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  return result;
-}
-
-std::string Slurp(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::ostringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
-
-void Spit(const fs::path& path, const std::string& text) {
-  std::ofstream out(path, std::ios::binary);
-  out << text;
-}
+using testing::CommandResult;
+using testing::RunOmnicml;
+using testing::Slurp;
+using testing::Spit;
 
 // The entries of a directory (names only, sorted).
 std::vector<std::string> Entries(const fs::path& dir) {
@@ -100,10 +77,7 @@ void ExpectBadInput(const CommandResult& r, const std::vector<std::string>& ment
 class CliLimits : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
-    dir_ = new fs::path(fs::temp_directory_path() /
-                        ("omnicml_cli_limits_" + std::to_string(::getpid())));
-    fs::remove_all(*dir_);
-    fs::create_directories(*dir_);
+    dir_ = new fs::path(testing::FreshTempDir("omnicml_cli_limits"));
     SimulatorOptions sim;
     sim.days = 2;
     sim.frames_per_day = kFramesPerDay;

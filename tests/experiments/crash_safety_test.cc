@@ -30,8 +30,8 @@
 #include "omnicml/common/file_io.h"
 #include "omnicml/engine/cml_engine.h"
 #include "omnicml/engine/engine_io.h"
-#include "omnicml/experiments/run_config.h"
-#include "omnicml/experiments/run_recorder.h"
+#include "omnicml/run/run_config.h"
+#include "omnicml/run/run_recorder.h"
 #include "omnicml/sim/simulator.h"
 
 namespace omnicml {

@@ -1,5 +1,5 @@
 // The bounded map event log: the model keeps a ring of model.events.max_events
-// events, while the run directory's events.csv (run_recorder.h) still gets every event
+// events, while the run directory's events.csv (run/run_recorder.h) still gets every event
 // and days.csv / inspect use the model's exact per-session counts.
 #include <unistd.h>
 
@@ -13,7 +13,7 @@
 
 #include "omnicml/common/common.h"
 #include "omnicml/engine/engine_io.h"
-#include "omnicml/experiments/run_recorder.h"
+#include "omnicml/run/engine_driver.h"
 #include "omnicml/report/map_export.h"
 #include "omnicml/sim/simulator.h"
 

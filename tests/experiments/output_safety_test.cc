@@ -20,12 +20,13 @@
 #include <gtest/gtest.h>
 #include <opencv2/imgcodecs.hpp>
 
+#include "testing/cli_helpers.h"
 #include "omnicml/common/binary_io.h"
 #include "omnicml/common/common.h"
 #include "omnicml/common/file_io.h"
 #include "omnicml/common/limits.h"
 #include "omnicml/engine/cml_engine.h"
-#include "omnicml/experiments/run_recorder.h"
+#include "omnicml/run/run_recorder.h"
 #include "omnicml/experiments/sweep.h"
 #include "omnicml/unwrap/omni_unwrapper.h"
 
@@ -34,40 +35,13 @@ namespace {
 namespace fs = std::filesystem;
 using ::testing::HasSubstr;
 
-struct CommandResult {
-  int exit_code = -1;
-  std::string output;  // stdout and stderr
-};
-
-CommandResult RunOmnicml(const std::string& args) {
-  const std::string command = std::string(OMNICML_BINARY_DIR "/omnicml ") + args + " 2>&1";
-  CommandResult result;
-  FILE* pipe = ::popen(command.c_str(), "r");
-  if (pipe == nullptr) return result;
-  char buf[4096];
-  while (std::fgets(buf, sizeof buf, pipe) != nullptr) result.output += buf;
-  const int status = ::pclose(pipe);
-  result.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  return result;
-}
+using testing::CommandResult;
+using testing::RunOmnicml;
+using testing::Slurp;
+using testing::Spit;
 
 fs::path FreshDir(const std::string& name) {
-  const fs::path dir = fs::path(OMNICML_BINARY_DIR) / "test_scratch" / "output_safety" / name;
-  fs::remove_all(dir);
-  fs::create_directories(dir);
-  return dir;
-}
-
-std::string Slurp(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::ostringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
-
-void Spit(const fs::path& path, const std::string& text) {
-  std::ofstream out(path, std::ios::binary);
-  out << text;
+  return testing::FreshScratchDir("output_safety", name);
 }
 
 // Staging directories, temporaries and lock files anywhere under `dir`.

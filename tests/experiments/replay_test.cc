@@ -14,7 +14,7 @@
 #include <nlohmann/json.hpp>
 
 #include "omnicml/common/common.h"
-#include "omnicml/experiments/run_report.h"
+#include "omnicml/run/run_report.h"
 
 namespace omnicml {
 namespace {

@@ -190,7 +190,7 @@ struct CmlEngineOptions {
   void Validate() const;
 };
 
-// The options schema (common/options.h): YAML keys (run_config.h), dump, and the options
+// The options schema (common/options.h): YAML keys (run/run_config.h), dump, and the options
 // section of engine files (engine_io.h).
 template <class V>
 void VisitFields(V& v, CmlEngineOptions& o) {

@@ -40,13 +40,18 @@
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <optional>
 #include <ostream>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Core>
 
+#include "omnicml/engine/cml_engine.h"
+#include "omnicml/evaluation/evaluation.h"
 #include "omnicml/report/map_export.h"
+#include "omnicml/run/engine_driver.h"
 #include "omnicml/sim/world.h"
 
 namespace omnicml {
@@ -172,6 +177,33 @@ std::string FormatChangeDetection(const std::vector<ChangeDetectionDay>& days);
 // "visible truth: precision P % (tp/detected), recall R % (tp/changed); geometric truth:
 // ... over N day(s)" of the summed counts.
 std::string ChangeDetectionTotals(const std::vector<ChangeDetectionDay>& days);
+
+// Change detection as a run observer (run/engine_driver.h): at the end of each
+// simulated day after the map's first it scores the map's health (ComputeMapHealth)
+// against the day events of `world_name` (loaded at the first session end), along the
+// day's ground-truth path; at the commit it adds change_detection.csv and
+// change_cells.csv to the run directory and a totals line to the report.
+// `first_day` is the run's first simulated day (RunInput::first_day, 0-based), `seed`
+// the simulator's seed. Thread-compatible.
+class ChangeDetectionObserver : public RunObserver {
+ public:
+  ChangeDetectionObserver(std::string world_name, int first_day, std::uint64_t seed,
+                          ChangeDetectionOptions options = {});
+  void OnSessionEnd(const CmlEngine& engine, int source_session,
+                    const std::vector<FrameRecord>& records) override;
+  void OnCommit(RunRecorder& recorder,
+                std::vector<std::pair<std::string, std::string>>* notes) override;
+  // The days scored so far, in order.
+  const std::vector<ChangeDetectionDay>& days() const { return days_; }
+
+ private:
+  std::string world_name_;
+  int first_day_;
+  std::uint64_t seed_;
+  ChangeDetectionOptions options_;
+  std::optional<World> world_;
+  std::vector<ChangeDetectionDay> days_;
+};
 
 }  // namespace omnicml
 

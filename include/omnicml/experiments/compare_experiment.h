@@ -10,7 +10,7 @@
 // the adapted one), and the errors cover days N + 1 on.
 //
 // OUTDIR layout (every file written atomically; a failure removes what the call created):
-//   passive/, active/, static/   each mode's full run directory (run_recorder.h; with
+//   passive/, active/, static/   each mode's full run directory (run/run_recorder.h; with
 //                                trajectory.tum, groundtruth.tum, odometry.tum)
 //   table.txt                    the table as printed
 //   report.html                  the table, per-day errors and views, growth and error
@@ -33,7 +33,7 @@
 #include <vector>
 
 #include "omnicml/evaluation/evaluation.h"
-#include "omnicml/experiments/run_config.h"
+#include "omnicml/experiments/run_experiment.h"
 
 namespace omnicml {
 

@@ -118,7 +118,7 @@ struct MclSingleResult {
 // Runs one filter; with options.out_dir also writes the run directory (below).
 MclSingleResult RunMclSingle(const MclExperimentOptions& options, const MclPrepared& prepared);
 
-// The run directory of a single run, like `omnicml run`'s (run_recorder.h):
+// The run directory of a single run, like `omnicml run`'s (run/run_recorder.h):
 //   frames.csv   evaluation.h schema (readable by `omnicml evaluate RUNDIR`):
 //                  estimate = the MCL estimate (weighted mean of the best cluster),
 //                  mean_estimate = the weighted sample mean of all particles,
@@ -131,7 +131,7 @@ MclSingleResult RunMclSingle(const MclExperimentOptions& options, const MclPrepa
 //   days.csv     per-day statistics (evaluation.h WriteDaysCsv; coverage is 1: the
 //                filter has an estimate at every step)
 //   trajectory.tum, groundtruth.tum, odometry.tum
-//                evo-ready TUM files on the same run-unique stamps (run_recorder.h)
+//                evo-ready TUM files on the same run-unique stamps (run/run_recorder.h)
 //   config.yaml  the effective MclOptions and inputs
 //   report.html  summary, per-day table, error over frames, error histogram, configuration
 //   summary.txt  the text printed on stdout

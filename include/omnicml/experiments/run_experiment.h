@@ -1,7 +1,9 @@
-// The CML run (`omnicml run`): the engine over a multi-day log or a simulated world, the
-// map carried from day to day, recorded into a run directory (run_recorder.h,
-// run_report.h), optionally resumed from a saved engine and saved again. Also the pieces
-// shared with the other experiments over the same inputs (compare_experiment.h).
+// The CML run (`omnicml run`): the in-memory run API (run/cml_run.h) with the command's
+// settings: outputs checked from flags, a dated run directory by default, survey
+// mapping (survey.h) and, on simulated input, change detection as an end-of-session
+// observer (change_detection.h); optionally resumed from a saved engine and saved again.
+// Also the pieces shared with the other experiments over the same inputs
+// (compare_experiment.h).
 //
 // A run is deterministic: the same input and options give the same run directory
 // (except the timings of frames.csv and report.html), whatever `threads` is, and a run
@@ -21,10 +23,26 @@
 
 #include "omnicml/evaluation/evaluation.h"
 #include "omnicml/experiments/change_detection.h"
-#include "omnicml/experiments/run_config.h"
-#include "omnicml/experiments/run_recorder.h"
+#include "omnicml/experiments/survey.h"
+#include "omnicml/run/engine_driver.h"
+#include "omnicml/run/run_config.h"
 
 namespace omnicml {
+
+// What `omnicml run` and `omnicml compare` share: input, option overrides, output
+// directory and progress settings (filled from command-line flags).
+struct RunSettings {
+  RunInput input;
+  OptionOverrides overrides;
+  // Engine options given as a value (the Python API) under the configuration file and
+  // flags of `overrides`; std::nullopt = the defaults.
+  std::optional<CmlEngineOptions> base_options;
+  std::string out_dir;                  // run directory ("" = a dated default)
+  bool quiet = false;                   // no progress output
+  bool no_progress_bar = false;         // plain log lines even on a terminal
+  std::int64_t log_every_frames = 500;  // frames between plain progress lines
+  SurveyOptions survey;                 // --survey-days, --survey-poses (none by default)
+};
 
 // "runs/<command>-<YYYYmmdd-HHMMSS>" (UTC now): the run directory when --out is not given.
 std::string DefaultRunDir(const std::string& command);
@@ -52,13 +70,13 @@ struct RunExperimentOptions {
 };
 
 struct RunExperimentResult {
-  std::string run_dir;          // where the run directory went (settings.out_dir or a default)
-  RunSummary summary;           // frames, sessions, wall time
+  std::string run_dir;  // where the run directory went (settings.out_dir or a default)
+  RunSummary summary;   // frames, sessions, wall time
   // Of the recorded frames after the survey days (all frames without a survey; empty,
   // overall.frames = 0, when every frame was a survey frame), Alignment::kNone.
   EvaluationResult evaluation;
   std::int64_t survey_frames = 0;  // frames of the survey days (not in `evaluation`)
-  std::size_t views = 0;        // map at the end (after Finish)
+  std::size_t views = 0;           // map at the end (after Finish)
   std::size_t components = 0;
   int threads = 1;     // the engine's threads
   std::string timing;  // "<wall> s (<fps> frames/s)", as in the report

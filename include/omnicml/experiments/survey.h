@@ -24,10 +24,11 @@
 #include <string>
 #include <vector>
 
+#include <Eigen/Core>
+
 #include "omnicml/engine/cml_engine.h"
 #include "omnicml/evaluation/evaluation.h"
-#include "omnicml/experiments/run_config.h"
-#include "omnicml/experiments/run_recorder.h"
+#include "omnicml/run/engine_driver.h"
 #include "omnicml/geometry/pose.h"
 
 namespace omnicml {
@@ -35,6 +36,25 @@ namespace omnicml {
 // Frame stamps and TUM stamps match when they differ by at most this. Seconds.
 inline constexpr double kSurveyStampToleranceS = 1e-6;
 
+
+// Survey mapping (docs/design.md "Survey mapping"): the first `days` days
+// build the map from trusted poses, CML runs on it afterwards.
+struct SurveyOptions {
+  // Engine sessions (days) 0 .. days - 1 are survey days; 0 = no survey. >= 0.
+  int days = 0;
+  // TUM file of trusted poses ("" = the input's ground truth).
+  std::string poses_path;
+  // Standard deviations of a trusted pose: the covariance the survey's map updates carry
+  // (and p(x_t) at the survey frames). Metres / radians, > 0.
+  double position_sigma_m = 0.05;
+  double heading_sigma_rad = 0.02;
+
+  // Throws omnicml::Error naming the flag (--survey-days, --survey-poses).
+  void Validate() const;
+  bool enabled() const { return days > 0; }
+  // diag(sigma_x^2, sigma_y^2, sigma_phi^2).
+  Eigen::Matrix3d Covariance() const;
+};
 
 // An external trajectory of trusted poses, sorted by stamp.
 class SurveyPoses {
@@ -57,7 +77,7 @@ class SurveyPoses {
   std::vector<Pose2> poses_;    // parallel to stamps_
 };
 
-// A FrameProcessor for RunEngineOverSource: frames of engine sessions < options.days go
+// A FrameProcessor for RunEngineOverSource (run/engine_driver.h): frames of engine sessions < options.days go
 // to CmlEngine::ProcessSurveyFrame at their trusted pose, later ones to ProcessFrame.
 // `poses` (may be null) is used when options.poses_path is set. A survey frame without
 // a trusted pose is an omnicml::Error naming the frame (session, index, stamp) and the

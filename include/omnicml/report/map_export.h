@@ -78,7 +78,7 @@ nlohmann::ordered_json MapToJson(const CmlEngine& engine, const MapExportOptions
 std::string MapToCsv(const EnvironmentModel& model);
 
 // A floor plan drawn under the map picture: outlines in the map frame (metres). The
-// simulator's worlds give one (experiments/floor_plan.h); real logs usually have none.
+// simulator's worlds give one (run/floor_plan.h); real logs usually have none.
 struct FloorPlanShape {
   enum class Kind { kWall, kShelf, kBox };
   Kind kind = Kind::kWall;

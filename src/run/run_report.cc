@@ -1,15 +1,14 @@
-#include "omnicml/experiments/run_report.h"
+#include "omnicml/run/run_report.h"
 
 #include <cmath>
 #include <cstdio>
 
 #include "omnicml/common/common.h"
-#include "omnicml/experiments/floor_plan.h"
-#include "omnicml/experiments/run_config.h"
-#include "omnicml/experiments/run_recorder.h"
 #include "omnicml/report/map_export.h"
 #include "omnicml/report/report.h"
 #include "omnicml/report/svg_plot.h"
+#include "omnicml/run/floor_plan.h"
+#include "omnicml/run/run_config.h"
 
 namespace omnicml {
 namespace {
@@ -26,6 +25,17 @@ std::string CsvText(std::string s) {
 }
 
 }  // namespace
+
+const std::vector<std::string>& StageNames() {
+  static const std::vector<std::string> kNames = {"unwrap", "describe", "update",      "apply",
+                                                  "match",  "fuse",     "reconstruct", "total"};
+  return kNames;
+}
+
+std::vector<double> StageTimes(const FrameStats& s) {
+  return {s.unwrap_us, s.describe_us, s.update_us,      s.apply_us,
+          s.match_us,  s.fuse_us,     s.reconstruct_us, s.total_us};
+}
 
 std::string FormatFixed(double v, int decimals) {
   if (!std::isfinite(v)) return "-";
@@ -59,16 +69,16 @@ void WriteRunDaysCsv(std::ostream& out, const std::vector<FrameRecord>& records,
                      const EnvironmentModel& model,
                      const std::map<int, std::int64_t>& skipped_frames) {
   const auto events = EventCountsBySession(model);
-  WriteDaysCsv(out, records, StageNames(),
-               {"views_inserted", "views_removed", "components_removed"}, [&](int session) {
-                 const auto it = events.find(session);
-                 const SessionEventCounts ev =
-                     it == events.end() ? SessionEventCounts{} : it->second;
-                 return std::vector<std::string>{std::to_string(ev.views_inserted),
-                                                 std::to_string(ev.views_removed),
-                                                 std::to_string(ev.components_removed)};
-               },
-               skipped_frames);
+  WriteDaysCsv(
+      out, records, StageNames(), {"views_inserted", "views_removed", "components_removed"},
+      [&](int session) {
+        const auto it = events.find(session);
+        const SessionEventCounts ev = it == events.end() ? SessionEventCounts{} : it->second;
+        return std::vector<std::string>{std::to_string(ev.views_inserted),
+                                        std::to_string(ev.views_removed),
+                                        std::to_string(ev.components_removed)};
+      },
+      skipped_frames);
 }
 
 void WriteEventsCsvHeader(std::ostream& out) {
@@ -110,17 +120,20 @@ std::string RenderRunReport(const std::string& title, const std::string& input,
       {"map components at the end", std::to_string(model.NumComponents())},
       {"map memory", FormatFixed(model.MemoryBytes() / 1024.0, 1) + " KiB"},
       {"unimodal frames", FormatFixed(eval.overall.unimodal_fraction * 100, 1) + " %"},
-      {"position error mean / p95 / max (localized frames)", FormatFixed(eval.overall.position_m.mean, 3) + " / " +
-                                              FormatFixed(eval.overall.position_m.p95, 3) + " / " +
-                                              FormatFixed(eval.overall.position_m.max, 3) + " m"},
+      {"position error mean / p95 / max (localized frames)",
+       FormatFixed(eval.overall.position_m.mean, 3) + " / " +
+           FormatFixed(eval.overall.position_m.p95, 3) + " / " +
+           FormatFixed(eval.overall.position_m.max, 3) + " m"},
       {"odometry-only error mean", FormatFixed(eval.overall.odometry_m.mean, 3) + " m"},
       {"position NEES median / p95 / in 95 % band (consistent: 1.39 / 5.99 / 95 %)",
-       FormatFixed(eval.overall.nees_xy.median, 2) + " / " + FormatFixed(eval.overall.nees_xy.p95, 2) +
-           " / " + FormatFixed(eval.overall.nees_xy_in_band * 100, 1) + " % over " +
+       FormatFixed(eval.overall.nees_xy.median, 2) + " / " +
+           FormatFixed(eval.overall.nees_xy.p95, 2) + " / " +
+           FormatFixed(eval.overall.nees_xy_in_band * 100, 1) + " % over " +
            std::to_string(eval.overall.nees_xy.count) + " frames"},
       {"heading NEES median / p95 / in 95 % band (consistent: 0.45 / 3.84 / 95 %)",
-       FormatFixed(eval.overall.nees_phi.median, 2) + " / " + FormatFixed(eval.overall.nees_phi.p95, 2) +
-           " / " + FormatFixed(eval.overall.nees_phi_in_band * 100, 1) + " %"},
+       FormatFixed(eval.overall.nees_phi.median, 2) + " / " +
+           FormatFixed(eval.overall.nees_phi.p95, 2) + " / " +
+           FormatFixed(eval.overall.nees_phi_in_band * 100, 1) + " %"},
       {"mean time per frame", FormatFixed(eval.overall.mean_frame_time_us / 1000.0, 2) + " ms"},
   };
   for (const auto& n : notes) summary.push_back(n);
@@ -139,19 +152,18 @@ std::string RenderRunReport(const std::string& title, const std::string& input,
     const SessionEventCounts ev = it == events.end() ? SessionEventCounts{} : it->second;
     rows.push_back({std::to_string(d.session + 1), std::to_string(d.frames),
                     std::to_string(d.frames_with_estimate), FormatFixed(d.coverage * 100, 1),
-                    std::to_string(d.frames_skipped),
-                    FormatFixed(d.unimodal_fraction * 100, 1), FormatFixed(d.position_m.mean, 3),
-                    FormatFixed(d.position_m.median, 3), FormatFixed(d.position_m.p95, 3),
-                    FormatFixed(d.position_m.max, 3),
+                    std::to_string(d.frames_skipped), FormatFixed(d.unimodal_fraction * 100, 1),
+                    FormatFixed(d.position_m.mean, 3), FormatFixed(d.position_m.median, 3),
+                    FormatFixed(d.position_m.p95, 3), FormatFixed(d.position_m.max, 3),
                     FormatFixed(d.heading_rad.mean * 180 / kPi, 2),
                     FormatFixed(d.odometry_m.mean, 3), std::to_string(d.views_at_end),
                     std::to_string(ev.views_inserted), std::to_string(ev.views_removed),
                     std::to_string(ev.components_removed)});
   }
-  report.AddTable(
-      {"day", "frames", "localized", "coverage %", "skipped", "unimodal %", "mean m", "median m", "p95 m", "max m", "heading mean deg",
-       "odometry mean m", "views at end", "views inserted", "views removed", "components removed"},
-      rows);
+  report.AddTable({"day", "frames", "localized", "coverage %", "skipped", "unimodal %", "mean m",
+                   "median m", "p95 m", "max m", "heading mean deg", "odometry mean m",
+                   "views at end", "views inserted", "views removed", "components removed"},
+                  rows);
 
   std::vector<double> x, err, odo, views, comps;
   std::vector<Pose2> trajectory;

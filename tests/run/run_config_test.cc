@@ -1,6 +1,8 @@
 // Tests of the run configuration: YAML -> CmlEngineOptions, the dump round trip, errors
 // naming key, file and line, overrides, and the run input.
-#include "omnicml/experiments/run_config.h"
+#include "omnicml/run/run_config.h"
+
+#include <unistd.h>
 
 #include <filesystem>
 #include <fstream>
@@ -11,6 +13,7 @@
 #include <gtest/gtest.h>
 
 #include "omnicml/common/common.h"
+#include "omnicml/common/file_io.h"
 #include "omnicml/sim/simulator.h"
 
 namespace omnicml {
@@ -242,6 +245,26 @@ TEST(PrefetchFrames, RethrowsErrorsInOrderAndStopsEarly) {
   auto early = PrefetchFrames(std::make_unique<CountingSource>(1000, -1), 1);
   ASSERT_TRUE(early->Next(&f));
   early.reset();
+}
+
+// The forgetting mode of a run directory comes from its config.yaml whether nested
+// (model.forgetting.mode, what runs write) or flat (older configurations); a missing
+// or unparsable file names none.
+TEST(RunConfig, ReadRunForgettingOfARunDirectory) {
+  const std::filesystem::path dir = std::filesystem::temp_directory_path() /
+                                    ("omnicml_run_forgetting_" + std::to_string(::getpid()));
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir);
+  EXPECT_EQ(ReadRunForgetting(dir), "");
+  CmlEngineOptions o;
+  o.model.forgetting.mode = ForgettingMode::kPassive;
+  WriteFileAtomic(dir / "config.yaml", "# input: world x\n" + EngineOptionsToYaml(o));
+  EXPECT_EQ(ReadRunForgetting(dir), "passive");
+  WriteFileAtomic(dir / "config.yaml", "model:\n  forgetting: static\n");
+  EXPECT_EQ(ReadRunForgetting(dir), "static");
+  WriteFileAtomic(dir / "config.yaml", "model: [unclosed\n");
+  EXPECT_EQ(ReadRunForgetting(dir), "");
+  std::filesystem::remove_all(dir);
 }
 
 }  // namespace

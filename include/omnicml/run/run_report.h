@@ -13,8 +13,8 @@
 // (report.html also shows the measured timings, which vary).
 //
 // Thread-safety: thread-safe (no shared state).
-#ifndef OMNICML_EXPERIMENTS_RUN_REPORT_H_
-#define OMNICML_EXPERIMENTS_RUN_REPORT_H_
+#ifndef OMNICML_RUN_RUN_REPORT_H_
+#define OMNICML_RUN_RUN_REPORT_H_
 
 #include <cstdint>
 #include <map>
@@ -28,6 +28,12 @@
 #include "omnicml/mapping/environment_model.h"
 
 namespace omnicml {
+
+// Names of the per-frame stage timings (FrameStats fields without "_us"), in the order
+// of the time_<stage>_us columns of frames.csv.
+const std::vector<std::string>& StageNames();
+// The FrameStats timings in StageNames() order.
+std::vector<double> StageTimes(const FrameStats& stats);
 
 // Map events of one session (engine session index), from the model's exact per-session
 // counts (EnvironmentModel::event_counts, not limited by the event ring).
@@ -75,4 +81,4 @@ std::string FormatFixed(double v, int decimals);
 
 }  // namespace omnicml
 
-#endif  // OMNICML_EXPERIMENTS_RUN_REPORT_H_
+#endif  // OMNICML_RUN_RUN_REPORT_H_

@@ -1,4 +1,4 @@
-#include "omnicml/experiments/floor_plan.h"
+#include "omnicml/run/floor_plan.h"
 
 #include <regex>
 

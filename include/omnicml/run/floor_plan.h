@@ -2,8 +2,8 @@
 // shelves and boxes, and which world a run directory was made from.
 //
 // Pure functions; thread-safe.
-#ifndef OMNICML_EXPERIMENTS_FLOOR_PLAN_H_
-#define OMNICML_EXPERIMENTS_FLOOR_PLAN_H_
+#ifndef OMNICML_RUN_FLOOR_PLAN_H_
+#define OMNICML_RUN_FLOOR_PLAN_H_
 
 #include <cstdint>
 #include <filesystem>
@@ -38,4 +38,4 @@ FloorPlan FloorPlanForRunInput(const std::string& input_description);
 
 }  // namespace omnicml
 
-#endif  // OMNICML_EXPERIMENTS_FLOOR_PLAN_H_
+#endif  // OMNICML_RUN_FLOOR_PLAN_H_

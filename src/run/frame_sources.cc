@@ -1,77 +1,22 @@
-#include "omnicml/experiments/run_config.h"
+#include "omnicml/run/frame_sources.h"
 
 #include <algorithm>
-#include <charconv>
-#include <cmath>
 #include <condition_variable>
 #include <cstdint>
 #include <deque>
 #include <exception>
 #include <filesystem>
-#include <fstream>
-#include <functional>
-#include <limits>
 #include <mutex>
-#include <set>
-#include <sstream>
 #include <string>
 #include <thread>
-#include <type_traits>
 #include <utility>
 #include <vector>
 
 #include "omnicml/common/common.h"
 #include "omnicml/common/file_io.h"
 #include "omnicml/common/limits.h"
-#include "omnicml/common/options.h"
 #include "omnicml/logs/log_format.h"
-#include "omnicml/report/report.h"
 #include "omnicml/sim/simulator.h"
-
-namespace omnicml {
-
-// Engine options in YAML through the schema of cml_engine.h (VisitFields, common/options.h).
-CmlEngineOptions ParseEngineOptionsYaml(const std::string& yaml_text, const std::string& source,
-                                        const CmlEngineOptions& base) {
-  return ParseOptionsYaml<CmlEngineOptions>(yaml_text, source, base);
-}
-
-CmlEngineOptions ParseEngineOptionsYaml(const std::string& yaml_text, const std::string& source) {
-  const CmlEngineOptions defaults;
-  return ParseEngineOptionsYaml(yaml_text, source, defaults);
-}
-
-CmlEngineOptions LoadEngineOptionsYaml(const std::string& path) {
-  return ParseEngineOptionsYaml(ReadOptionFile(path), path);
-}
-
-std::string EngineOptionsToYaml(const CmlEngineOptions& options) { return OptionsToYaml(options); }
-
-bool SameEngineOptions(const CmlEngineOptions& a, const CmlEngineOptions& b) {
-  return SameOptions(a, b);
-}
-
-CmlEngineOptions ResolveEngineOptions(const OptionOverrides& overrides) {
-  CmlEngineOptions options = overrides.config_path.empty()
-                                 ? CmlEngineOptions{}
-                                 : LoadEngineOptionsYaml(overrides.config_path);
-  if (overrides.descriptor) {
-    options.descriptor.kind = DescriptorKindFromString(*overrides.descriptor);
-  }
-  if (overrides.forgetting)
-    options.model.forgetting.mode = ForgettingModeFromString(*overrides.forgetting);
-  if (overrides.e_max) options.model.retrieval.e_max = *overrides.e_max;
-  if (overrides.update_delay_frames) options.update_delay_frames = *overrides.update_delay_frames;
-  if (overrides.threads) options.threads = *overrides.threads;
-  try {
-    options.Validate();
-  } catch (const Error& e) {
-    throw Error(StrCat("invalid options: ", e.what()));
-  }
-  return options;
-}
-
-}  // namespace omnicml
 
 namespace omnicml {
 
@@ -93,7 +38,8 @@ void RunInput::Validate() const {
   CheckLimit("--first-day", first_day, 0, kMaxDays - days);
   CheckLimit("--frames-per-day", frames_per_day, 0, kMaxFramesPerDay);
   const std::int64_t fpd = frames_per_day > 0 ? frames_per_day : SimulatorOptions{}.frames_per_day;
-  if (log_dirs.empty() && (first_day + static_cast<std::int64_t>(days)) * fpd > kMaxSimulatedFrames) {
+  if (log_dirs.empty() &&
+      (first_day + static_cast<std::int64_t>(days)) * fpd > kMaxSimulatedFrames) {
     throw Error(StrCat("--days x --frames-per-day = ", first_day + days, " x ", fpd,
                        " exceeds the limit of ", kMaxSimulatedFrames, " simulated frames"));
   }

@@ -1,0 +1,106 @@
+#include "omnicml/run/run_config.h"
+
+#include <algorithm>
+#include <charconv>
+#include <cmath>
+#include <condition_variable>
+#include <cstdint>
+#include <deque>
+#include <exception>
+#include <filesystem>
+#include <fstream>
+#include <functional>
+#include <limits>
+#include <mutex>
+#include <set>
+#include <sstream>
+#include <string>
+#include <thread>
+#include <type_traits>
+#include <utility>
+#include <vector>
+
+#include <yaml-cpp/yaml.h>
+
+#include "omnicml/common/common.h"
+#include "omnicml/common/file_io.h"
+#include "omnicml/common/limits.h"
+#include "omnicml/common/options.h"
+#include "omnicml/common/yaml_io.h"
+#include "omnicml/logs/log_format.h"
+#include "omnicml/report/report.h"
+#include "omnicml/sim/simulator.h"
+
+namespace omnicml {
+
+// Engine options in YAML through the schema of cml_engine.h (VisitFields, common/options.h).
+CmlEngineOptions ParseEngineOptionsYaml(const std::string& yaml_text, const std::string& source,
+                                        const CmlEngineOptions& base) {
+  return ParseOptionsYaml<CmlEngineOptions>(yaml_text, source, base);
+}
+
+CmlEngineOptions ParseEngineOptionsYaml(const std::string& yaml_text, const std::string& source) {
+  const CmlEngineOptions defaults;
+  return ParseEngineOptionsYaml(yaml_text, source, defaults);
+}
+
+CmlEngineOptions LoadEngineOptionsYaml(const std::string& path) {
+  return ParseEngineOptionsYaml(ReadOptionFile(path), path);
+}
+
+std::string EngineOptionsToYaml(const CmlEngineOptions& options) { return OptionsToYaml(options); }
+
+bool SameEngineOptions(const CmlEngineOptions& a, const CmlEngineOptions& b) {
+  return SameOptions(a, b);
+}
+
+CmlEngineOptions ResolveEngineOptions(const OptionOverrides& overrides,
+                                      const CmlEngineOptions& base) {
+  CmlEngineOptions options =
+      overrides.config_path.empty() ? base : LoadEngineOptionsYaml(overrides.config_path);
+  if (overrides.descriptor) {
+    options.descriptor.kind = DescriptorKindFromString(*overrides.descriptor);
+  }
+  if (overrides.forgetting)
+    options.model.forgetting.mode = ForgettingModeFromString(*overrides.forgetting);
+  if (overrides.e_max) options.model.retrieval.e_max = *overrides.e_max;
+  if (overrides.update_delay_frames) options.update_delay_frames = *overrides.update_delay_frames;
+  if (overrides.threads) options.threads = *overrides.threads;
+  try {
+    options.Validate();
+  } catch (const Error& e) {
+    throw Error(StrCat("invalid options: ", e.what()));
+  }
+  return options;
+}
+
+std::string ReadRunForgetting(const std::filesystem::path& run_dir) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  if (!fs::is_regular_file(run_dir / "config.yaml", ec)) return "";
+  YAML::Node root;
+  try {
+    root = YAML::Load(ReadTextFile(run_dir / "config.yaml", 1 << 20));
+  } catch (const YAML::Exception&) {
+    return "";
+  } catch (const Error&) {
+    return "";
+  }
+  std::function<std::string(const YAML::Node&)> find = [&](const YAML::Node& n) -> std::string {
+    if (!n.IsMap()) return "";
+    for (const auto& kv : n) {
+      if (kv.first.as<std::string>() == "forgetting" && kv.second.IsScalar())
+        return kv.second.as<std::string>();
+      // model.forgetting is a section whose `mode` is the forgetting mode.
+      if (kv.first.as<std::string>() == "forgetting" && kv.second.IsMap() && kv.second["mode"] &&
+          kv.second["mode"].IsScalar())
+        return kv.second["mode"].as<std::string>();
+      const std::string inner = find(kv.second);
+      if (!inner.empty()) return inner;
+    }
+    return "";
+  };
+  return find(root);
+}
+
+}  // namespace omnicml

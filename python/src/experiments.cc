@@ -64,7 +64,7 @@ class TempDir {
 // What Python gets of one run.
 struct RunResult {
   std::string label;
-  std::string run_dir;  // "" when it was a temporary directory
+  std::string run_dir;  // "" when no run directory was kept
   py::dict frames;
   py::list days;
   py::dict overall;
@@ -226,14 +226,14 @@ RunSettings MakeSettings(const py::object& logs, const std::string& world, int d
 void BindExperiments(py::module_& m) {
   py::class_<RunResult>(
       m, "RunResult",
-      "A finished run: frames (dict of per-frame numpy arrays from its frames.csv: session, "
+      "A finished run: frames (dict of per-frame numpy arrays, the columns of frames.csv: session, "
       "frame, global_frame, stamp_s, has_estimate, estimate (N, 3), mean_estimate, unimodal, "
       "has_truth, truth (N, 3), position_error_m, heading_error_rad, odometry_error_m, views, "
       "map_components, hypotheses, mixture_components, cov_xx_m2, cov_xy_m2, cov_yy_m2, "
       "var_phi_rad2, nees_xy, nees_phi, nis, prior_nees_xy, fix_nees_xy (NaN where unknown), matches (-1 unknown), best_similarity (NaN "
       "unknown)), days (per-day statistics dicts), "
       "overall (the same over all days), the map size after finish, wall time, run_dir (\"\" "
-      "when temporary) and, for run(), the engine as saved at the end (before finish(): "
+      "when none was kept) and, for run(), the engine as saved at the end (before finish(): "
       "resumable, as `omnicml run --map-out`); None for compare().")
       .def_readonly("label", &RunResult::label)
       .def_readonly("run_dir", &RunResult::run_dir)

@@ -106,6 +106,9 @@ RunExperimentResult RunExperiment(const RunExperimentOptions& o) {
       locks.push_back(std::make_unique<OutputLock>(path, flag));
     }
   }
+  // A commit of this run directory that a killed writer left half done is settled before
+  // anything is read: it may have replaced the file --map-in names.
+  RecoverInterruptedCommits(run_dir);
 
   f.survey.Validate();
   // Read the survey trajectory before the first frame (a bad line fails at once).

@@ -312,13 +312,24 @@ void RunRecorder::Commit(const CmlEngine& engine,
     files.push_back(std::move(file));
   }
   // Everything is written. Rename into place: the run directory's files (inside the
-  // staging directory, not yet visible), the files outside it, then the run directory.
+  // staging directory, not yet visible), then the files outside it together with the
+  // run directory as one unit (StagedDirectory::Commit with companions: a kill leaves
+  // the old state or the new one, settled by the next writer).
   if (frames_csv_) frames_csv_->Commit();
   if (events_csv_) events_csv_->Commit();
   for (auto& f : files) f->Commit();
-  if (trajectory_) trajectory_->Commit();
-  for (auto& f : outside) f->Commit();
-  if (staged_) staged_->Commit();
+  if (trajectory_ && trajectory_write_path_ == options_.trajectory_path) {
+    outside.push_back(std::move(trajectory_));
+  } else if (trajectory_) {
+    trajectory_->Commit();
+  }
+  std::vector<AtomicFile*> companions;
+  for (auto& f : outside) companions.push_back(f.get());
+  if (staged_) {
+    staged_->Commit(companions);
+  } else {
+    for (AtomicFile* f : companions) f->Commit();
+  }
   committed_ = true;
 }
 

@@ -4,6 +4,7 @@
 #include <sstream>
 
 #include "omnicml/common/file_io.h"
+#include "omnicml/logs/log_format.h"
 
 namespace omnicml::app {
 namespace {
@@ -51,6 +52,25 @@ void CollectOutputFlags(const CLI::App& app, std::vector<std::string> path,
 }
 
 }  // namespace
+
+void AddGlobalOptions(CLI::App& app) {
+  SetFollowOutputSymlinks(false);
+  SetAllowImagesOutsideLog(false);
+  app.add_flag_callback(
+         "--allow-images-outside-log", [] { SetAllowImagesOutsideLog(true); },
+         "Read images that frames.csv names outside the log directory (absolute paths, '..', "
+         "symbolic links leading out); by default such a row is refused. Give it before the "
+         "command.")
+      ->trigger_on_parse();
+  // Set while parsing (trigger_on_parse), before the subcommand's output flags are
+  // checked.
+  app.add_flag_callback(
+         "--follow-output-symlinks", [] { SetFollowOutputSymlinks(true); },
+         "Write through an output file that is a symbolic link to a regular file (the file "
+         "it leads to is replaced atomically, the link stays) instead of refusing it; links to "
+         "devices, FIFOs, directories or nothing are still refused. Give it before the command.")
+      ->trigger_on_parse();
+}
 
 std::vector<RegisteredCommand>& CommandRegistry() {
   static std::vector<RegisteredCommand> registry;

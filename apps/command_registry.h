@@ -44,6 +44,15 @@ struct CommandRegistration {
   }
 };
 
+// Adds the options of `omnicml` itself (given before the subcommand) to `app`:
+//   --follow-output-symlinks  an output file that is a symbolic link to a regular file
+//                             is written through (common/file_io.h
+//                             SetFollowOutputSymlinks) instead of refused.
+//   --allow-images-outside-log  frames.csv may name images outside its log
+//                             (logs/log_format.h SetAllowImagesOutsideLog).
+// Resets those process-wide settings to their defaults first, so every parse starts from it.
+void AddGlobalOptions(CLI::App& app);
+
 // The kind of path an output flag names.
 enum class OutputKind { kFile, kDirectory };
 

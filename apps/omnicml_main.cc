@@ -31,6 +31,7 @@ int main(int argc, char** argv) {
   CLI::App app{"omnicml: omniview-based concurrent map building and localization"};
   app.require_subcommand(1);
   app.set_version_flag("--version", "omnicml 0.1.0");
+  omnicml::app::AddGlobalOptions(app);
   auto& registry = omnicml::app::CommandRegistry();
   std::sort(registry.begin(), registry.end(),
             [](const auto& a, const auto& b) { return a.name < b.name; });

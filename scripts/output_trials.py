@@ -9,10 +9,20 @@ Classes (each prints one summary line, counts only):
                  character device made in a private directory: the command must exit 2
                  with one line naming the path and leave the node as it was; a control
                  run with a plain new path must succeed.
+  follow         every output file flag again with the global --follow-output-symlinks:
+                 a symbolic link to a regular file is written through (exit 0, the link
+                 stays, the file it leads to is replaced); links to a FIFO, a directory
+                 or nothing and the other non-regular nodes are still refused.
   kill           `run --out R --map-out M --trajectory-out T` killed with SIGKILL at
                  seeded random moments over an earlier complete run: afterwards R, M and
                  T are all the old run or all the new one (by SHA-256 and R/outputs.yaml),
                  and the next run leaves no debris (staging, temporaries, lock files).
+  window         the same run killed by the test hook OMNICML_TEST_KILL_AT inside its
+                 commit: between the map/trajectory renames and the run-directory swap
+                 ("staged-commit-swap", a mix is on disk) or just after the swap
+                 ("staged-commit-settle"); then the next writer, killed at a random moment
+                 of its run, must leave an old-or-new state (it settles the interrupted
+                 commit when it starts), and a last complete run no debris.
   diskfull       the same run on a small tmpfs (root only) with the free space cut at
                  seeded levels: it succeeds or exits 2; the state is old or new, nothing
                  mixed, no staging directory or temporary left.
@@ -83,7 +93,8 @@ def debris(top):
     for dirpath, dirnames, filenames in os.walk(top):
         for name in dirnames + filenames:
             if (".partial-" in name or ".old-" in name or ".omnicml-tmp-" in name
-                    or name.endswith(".omnicml-lock")):
+                    or name.endswith(".omnicml-lock") or ".omnicml-prev-" in name
+                    or name == ".omnicml-commit"):
                 found.append(os.path.join(dirpath, name))
     return found
 
@@ -250,6 +261,53 @@ def trial_substitutions(binary, work, _rng, _n):
     return not problems
 
 
+def trial_follow(binary, work, _rng, _n):
+    cases = [c for c in substitution_cases(binary, work) if not c[2]]
+    written = follow_total = refused = refuse_total = 0
+    problems = []
+    for index, (command, flag, _directory, argv) in enumerate(cases):
+        d = os.path.join(work, "follow%02d" % index)
+        os.makedirs(d)
+        suffix = {"--csv": ".csv", "--html": ".html", "--trajectory-out": ".tum",
+                  "--map-out": ".omnicml"}.get(flag, ".png")
+        if command == "calibrate" or flag == "--save-calibration":
+            suffix = ".yaml"
+        real = os.path.join(d, "real" + suffix)
+        with open(real, "w") as f:
+            f.write("old\n")
+        link = os.path.join(d, "link" + suffix)
+        os.symlink(real, link)
+        # evaluate refuses to replace an existing file without --force (the link leads to one).
+        force = ["--force"] if command == "evaluate" else []
+        code, _, err = run([argv(link)[0], "--follow-output-symlinks"] + argv(link)[1:] + force)
+        follow_total += 1
+        if code == 0 and os.path.islink(link) and open(real, "rb").read() != b"old\n":
+            written += 1
+        else:
+            problems.append("%s %s through a link: exit %d, link kept %s, %r" % (
+                command, flag, code, os.path.islink(link), err[-300:]))
+        nodes_dir = os.path.join(d, "nodes")
+        os.makedirs(nodes_dir)
+        for kind, path in make_nodes(nodes_dir, False):
+            if kind == "symlink to a regular file":
+                continue
+            before = fingerprint(path)
+            code, _, err = run([argv(path)[0], "--follow-output-symlinks"] + argv(path)[1:])
+            refuse_total += 1
+            lines = [l for l in err.splitlines() if l.strip()]
+            if code == 2 and len(lines) == 1 and path in lines[0] and fingerprint(path) == before:
+                refused += 1
+            else:
+                problems.append("%s %s (%s) with --follow-output-symlinks: exit %d %r" % (
+                    command, flag, kind, code, err[-300:]))
+    print("--follow-output-symlinks: %d/%d output file flags wrote through a link to a regular "
+          "file (link kept); %d/%d other non-regular paths still refused"
+          % (written, follow_total, refused, refuse_total))
+    for p in problems:
+        print("  PROBLEM:", p)
+    return not problems
+
+
 # ---------------------------------------------------------------------------------------
 # kill -9 and disk full
 
@@ -322,6 +380,60 @@ def trial_kill(binary, work, rng, n):
           % (n, 1.15 * duration, duration, counts["old"], counts["new"], counts["mixed"],
              debris_after_next))
     return counts["mixed"] == 0 and debris_after_next == 0
+
+
+def trial_window(binary, work, rng, n):
+    top = os.path.join(work, "window")
+    ref = {}
+    for seed in (1, 2, 3):
+        ref_top = os.path.join(work, "window_ref%d" % seed)
+        os.makedirs(ref_top)
+        t0 = time.time()
+        code, _, err = run(run_argv(binary, ref_top, seed))
+        assert code == 0, err
+        ref[seed] = (state_of(ref_top)[0], time.time() - t0)
+    duration = ref[3][1]
+    names = {ref[1][0]: "old", ref[2][0]: "new", ref[3][0]: "next"}
+    points = ["staged-commit-swap", "staged-commit-settle"]
+    after_kill = {p: {} for p in points}
+    after_next = {}
+    final_bad = 0
+    for trial in range(n):
+        point = points[trial % 2]
+        shutil.rmtree(top, ignore_errors=True)
+        os.makedirs(top)
+        code, _, err = run(run_argv(binary, top, 1))
+        assert code == 0, err
+        env = dict(os.environ, OMNICML_TEST_KILL_AT=point)
+        p = subprocess.run(run_argv(binary, top, 2), env=env, stdout=subprocess.DEVNULL,
+                           stderr=subprocess.DEVNULL)
+        assert p.returncode == -signal.SIGKILL, "the hook did not kill (exit %d)" % p.returncode
+        state, consistent = state_of(top)
+        label = names.get(state, "?") if consistent else "mixed"
+        after_kill[point][label] = after_kill[point].get(label, 0) + 1
+        # The next writer, killed at a random moment of its run.
+        q = subprocess.Popen(run_argv(binary, top, 3), stdout=subprocess.DEVNULL,
+                             stderr=subprocess.DEVNULL)
+        time.sleep(rng.uniform(0.3, 1.1) * duration)
+        q.send_signal(signal.SIGKILL)
+        q.wait()
+        state, consistent = state_of(top)
+        label = names.get(state, "?") if consistent else "mixed"
+        after_next[label] = after_next.get(label, 0) + 1
+        if label in ("mixed", "?"):
+            print("  MIXED after the next writer (killed): %s" % (state,))
+        code, _, err = run(run_argv(binary, top, 1))
+        if code != 0 or debris(top) or state_of(top) != (ref[1][0], True):
+            final_bad += 1
+            print("  DEBRIS/FAIL after a complete run: exit %d %s %s" % (code, debris(top),
+                                                                         err[-200:]))
+    fmt = lambda d: ", ".join("%d %s" % (v, k) for k, v in sorted(d.items()))
+    print("kill inside the commit (test hook), %d trials: right after the kill: swap point %s; "
+          "settle point %s; after the next writer (killed at U(0.3, 1.1) x %.1f s): %s; "
+          "a complete run afterwards failed or left debris: %d"
+          % (n, fmt(after_kill[points[0]]), fmt(after_kill[points[1]]), duration,
+             fmt(after_next), final_bad))
+    return "mixed" not in after_next and "?" not in after_next and final_bad == 0
 
 
 def trial_diskfull(binary, work, rng, n):
@@ -531,12 +643,14 @@ def main():
     parser.add_argument("--trials", type=int, default=30)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--only", nargs="*",
-                        default=["substitutions", "kill", "diskfull", "writers", "sweep"])
+                        default=["substitutions", "follow", "kill", "window", "diskfull",
+                                 "writers", "sweep"])
     args = parser.parse_args()
     binary = os.path.abspath(args.binary)
     rng = random.Random(args.seed)
     ok = True
-    trials = {"substitutions": (trial_substitutions, 1), "kill": (trial_kill, args.trials),
+    trials = {"substitutions": (trial_substitutions, 1), "follow": (trial_follow, 1),
+              "kill": (trial_kill, args.trials), "window": (trial_window, args.trials),
               "diskfull": (trial_diskfull, args.trials), "writers": (trial_writers, 10),
               "sweep": (trial_sweep, 20)}
     for name in args.only:

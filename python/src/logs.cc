@@ -170,10 +170,12 @@ void BindLogs(py::module_& m) {
       m, "LogReader",
       "Reads an omnicml log (one session directory, or a multi-day log of session "
       "directories) frame by frame.")
-      .def(py::init([](const py::object& log_dirs, bool load_images, bool skip_unreadable_frames) {
+      .def(py::init([](const py::object& log_dirs, bool load_images, bool skip_unreadable_frames,
+                       bool allow_images_outside_log) {
              LogReaderOptions o;
              o.load_images = load_images;
              o.skip_unreadable_frames = skip_unreadable_frames;
+             o.allow_images_outside_log = allow_images_outside_log;
              std::vector<std::string> dirs;
              if (py::isinstance<py::str>(log_dirs) || py::hasattr(log_dirs, "__fspath__")) {
                dirs.push_back(py::str(log_dirs));
@@ -183,9 +185,10 @@ void BindLogs(py::module_& m) {
              return std::make_shared<LogReader>(dirs, o);
            }),
            py::arg("log_dirs"), py::arg("load_images") = true,
-           py::arg("skip_unreadable_frames") = false,
+           py::arg("skip_unreadable_frames") = false, py::arg("allow_images_outside_log") = false,
            "log_dirs: a path or a list of paths, read in order. Raises omnicml.Error naming the "
-           "file and line of the first problem.")
+           "file and line of the first problem. Images named outside the log directory "
+           "(absolute, '..', links leading out) are refused unless allow_images_outside_log.")
       .def("session_directory", &LogReader::SessionDirectory, py::arg("index"))
       .def_property_readonly("num_skipped_frames", static_cast<std::int64_t (LogReader::*)() const>(&LogReader::NumSkippedFrames));
 

@@ -10,11 +10,14 @@
 #include <algorithm>
 #include <atomic>
 #include <cerrno>
+#include <csignal>
+#include <cstdlib>
 #include <cstring>
 #include <map>
 #include <memory>
 #include <mutex>
 #include <set>
+#include <sstream>
 #include <system_error>
 
 #include "omnicml/common/common.h"
@@ -113,7 +116,22 @@ const char* NodeTypeName(mode_t mode) {
 }
 
 
+std::atomic<bool> follow_output_symlinks{false};
+
 }  // namespace
+
+void SetFollowOutputSymlinks(bool follow) { follow_output_symlinks.store(follow); }
+bool FollowOutputSymlinks() { return follow_output_symlinks.load(); }
+
+fs::path ResolveOutputFile(const fs::path& path) {
+  if (!FollowOutputSymlinks()) return path;
+  struct stat st {};
+  if (::lstat(path.c_str(), &st) != 0 || !S_ISLNK(st.st_mode)) return path;
+  if (::stat(path.c_str(), &st) != 0 || !S_ISREG(st.st_mode)) return path;
+  std::error_code ec;
+  const fs::path resolved = fs::canonical(path, ec);
+  return ec ? path : resolved;
+}
 
 std::string OutputNodeProblem(const fs::path& path, bool directory) {
   struct stat st {};
@@ -122,6 +140,17 @@ std::string OutputNodeProblem(const fs::path& path, bool directory) {
     return ErrnoText(errno);
   }
   if (S_ISREG(st.st_mode) && !directory) return {};
+  if (S_ISLNK(st.st_mode) && !directory && FollowOutputSymlinks()) {
+    // Written through: the link must lead to a regular file.
+    struct stat target {};
+    if (::stat(path.c_str(), &target) != 0) {
+      return errno == ENOENT ? std::string("is a dangling symbolic link")
+                             : StrCat("is a symbolic link that cannot be followed: ",
+                                      ErrnoText(errno));
+    }
+    if (S_ISREG(target.st_mode)) return {};
+    return StrCat("is a symbolic link to ", FileTypeName(target.st_mode), " (not a regular file)");
+  }
   if (S_ISDIR(st.st_mode) && directory) return {};
   if (directory && S_ISREG(st.st_mode)) return "exists and is not a directory";
   return NodeTypeName(st.st_mode);
@@ -241,7 +270,7 @@ std::string HolderText(int fd) {
 }  // namespace
 
 fs::path OutputLock::LockPathFor(const fs::path& target) {
-  fs::path t = target.lexically_normal();
+  fs::path t = ResolveOutputFile(target).lexically_normal();
   if (!t.has_filename()) t = t.parent_path();
   return DirectoryOf(t) / StrCat(".", t.filename().string(), ".omnicml-lock");
 }
@@ -348,6 +377,8 @@ StagedDirectory::StagedDirectory(fs::path target, std::string_view flag,
   if (name.empty() || name == "." || name == "..") {
     throw Error(StrCat(flag, " '", target.string(), "': name a directory (not '.' or '..')"));
   }
+  // A commit a killed writer left half done is settled first (old or new, never mixed).
+  RecoverInterruptedCommits(target_);
   CheckReplaceableDirectory(target_, flag, markers);
   RemoveStaleStagingDirs(target_);
   staging_ = StagingDirFor(target_, ::getpid());
@@ -369,9 +400,237 @@ StagedDirectory::~StagedDirectory() {
   fs::remove_all(staging_, ec);
 }
 
-void StagedDirectory::Commit() {
+namespace {
+
+constexpr const char* kCommitJournal = ".omnicml-commit";
+
+// One companion of a staged commit, as its journal records it.
+struct JournalEntry {
+  fs::path target;    // absolute
+  fs::path previous;  // absolute; its previous version, or empty when it did not exist
+  dev_t dev = 0;      // identity of the new file (the companion's temporary, renamed)
+  ino_t ino = 0;
+};
+
+std::string HexOf(const std::string& bytes) {
+  static const char* kHex = "0123456789abcdef";
+  std::string out;
+  for (unsigned char c : bytes) {
+    out += kHex[c >> 4];
+    out += kHex[c & 15];
+  }
+  return out.empty() ? std::string("-") : out;
+}
+
+bool FromHex(const std::string& hex, std::string* bytes) {
+  bytes->clear();
+  if (hex == "-") return true;
+  if (hex.size() % 2 != 0) return false;
+  const auto nibble = [](char c) {
+    return c >= '0' && c <= '9' ? c - '0' : c >= 'a' && c <= 'f' ? c - 'a' + 10 : -1;
+  };
+  for (std::size_t i = 0; i < hex.size(); i += 2) {
+    const int hi = nibble(hex[i]), lo = nibble(hex[i + 1]);
+    if (hi < 0 || lo < 0) return false;
+    bytes->push_back(static_cast<char>(hi * 16 + lo));
+  }
+  return true;
+}
+
+// "omnicml-commit 1" then one line per entry: hex(target) hex(previous) dev ino (paths
+// in hex: any byte may occur in a file name).
+std::string JournalText(const std::vector<JournalEntry>& entries) {
+  std::string text = "omnicml-commit 1\n";
+  for (const JournalEntry& e : entries) {
+    text += StrCat(HexOf(e.target.string()), " ", HexOf(e.previous.string()), " ",
+                   static_cast<unsigned long long>(e.dev), " ",
+                   static_cast<unsigned long long>(e.ino), "\n");
+  }
+  return text;
+}
+
+// The entries of a journal file; false when it is missing or not a journal.
+bool ReadJournal(const fs::path& path, std::vector<JournalEntry>* entries) {
+  entries->clear();
+  std::string text;
+  try {
+    text = ReadTextFile(path, 1u << 20, "commit journal");
+  } catch (const Error&) {
+    return false;
+  }
+  std::istringstream in(text);
+  std::string line;
+  if (!std::getline(in, line) || line != "omnicml-commit 1") return false;
+  while (std::getline(in, line)) {
+    std::istringstream fields(line);
+    std::string target, previous;
+    unsigned long long dev = 0, ino = 0;
+    if (!(fields >> target >> previous >> dev >> ino)) return false;
+    JournalEntry e;
+    std::string bytes;
+    if (!FromHex(target, &bytes) || bytes.empty()) return false;
+    e.target = bytes;
+    if (!FromHex(previous, &bytes)) return false;
+    e.previous = bytes;
+    e.dev = static_cast<dev_t>(dev);
+    e.ino = static_cast<ino_t>(ino);
+    entries->push_back(std::move(e));
+  }
+  return true;
+}
+
+// ".<name>.omnicml-prev-<pid>" beside `target`: where its previous version is kept
+// while a staged commit is under way.
+fs::path PreviousPathFor(const fs::path& target, pid_t pid) {
+  return DirectoryOf(target) /
+         StrCat(".", target.filename().string(), ".omnicml-prev-", static_cast<long>(pid));
+}
+
+// Keeps `target`'s current file as `previous`: a hard link, or a durable copy where the
+// file system has no hard links. Throws omnicml::Error naming the target.
+void KeepPrevious(const fs::path& target, const fs::path& previous) {
+  ::unlink(previous.c_str());
+  if (::link(target.c_str(), previous.c_str()) == 0) return;
+  std::error_code ec;
+  fs::copy_file(target, previous, fs::copy_options::overwrite_existing, ec);
+  if (!ec) {
+    const int fd = ::open(previous.c_str(), O_RDONLY | O_CLOEXEC);
+    if (fd >= 0 && ::fsync(fd) == 0) {
+      ::close(fd);
+      return;
+    }
+    if (fd >= 0) ::close(fd);
+  }
+  ::unlink(previous.c_str());
+  Fail("cannot keep the previous version", target, ec ? ec.message() : "fsync failed");
+}
+
+bool IsFile(const fs::path& path, dev_t dev, ino_t ino) {
+  struct stat st {};
+  return ::lstat(path.c_str(), &st) == 0 && st.st_dev == dev && st.st_ino == ino;
+}
+
+// Puts every companion that already replaced its target back to its previous version
+// (or removes it when there was none); removes previous versions not needed. Never
+// throws.
+void RollBack(const std::vector<JournalEntry>& entries) {
+  for (const JournalEntry& e : entries) {
+    struct stat st {};
+    const bool has_previous = !e.previous.empty() && ::lstat(e.previous.c_str(), &st) == 0;
+    if (IsFile(e.target, e.dev, e.ino)) {
+      if (has_previous) {
+        ::rename(e.previous.c_str(), e.target.c_str());
+      } else if (e.previous.empty()) {
+        ::unlink(e.target.c_str());
+      }
+    }
+    if (!e.previous.empty()) ::unlink(e.previous.c_str());
+    SyncDirectory(DirectoryOf(e.target));
+  }
+}
+
+// Removes the previous versions of committed companions. Never throws.
+void Settle(const std::vector<JournalEntry>& entries) {
+  for (const JournalEntry& e : entries) {
+    if (!e.previous.empty() && ::unlink(e.previous.c_str()) == 0) {
+      SyncDirectory(DirectoryOf(e.target));
+    }
+  }
+}
+
+}  // namespace
+
+void TestKillPoint(std::string_view point) {
+  const char* at = std::getenv("OMNICML_TEST_KILL_AT");
+  if (at != nullptr && point == at) ::raise(SIGKILL);
+}
+
+int RecoverInterruptedCommits(const fs::path& target) {
+  fs::path t = target.lexically_normal();
+  if (!t.has_filename()) t = t.parent_path();
+  const std::string name = t.filename().string();
+  if (name.empty() || name == "." || name == "..") return 0;
+  std::unique_ptr<OutputLock> lock;
+  if (!OutputLock::HeldByThisProcess(t)) {
+    try {
+      lock = std::make_unique<OutputLock>(t, "output");
+    } catch (const Error&) {
+      return 0;  // another process is writing it
+    }
+  }
+  int settled = 0;
+  std::vector<JournalEntry> entries;
+  // Committed: the journal moved into the target with the directory.
+  if (ReadJournal(t / kCommitJournal, &entries)) {
+    Settle(entries);
+    ::unlink((t / kCommitJournal).c_str());
+    SyncDirectory(t);
+    ++settled;
+  }
+  // Not committed: the journal is still in a staging directory of a dead writer.
+  std::error_code ec;
+  const std::string prefix = StrCat(name, ".partial-");
+  for (fs::directory_iterator it(DirectoryOf(t), ec), end; !ec && it != end; it.increment(ec)) {
+    const std::string entry = it->path().filename().string();
+    if (entry.size() <= prefix.size() || entry.compare(0, prefix.size(), prefix) != 0) continue;
+    const std::string pid_text = entry.substr(prefix.size());
+    if (!AllDigits(pid_text) || pid_text.size() > 9) continue;
+    if (!ReadJournal(it->path() / kCommitJournal, &entries)) continue;
+    RollBack(entries);
+    // The old directory moved aside (no RENAME_EXCHANGE) and the new one not renamed in.
+    const fs::path old = StrCat(t.string(), ".old-", pid_text);
+    struct stat st {};
+    if (::lstat(t.c_str(), &st) != 0 && ::lstat(old.c_str(), &st) == 0) {
+      ::rename(old.c_str(), t.c_str());
+    }
+    ::unlink((it->path() / kCommitJournal).c_str());
+    SyncDirectory(DirectoryOf(t));
+    ++settled;
+  }
+  return settled;
+}
+
+void StagedDirectory::Commit(std::span<AtomicFile* const> companions) {
   if (done_) return;
   SyncFileSystem(staging_);  // every file durable before the directory appears by name
+  std::vector<JournalEntry> entries;
+  if (!companions.empty()) {
+    for (AtomicFile* file : companions) {
+      file->Sync();
+      JournalEntry e;
+      e.target = fs::absolute(file->target()).lexically_normal();
+      struct stat st {};
+      if (::lstat(file->temp_path().c_str(), &st) != 0) {
+        Fail("cannot commit", file->target(), StrCat("its temporary file vanished: ",
+                                                       ErrnoText(errno)));
+      }
+      e.dev = st.st_dev;
+      e.ino = st.st_ino;
+      if (::lstat(e.target.c_str(), &st) == 0) e.previous = PreviousPathFor(e.target, ::getpid());
+      entries.push_back(std::move(e));
+    }
+    WriteFileAtomic(staging_ / kCommitJournal, JournalText(entries));
+    try {
+      for (const JournalEntry& e : entries) {
+        if (!e.previous.empty()) KeepPrevious(e.target, e.previous);
+      }
+      for (AtomicFile* file : companions) file->Commit();
+      TestKillPoint("staged-commit-swap");
+      SwapIntoPlace();
+    } catch (...) {
+      RollBack(entries);
+      throw;
+    }
+    TestKillPoint("staged-commit-settle");
+    Settle(entries);
+    ::unlink((target_ / kCommitJournal).c_str());
+    SyncDirectory(target_);
+    return;
+  }
+  SwapIntoPlace();
+}
+
+void StagedDirectory::SwapIntoPlace() {
   const fs::path parent = DirectoryOf(target_);
   std::error_code ec;
   if (fs::exists(fs::symlink_status(target_, ec))) {
@@ -511,7 +770,8 @@ int CreateLockedTemporary(const fs::path& dir, const fs::path& temp) {
 
 }  // namespace
 
-AtomicFile::AtomicFile(fs::path target, FileSync sync) : target_(std::move(target)), sync_(sync) {
+AtomicFile::AtomicFile(fs::path target, FileSync sync)
+    : target_(ResolveOutputFile(target)), sync_(sync) {
   done_ = true;  // nothing to remove until the temporary exists
   if (const std::string problem = OutputNodeProblem(target_, false); !problem.empty()) {
     Fail("cannot create", target_, problem);
@@ -540,21 +800,42 @@ AtomicFile::AtomicFile(fs::path target, FileSync sync) : target_(std::move(targe
 
 AtomicFile::~AtomicFile() { Discard(); }
 
-void AtomicFile::Commit() {
-  if (done_) return;
-  out_.flush();
-  bool ok = static_cast<bool>(out_);
-  out_.close();
-  ok = ok && !out_.fail();
-  if (!ok) {
-    Discard();
-    Fail("write error", target_, "the data could not be written (disk full?)");
+void AtomicFile::Sync() {
+  if (done_ || synced_) return;
+  if (!closed_) {
+    out_.flush();
+    bool ok = static_cast<bool>(out_);
+    out_.close();
+    ok = ok && !out_.fail();
+    closed_ = true;
+    if (!ok) {
+      Discard();
+      Fail("write error", target_, "the data could not be written (disk full?)");
+    }
   }
-  // Make the data durable before the rename makes it visible under the target name.
-  if (sync_ == FileSync::kFsync && ::fsync(fd_) != 0) {
+  if (::fsync(fd_) != 0) {
     const int err = errno;
     Discard();
     Fail("cannot write", target_, StrCat("fsync failed: ", ErrnoText(err)));
+  }
+  synced_ = true;
+}
+
+void AtomicFile::Commit() {
+  if (done_) return;
+  // Make the data durable before the rename makes it visible under the target name.
+  if (sync_ == FileSync::kFsync) {
+    Sync();
+  } else if (!closed_) {
+    out_.flush();
+    bool ok = static_cast<bool>(out_);
+    out_.close();
+    ok = ok && !out_.fail();
+    closed_ = true;
+    if (!ok) {
+      Discard();
+      Fail("write error", target_, "the data could not be written (disk full?)");
+    }
   }
   // The target may have been replaced by a device, FIFO or link since the start.
   if (const std::string problem = OutputNodeProblem(target_, false); !problem.empty()) {
@@ -820,7 +1101,7 @@ void CheckOutputFile(const fs::path& path, std::string_view flag,
   if (fs::exists(st) && !fs::is_regular_file(st)) {
     throw Error(StrCat(flag, " '", path.string(), "': exists and is not a regular file"));
   }
-  const fs::path dir = OutputParentOf(path);
+  const fs::path dir = OutputParentOf(ResolveOutputFile(path));
   if (!will_create_dir.empty()) {
     std::error_code ec;
     const fs::path a = fs::weakly_canonical(fs::absolute(dir), ec);

@@ -343,7 +343,10 @@ std::unique_ptr<CmlEngine> EngineStateAccess::Read(BinaryReader& in) {
     e->updater_->PushRaw(std::move(u));
   }
 
-  e->model_ = std::make_unique<EnvironmentModel>(EnvironmentModel::Deserialize(in, e->options_.model, e->extractor_));
+  // This engine format embeds exactly the model section version Serialize writes; any
+  // other is refused by version, before its bytes are misread as something else.
+  e->model_ = std::make_unique<EnvironmentModel>(EnvironmentModel::Deserialize(
+      in, e->options_.model, e->extractor_, EnvironmentModel::kFormatVersion));
   e->pose_graph_->Read(in);
   in.ExpectEnd("engine payload");
   if (s.in_session) e->MakeUnwrapper();
@@ -373,7 +376,7 @@ std::unique_ptr<CmlEngine> DecodeEngine(const std::vector<std::uint8_t>& bytes, 
   const auto version = header.Read<std::uint32_t>("format version");
   if (version != kEngineFormatVersion) {
     FailFile(source, StrCat("unsupported engine format version ", version, " (this build reads ",
-                            kEngineFormatVersion, ")"));
+                            kEngineFormatVersion, "..", kEngineFormatVersion, ")"));
   }
   const auto length = header.Read<std::uint64_t>("payload length");
   const std::uint64_t available = bytes.size() - kHeaderBytes;

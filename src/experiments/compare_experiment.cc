@@ -422,20 +422,25 @@ CompareExperimentResult RunCompareExperiment(const CompareExperimentOptions& opt
               "still queued); views_end: at the end, queued updates applied (the saved map)\n";
       out.table_text = head.str() + FormatCompareTable(results, steps);
     }
-    // The maps first (each renamed into place whole), the run directory last, so a
-    // comparison directory never names maps that were not written.
+    // The maps are written completely, then commit with the run directory as one unit
+    // (StagedDirectory::Commit with companions): old maps and directory or new ones.
+    std::vector<std::unique_ptr<AtomicFile>> maps;
     if (!options.map_out_dir.empty()) {
       std::filesystem::create_directories(options.map_out_dir);
       for (std::size_t i = 0; i < modes.size(); ++i) {
-        WriteFileAtomic(std::filesystem::path(options.map_out_dir) / (ToString(modes[i]) + ".omap"),
-                        map_bytes[i]);
+        maps.push_back(std::make_unique<AtomicFile>(
+            std::filesystem::path(options.map_out_dir) / (ToString(modes[i]) + ".omap")));
+        maps.back()->stream().write(reinterpret_cast<const char*>(map_bytes[i].data()),
+                                    static_cast<std::streamsize>(map_bytes[i].size()));
       }
     }
     WriteFileAtomic(staged.path() / "table.txt", out.table_text, FileSync::kDeferred);
     WriteFileAtomic(staged.path() / "report.html",
                     RenderCompareReport(out.input, results, steps, out.table_text),
                     FileSync::kDeferred);
-    staged.Commit();
+    std::vector<AtomicFile*> companions;
+    for (auto& m : maps) companions.push_back(m.get());
+    staged.Commit(companions);
     out.modes = std::move(results);
     return out;
   }

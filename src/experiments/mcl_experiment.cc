@@ -10,8 +10,10 @@
 #include <sstream>
 
 #include "omnicml/common/common.h"
+#include "omnicml/common/file_io.h"
 #include "omnicml/common/limits.h"
 #include "omnicml/descriptors/descriptor_factory.h"
+#include "omnicml/run/run_directory.h"
 #include "omnicml/logs/log_format.h"
 #include "omnicml/report/report.h"
 #include "omnicml/report/svg_plot.h"
@@ -314,6 +316,15 @@ std::string ReportHtml(const MclExperimentOptions& a, const MclPrepared& p,
 }
 
 // Fails early (before the long preparation) when --out cannot become a run directory.
+// Files marking an existing directory as an earlier run directory that a new run may
+// replace whole: those of `omnicml run` and mcl's own.
+std::vector<std::string> MclRunDirectoryMarkers() {
+  std::vector<std::string> markers = RunDirectoryMarkers();
+  markers.push_back("summary.txt");
+  markers.push_back("map.yaml");
+  return markers;
+}
+
 void CheckRunDir(const std::string& out) {
   if (out.empty()) return;
   const fs::path dir = fs::absolute(fs::path(out)).lexically_normal();
@@ -590,7 +601,10 @@ MclPrepared PrepareMclExperiment(const MclExperimentOptions& a) {
                        "'"));
   }
   if (a.experiment.empty()) CheckRunDir(a.out_dir);
-  if (!a.out_dir.empty()) CheckOutputDirectory(a.out_dir, "--out");
+  if (!a.out_dir.empty()) {
+    CheckOutputDirectory(a.out_dir, "--out");
+    CheckReplaceableDirectory(a.out_dir, "--out", MclRunDirectoryMarkers());
+  }
   return PrepareMcl(a);
 }
 
@@ -621,6 +635,12 @@ std::string DescribeMclPrepared(const MclPrepared& p) {
 }
 
 MclSingleResult RunMclSingle(const MclExperimentOptions& options, const MclPrepared& prepared) {
+  // The run directory's lock from the start: a second writer refuses before its work.
+  std::unique_ptr<OutputLock> lock;
+  if (!options.out_dir.empty()) {
+    lock = std::make_unique<OutputLock>(options.out_dir, "--out");
+    CheckReplaceableDirectory(options.out_dir, "--out", MclRunDirectoryMarkers());
+  }
   MclSingleResult result = RunSingle(options, prepared);
   if (!options.out_dir.empty()) WriteMclRunDirectory(options, prepared, result);
   return result;
@@ -648,18 +668,15 @@ MclExperimentResult RunMclExperiment(const MclExperimentOptions& options,
 void WriteMclRunDirectory(const MclExperimentOptions& a, const MclPrepared& p,
                           const MclSingleResult& result) {
   CheckRunDir(a.out_dir);
-  fs::path dir = fs::absolute(fs::path(a.out_dir)).lexically_normal();
-  if (dir.filename().empty()) dir = dir.parent_path();
-  std::error_code ec;
-  const bool created = !fs::exists(dir, ec);
-  if (created && !fs::create_directory(dir, ec)) {
-    throw Error(StrCat("cannot create run directory '", dir.string(), "': ", ec.message()));
-  }
-  try {
+  // Assembled in a staging directory and renamed into place whole (common/file_io.h
+  // StagedDirectory): a failure or a kill leaves the old run directory or none.
+  StagedDirectory staged(a.out_dir, "--out", MclRunDirectoryMarkers());
+  const fs::path dir = staged.path();
+  {
     const std::string config = ConfigYaml(a, p);
     std::vector<std::unique_ptr<AtomicFile>> files;
     auto add = [&](const char* name) -> std::ostream& {
-      files.push_back(std::make_unique<AtomicFile>(dir / name));
+      files.push_back(std::make_unique<AtomicFile>(dir / name, FileSync::kDeferred));
       return files.back()->stream();
     };
     std::ostream& csv = add("frames.csv");
@@ -679,10 +696,8 @@ void WriteMclRunDirectory(const MclExperimentOptions& a, const MclPrepared& p,
     // renamed into place.
     SaveOccupancyGrid(p.grid, (dir / "map.yaml").string());
     for (auto& f : files) f->Commit();
-  } catch (...) {
-    if (created) fs::remove_all(dir, ec);
-    throw;
   }
+  staged.Commit();
 }
 
 }  // namespace omnicml

@@ -1,12 +1,15 @@
 #include "omnicml/logs/log_format.h"
 
 #include <fcntl.h>  // AT_FDCWD
+#include <sys/stat.h>
 #include <stdio.h>  // renameat2 (glibc, _GNU_SOURCE)
 #include <unistd.h>
 
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <charconv>
+#include <deque>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -361,6 +364,87 @@ std::string SessionYamlText(const SessionInfo& info) {
 // -----------------------------------------------------------------------------------
 // LogReader
 
+// Where the images of one session may lie (ImageInsideLog); absolute paths.
+struct LogReaderRoot {
+  fs::path lexical_root;           // the log directory as given, absolute and normalized
+  fs::path session_dir;            // the session directory, absolute and normalized
+  fs::path canonical_root;         // the log directory with links resolved
+  fs::path canonical_session_dir;  // the session directory with links resolved
+};
+
+namespace {
+
+std::atomic<bool> allow_images_outside_log{false};
+
+// True when `path` (absolute, normalized) is `root` or lies below it.
+bool LiesUnder(const fs::path& path, const fs::path& root) {
+  const fs::path rel = path.lexically_relative(root);
+  return !rel.empty() && *rel.begin() != ".." && !rel.is_absolute();
+}
+
+// `start` (absolute) with every symbolic link resolved the way the kernel resolves a
+// path: component by component, ".." taken physically after the links before it. A link
+// that leads nowhere is still followed by its text, and from the first component that
+// does not exist the rest is taken as written, so the result names where the path leads
+// whether or not that place exists. Empty after too many links (a loop).
+fs::path ResolveLinks(const fs::path& start) {
+  std::deque<fs::path> rest(start.begin(), start.end());
+  if (rest.empty()) return {};
+  fs::path done = rest.front();  // the root directory
+  rest.pop_front();
+  int links = 0;
+  while (!rest.empty()) {
+    const fs::path part = rest.front();
+    rest.pop_front();
+    if (part.empty() || part == ".") continue;
+    if (part == "..") {
+      done = done.parent_path();
+      continue;
+    }
+    const fs::path next = done / part;
+    struct stat st {};
+    if (::lstat(next.c_str(), &st) != 0) {
+      fs::path out = next;
+      for (const fs::path& p : rest) out /= p;
+      return out.lexically_normal();
+    }
+    if (!S_ISLNK(st.st_mode)) {
+      done = next;
+      continue;
+    }
+    std::error_code ec;
+    const fs::path target = fs::read_symlink(next, ec);
+    if (ec || ++links > 40) return {};
+    std::vector<fs::path> parts;
+    for (const fs::path& p : target.relative_path()) parts.push_back(p);
+    rest.insert(rest.begin(), parts.begin(), parts.end());
+    if (target.is_absolute()) done = target.root_path();
+  }
+  return done;
+}
+
+// Whether image `name` of frames.csv lies inside the log: first by its text alone
+// against the log directory as given (an absolute name or one climbing out with ".." is
+// refused without touching the outside path), then with its links resolved
+// (ResolveLinks) against the canonical log directory or the canonical session directory
+// (a session directory may itself be a link).
+bool ImageInsideLog(const std::string& name, const LogReaderRoot& root) {
+  const fs::path relative(name);
+  if (relative.is_absolute() || relative.has_root_name() || relative.has_root_directory()) {
+    return false;
+  }
+  const fs::path joined = (root.session_dir / relative).lexically_normal();
+  if (!LiesUnder(joined, root.lexical_root)) return false;
+  const fs::path resolved = ResolveLinks(root.session_dir / relative);
+  return !resolved.empty() && (LiesUnder(resolved, root.canonical_root) ||
+                               LiesUnder(resolved, root.canonical_session_dir));
+}
+
+}  // namespace
+
+void SetAllowImagesOutsideLog(bool allow) { allow_images_outside_log.store(allow); }
+bool AllowImagesOutsideLog() { return allow_images_outside_log.load(); }
+
 LogReader::LogReader(const std::string& log_dir, LogReaderOptions options)
     : LogReader(std::vector<std::string>{log_dir}, options) {}
 
@@ -368,6 +452,13 @@ LogReader::LogReader(const std::vector<std::string>& log_dirs, LogReaderOptions 
     : options_(options) {
   options_.Validate();
   if (log_dirs.empty()) throw Error("LogReader: no log directory given");
+  const bool confine = !options_.allow_images_outside_log && !AllowImagesOutsideLog();
+  const auto resolve = [](const std::string& dir) {
+    std::error_code ec;
+    fs::path resolved = fs::canonical(dir, ec);
+    if (ec) throw Error(StrCat(dir, ": cannot resolve the directory: ", ec.message()));
+    return resolved;
+  };
   for (const auto& log_dir : log_dirs) {
     for (const auto& dir : ListSessionDirs(log_dir)) {
       SessionInfo info = ReadSessionYaml((fs::path(dir) / "session.yaml").string());
@@ -384,6 +475,14 @@ LogReader::LogReader(const std::vector<std::string>& log_dirs, LogReaderOptions 
       }
       sessions_.push_back(std::move(info));
       session_dirs_.push_back(dir);
+      auto root = std::make_shared<LogReaderRoot>();
+      if (confine) {
+        root->lexical_root = fs::absolute(log_dir).lexically_normal();
+        root->session_dir = fs::absolute(dir).lexically_normal();
+        root->canonical_root = resolve(log_dir);
+        root->canonical_session_dir = resolve(dir);
+      }
+      session_roots_.push_back(confine ? std::move(root) : nullptr);
     }
   }
 }
@@ -500,6 +599,14 @@ void LogReader::ParseRow(const std::string& line, Frame* frame) {
 
   cv::Mat image;
   if (options_.load_images) {
+    const LogReaderRoot* root = session_roots_[session_].get();
+    if (root != nullptr && !ImageInsideLog(image_name, *root)) {
+      // The same words whether or not the outside path exists.
+      fail(StrCat("image '", Excerpt(image_name), "' lies outside the log directory '",
+                  root->lexical_root.string(),
+                  "' (an absolute path, '..' or a symbolic link leading out); images outside "
+                  "the log are read only with --allow-images-outside-log"));
+    }
     const std::string path = (fs::path(session_dirs_[session_]) / image_name).string();
     try {
       image = ReadImage(path);

@@ -29,7 +29,7 @@ constexpr std::uint32_t kModelMagic = 0x4D45434Fu;  // "OCEM" little-endian
 // logged and the per-session event counts before the (bounded) event ring; earlier
 // versions rebuild the counts from their complete log. Version 4 adds the look-back's
 // recent updates after the events (none are read from earlier versions).
-constexpr std::uint32_t kModelVersion = 4;
+constexpr std::uint32_t kModelVersion = EnvironmentModel::kFormatVersion;
 
 // The smallest encoding of each record, from the sizes of its fields: ReadCount's guard,
 // so a corrupted count fails before anything is allocated.
@@ -289,15 +289,18 @@ void EnvironmentModel::Serialize(BinaryWriter& out) const {
 
 EnvironmentModel EnvironmentModel::Deserialize(BinaryReader& in,
                                                const EnvironmentModelOptions& options,
-                                               std::shared_ptr<const DescriptorExtractor> extractor) {
+                                               std::shared_ptr<const DescriptorExtractor> extractor,
+                                               std::uint32_t min_version) {
   EnvironmentModel model(options, std::move(extractor));
   const Expected expected{model.extractor_->kind(), model.feature_size_};
   if (in.Read<std::uint32_t>("environment model magic") != kModelMagic) {
     in.Fail("environment model magic", "not an environment model (bad magic number)");
   }
   const auto version = in.Read<std::uint32_t>("environment model version");
-  if (version < 1 || version > kModelVersion) {
-    in.Fail("environment model version", StrCat("unsupported environment model version ", version));
+  const std::uint32_t oldest = std::max<std::uint32_t>(min_version, kOldestFormatVersion);
+  if (version < oldest || version > kModelVersion) {
+    throw Error(StrCat(in.source(), ": unsupported environment model version ", version,
+                       " (this build reads ", oldest, "..", kModelVersion, ")"));
   }
   const auto kind = in.Read<std::uint8_t>("model descriptor kind");
   const auto feature_size = in.Read<std::uint64_t>("model feature size");

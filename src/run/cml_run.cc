@@ -31,6 +31,9 @@ std::vector<std::unique_ptr<OutputLock>> CheckRunOutputs(const RunOutputs& o) {
       locks.push_back(std::make_unique<OutputLock>(path, flag));
     }
   }
+  // A commit of this run directory that a killed writer left half done is settled before
+  // anything is read: it may have replaced the file --map-in names.
+  if (!o.run_dir.empty()) RecoverInterruptedCommits(o.run_dir);
   return locks;
 }
 

@@ -148,11 +148,24 @@ void RunDirectoryWriter::Commit() {
                   << manifest.c_str() << "\n";
   }
   // Everything is written. Rename into place: the run directory's files (inside the
-  // staging directory, not yet visible), the files outside it, then the run directory.
+  // staging directory, not yet visible), then the files outside it together with the
+  // run directory as one unit (StagedDirectory::Commit with companions: a kill leaves
+  // the old state or the new one, settled by the next writer).
   for (auto& f : files_) f->Commit();
-  for (auto& o : streamed_) o.file->Commit();
-  for (auto& f : outside) f->Commit();
-  if (staged_) staged_->Commit();
+  std::vector<AtomicFile*> companions;
+  for (auto& o : streamed_) {
+    if (o.write_path == o.path) {
+      companions.push_back(o.file.get());
+    } else {
+      o.file->Commit();
+    }
+  }
+  for (auto& f : outside) companions.push_back(f.get());
+  if (staged_) {
+    staged_->Commit(companions);
+  } else {
+    for (AtomicFile* f : companions) f->Commit();
+  }
   committed_ = true;
 }
 

@@ -39,13 +39,20 @@ void SimulatorOptions::Validate() const {
   if (!(step_m > 0) || !std::isfinite(step_m) || step_m > 100) {
     throw Error(StrCat("SimulatorOptions.step_m: ", step_m, " (must lie in (0, 100] m)"));
   }
-  if (!(start_sigma_xy_m >= 0) || !std::isfinite(start_sigma_xy_m)) {
-    throw Error(StrCat("SimulatorOptions.start_sigma_xy_m: ", start_sigma_xy_m, " (must be >= 0)"));
-  }
-  if (!(start_sigma_phi_rad >= 0) || !std::isfinite(start_sigma_phi_rad)) {
-    throw Error(
-        StrCat("SimulatorOptions.start_sigma_phi_rad: ", start_sigma_phi_rad, " (must be >= 0)"));
-  }
+  // The sessions' start covariance is diag(sigma^2) and goes into every written log, whose
+  // reader and writer take positive variances up to kMaxPositionVarianceM2 and
+  // kMaxHeadingVarianceRad2 (common/limits.h): checked here, before any frame is made.
+  const auto check_sigma = [](const char* name, double sigma, double max_variance,
+                              const char* unit) {
+    const double max_sigma = std::sqrt(max_variance);
+    if (!(sigma > 0) || !(sigma <= max_sigma) || !std::isfinite(sigma * sigma) ||
+        !(sigma * sigma > 0)) {
+      throw Error(StrCat("SimulatorOptions.", name, ": ", sigma, " (must lie in (0, ", max_sigma,
+                         "] ", unit, ")"));
+    }
+  };
+  check_sigma("start_sigma_xy_m", start_sigma_xy_m, kMaxPositionVarianceM2, "m");
+  check_sigma("start_sigma_phi_rad", start_sigma_phi_rad, kMaxHeadingVarianceRad2, "rad");
 }
 
 // ---------------------------------------------------------------------------------------

@@ -14,6 +14,7 @@
 #include "omnicml/common/common.h"
 #include "omnicml/common/yaml_io.h"
 #include "omnicml/common/file_io.h"
+#include "omnicml/common/limits.h"
 
 namespace omnicml {
 namespace {
@@ -295,15 +296,28 @@ void CheckWorld(const World& w) {
       }
     }
   }
+  // Every point a world places lies on its floor: an outline far outside it (1e300) would
+  // make the renderer place lamps or draw windows without end.
+  const auto check_on_floor = [&](const std::string& key, const Eigen::Vector2d& p) {
+    if (p.x() < -1e-9 || p.y() < -1e-9 || p.x() > w.size_m.x() + 1e-9 ||
+        p.y() > w.size_m.y() + 1e-9) {
+      fail(key, StrCat("point (", p.x(), ", ", p.y(), ") outside the floor [0, size_m]"));
+    }
+  };
   names.clear();
-  for (const auto& l : w.lights) {
+  for (std::size_t i = 0; i < w.lights.size(); ++i) {
+    const LightZone& l = w.lights[i];
     if (!names.insert(l.name).second)
       fail("lights", StrCat("duplicate light zone name '", l.name, "'"));
+    for (const auto& p : l.polygon_m) check_on_floor(StrCat(Indexed("lights", i), ".polygon_m"), p);
   }
   names.clear();
-  for (const auto& win : w.windows) {
+  for (std::size_t i = 0; i < w.windows.size(); ++i) {
+    const WindowSpec& win = w.windows[i];
     if (!names.insert(win.name).second)
       fail("windows", StrCat("duplicate window name '", win.name, "'"));
+    check_on_floor(StrCat(Indexed("windows", i), ".from_m"), win.from_m);
+    check_on_floor(StrCat(Indexed("windows", i), ".to_m"), win.to_m);
   }
   for (std::size_t i = 0; i < w.events.size(); ++i) {
     const WorldEvent& e = w.events[i];
@@ -550,7 +564,7 @@ World ParseWorld(const std::string& yaml_text, const std::string& source) {
     c.elevation_min_deg = cr.Double("elevation_min_deg", c.elevation_min_deg, -89.0, 89.0);
     c.elevation_max_deg = cr.Double("elevation_max_deg", c.elevation_max_deg, -89.0, 89.0);
     c.noise_sigma_gray = cr.Double("noise_sigma_gray", c.noise_sigma_gray, 0.0, 50.0);
-    c.panorama_width_px = cr.Int("panorama_width_px", c.panorama_width_px, 8, 16384);
+    c.panorama_width_px = cr.Int("panorama_width_px", c.panorama_width_px, 8, kMaxPanoramaSidePx);
     c.panorama_height_px = cr.Int("panorama_height_px", c.panorama_height_px, 2, 4096);
     if (c.elevation_max_deg <= c.elevation_min_deg)
       cr.Fail("camera.elevation_max_deg", "must exceed elevation_min_deg");
@@ -598,8 +612,9 @@ World ParseWorld(const std::string& yaml_text, const std::string& source) {
               "exactly one timing key (positive) is required");
     }
     e.probability = er.Double("probability", 1.0, 0.0, 1.0);
-    e.dx_m = er.Double("dx_m", 0.0);
-    e.dy_m = er.Double("dy_m", 0.0);
+    // A shelf moves at most across the floor.
+    e.dx_m = er.Double("dx_m", 0.0, -w.size_m.x(), w.size_m.x());
+    e.dy_m = er.Double("dy_m", 0.0, -w.size_m.y(), w.size_m.y());
     e.seed = er.Uint64("seed", 0);
     er.CheckNoUnknownKeys();
     w.events.push_back(e);

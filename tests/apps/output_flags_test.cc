@@ -28,6 +28,7 @@
 
 #include "command_registry.h"
 #include "omnicml/common/common.h"
+#include "omnicml/common/file_io.h"
 
 namespace omnicml::app {
 namespace {
@@ -38,6 +39,7 @@ namespace fs = std::filesystem;
 std::unique_ptr<CLI::App> MakeApp(bool* ran) {
   auto app = std::make_unique<CLI::App>("omnicml");
   app->require_subcommand(1);
+  AddGlobalOptions(*app);
   for (const RegisteredCommand& command : CommandRegistry()) command.setup(*app);
   std::function<void(CLI::App*)> replace = [&](CLI::App* a) {
     for (CLI::App* sub : a->get_subcommands([](CLI::App*) { return true; })) {
@@ -175,25 +177,35 @@ std::vector<BadNode> NodesForDirectories() {
   };
 }
 
-// Parses `omnicml <command...> <flag> <path>` and expects a refusal naming the path
-// before any work, with the node unchanged.
-void ExpectRefused(const OutputFlag& flag, const fs::path& path, const std::string& kind) {
-  std::string where;
+// Parses `omnicml [<global>] <command...> <flag> <path>`; returns the parse error's
+// message ("" when the parse succeeded) and sets *ran when the command would have run.
+std::string ParseWith(const OutputFlag& flag, const fs::path& path, const std::string& global,
+                      bool* ran) {
+  std::unique_ptr<CLI::App> app = MakeApp(ran);
+  std::vector<std::string> args;
+  if (!global.empty()) args.push_back(global);
+  args.insert(args.end(), flag.command.begin(), flag.command.end());
+  args.push_back(flag.flag);
+  args.push_back(path.string());
+  std::vector<std::string> reversed(args.rbegin(), args.rend());
+  try {
+    app->parse(reversed);
+  } catch (const CLI::ParseError& e) {
+    return e.what();
+  }
+  return {};
+}
+
+// Parses `omnicml [<global>] <command...> <flag> <path>` and expects a refusal naming the
+// path before any work, with the node unchanged.
+void ExpectRefused(const OutputFlag& flag, const fs::path& path, const std::string& kind,
+                   const std::string& global = "") {
+  std::string where = global.empty() ? "" : global + " ";
   for (const std::string& c : flag.command) where += c + " ";
   where += flag.flag + " (" + kind + ")";
   const std::string before = Fingerprint(path);
   bool ran = false;
-  std::unique_ptr<CLI::App> app = MakeApp(&ran);
-  std::vector<std::string> args = flag.command;
-  args.push_back(flag.flag);
-  args.push_back(path.string());
-  std::vector<std::string> reversed(args.rbegin(), args.rend());
-  std::string message;
-  try {
-    app->parse(reversed);
-  } catch (const CLI::ParseError& e) {
-    message = e.what();
-  }
+  const std::string message = ParseWith(flag, path, global, &ran);
   EXPECT_FALSE(ran) << where << ": the command ran";
   EXPECT_NE(message.find(path.string()), std::string::npos)
       << where << ": message does not name the path: '" << message << "'";
@@ -270,6 +282,55 @@ TEST(OutputFlags, DirectoryOutputsRefuseNonDirectories) {
   EXPECT_GE(checked, 8 * 4);
 }
 
+// With the global --follow-output-symlinks, every output file flag accepts a symbolic link
+// to a regular file (the parse does not refuse the path) and still refuses links to a
+// FIFO, a directory or nothing, and the other non-regular nodes; directory outputs still
+// refuse links. Without the flag (a new parse), the link is refused again.
+TEST(OutputFlags, FollowOutputSymlinksAcceptsOnlyLinksToRegularFiles) {
+  const std::string kFollow = "--follow-output-symlinks";
+  bool ran = false;
+  const std::vector<OutputFlag> flags = OutputFlags(*MakeApp(&ran));
+  int accepted = 0;
+  for (const OutputFlag& flag : flags) {
+    if (flag.kind == OutputKind::kDirectory) {
+      for (const BadNode& node : NodesForDirectories()) {
+        TempDir dir;
+        ExpectRefused(flag, node.make(dir.path()), node.name, kFollow);
+      }
+      continue;
+    }
+    TempDir dir;
+    std::ofstream(dir.path() / "real.txt") << "precious\n";
+    const fs::path link = dir.path() / "link";
+    fs::create_symlink(dir.path() / "real.txt", link);
+    const fs::path chain = dir.path() / "chain";
+    fs::create_symlink(link, chain);
+    for (const fs::path& path : {link, chain}) {
+      const std::string before = Fingerprint(path);
+      bool flag_ran = false;
+      const std::string message = ParseWith(flag, path, kFollow, &flag_ran);
+      // Other required arguments may be missing; the path itself must not be the problem.
+      EXPECT_EQ(message.find(path.string()), std::string::npos)
+          << kFollow << " " << flag.flag << " refused a link to a regular file: " << message;
+      EXPECT_EQ(Fingerprint(path), before);
+      ++accepted;
+    }
+    ExpectRefused(flag, link, "symlink to a regular file, without the flag");
+    ::mkfifo((dir.path() / "fifo").c_str(), 0666);
+    fs::create_symlink(dir.path() / "fifo", dir.path() / "to_fifo");
+    ExpectRefused(flag, dir.path() / "to_fifo", "symlink to a FIFO", kFollow);
+    fs::create_directory(dir.path() / "realdir");
+    fs::create_directory_symlink(dir.path() / "realdir", dir.path() / "to_dir");
+    ExpectRefused(flag, dir.path() / "to_dir", "symlink to a directory", kFollow);
+    for (const BadNode& node : NodesForFiles()) {
+      if (node.name == "symlink to a regular file") continue;
+      TempDir other;
+      ExpectRefused(flag, node.make(other.path()), node.name, kFollow);
+    }
+  }
+  EXPECT_GE(accepted, 2 * 9);
+}
+
 // Every output flag refuses a character device: a device node made in a private
 // directory (the same major/minor as /dev/null), never the real one. Needs root (mknod).
 TEST(OutputFlags, EveryOutputRefusesACharacterDevice) {
@@ -313,6 +374,41 @@ TEST(OutputFlags, BinaryExitsTwoNamingThePath) {
   EXPECT_TRUE(S_ISFIFO(st.st_mode));
   ASSERT_EQ(::lstat(sock.c_str(), &st), 0);
   EXPECT_TRUE(S_ISSOCK(st.st_mode));
+}
+
+// The binary with --follow-output-symlinks writes a map and a trajectory through links
+// to regular files: the links stay links, the files they lead to get the new content;
+// without the flag the same command exits 2 and changes nothing.
+TEST(OutputFlags, BinaryWritesThroughLinksWhenAsked) {
+  const fs::path binary = fs::path(OMNICML_BINARY_DIR) / "omnicml";
+  if (!fs::exists(binary)) GTEST_SKIP() << "omnicml binary not built";
+  TempDir dir;
+  std::ofstream(dir.path() / "map.real") << "old map\n";
+  std::ofstream(dir.path() / "traj.real") << "old trajectory\n";
+  fs::create_symlink("map.real", dir.path() / "map.link");
+  fs::create_symlink(dir.path() / "traj.real", dir.path() / "traj.link");
+  const std::string command = " run --world home_store --frames-per-day 5 --quiet --map-out " +
+                              (dir.path() / "map.link").string() + " --trajectory-out " +
+                              (dir.path() / "traj.link").string() + " >/dev/null 2>" +
+                              (dir.path() / "stderr.txt").string();
+  int status = std::system((binary.string() + command).c_str());
+  ASSERT_TRUE(WIFEXITED(status));
+  EXPECT_EQ(WEXITSTATUS(status), 2) << ReadText(dir.path() / "stderr.txt");
+  EXPECT_EQ(ReadText(dir.path() / "map.real"), "old map\n");
+  status = std::system((binary.string() + " --follow-output-symlinks" + command).c_str());
+  ASSERT_TRUE(WIFEXITED(status));
+  ASSERT_EQ(WEXITSTATUS(status), 0) << ReadText(dir.path() / "stderr.txt");
+  EXPECT_TRUE(fs::is_symlink(dir.path() / "map.link"));
+  EXPECT_TRUE(fs::is_symlink(dir.path() / "traj.link"));
+  EXPECT_EQ(ReadText(dir.path() / "map.real").rfind("OMNICML", 0), 0u);
+  EXPECT_NE(ReadText(dir.path() / "traj.real"), "old trajectory\n");
+  EXPECT_FALSE(ReadText(dir.path() / "traj.real").empty());
+  // Nothing else was left beside the files (no temporaries, no lock files).
+  std::vector<std::string> names;
+  for (const auto& e : fs::directory_iterator(dir.path())) names.push_back(e.path().filename());
+  std::sort(names.begin(), names.end());
+  EXPECT_EQ(names, (std::vector<std::string>{"map.link", "map.real", "stderr.txt", "traj.link",
+                                             "traj.real"}));
 }
 
 }  // namespace

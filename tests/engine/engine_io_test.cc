@@ -1,5 +1,6 @@
 #include "omnicml/engine/engine_io.h"
 
+#include <algorithm>
 #include <cstdint>
 #include <filesystem>
 #include <fstream>
@@ -10,8 +11,10 @@
 #include <gtest/gtest.h>
 
 #include "omnicml/engine/cml_engine.h"
+#include "omnicml/common/binary_io.h"
 #include "omnicml/common/common.h"
 #include "omnicml/common/options.h"
+#include "omnicml/mapping/environment_model.h"
 
 namespace omnicml {
 // Defined in cml_engine_test.cc (same test binary): a textured room rendered as panoramas
@@ -237,6 +240,65 @@ TEST(EngineIo, RejectsDamagedFiles) {
   ExpectErrorWith([&] { LoadEngine((dir / "missing.omnicml").string()); }, {"missing.omnicml"});
   // The good file still loads.
   EXPECT_NO_THROW(LoadEngine(good.string()));
+}
+
+// A version of any section other than the one this build reads (the header's engine
+// format, the model section inside it), with a valid checksum, is refused by a one-line
+// "unsupported ... version N (this build reads A..B)" naming the file, not misread.
+TEST(EngineIo, RefusesUnsupportedSectionVersions) {
+  const fs::path dir = ScratchDir("section_versions");
+  CmlEngine engine(TestOptions());
+  const std::vector<RouteFrame> route = MakeLaps(1, 0.5, 43, 0);
+  RunDay(engine, PanoramaSession("d1", SessionStartMode::kKnownPose, route[0].truth), route, 0);
+  const fs::path good = dir / "good.omnicml";
+  SaveEngine(engine, good.string());
+  const std::vector<std::uint8_t> bytes = ReadAll(good);
+  constexpr std::size_t kHeader = 8 + 4 + 8;  // magic, format version, payload length
+  ASSERT_GT(bytes.size(), kHeader + 4);
+  // The model section starts with its magic "OCEM" and a u32 version.
+  const std::vector<std::uint8_t> magic = {'O', 'C', 'E', 'M'};
+  const auto at = std::search(bytes.begin() + kHeader, bytes.end() - 4, magic.begin(), magic.end());
+  ASSERT_NE(at, bytes.end() - 4) << "no model section found";
+  const std::size_t model_version_at = static_cast<std::size_t>(at - bytes.begin()) + 4;
+  ASSERT_EQ(bytes[model_version_at], EnvironmentModel::kFormatVersion);
+
+  // Sets the u32 at `offset` and recomputes the payload checksum.
+  const auto with_u32 = [&](std::size_t offset, std::uint32_t value) {
+    std::vector<std::uint8_t> out = bytes;
+    for (int i = 0; i < 4; ++i) out[offset + i] = static_cast<std::uint8_t>(value >> (8 * i));
+    const std::span<const std::uint8_t> payload(out.data() + kHeader, out.size() - kHeader - 4);
+    const std::uint32_t crc = Crc32(payload);
+    for (int i = 0; i < 4; ++i) out[out.size() - 4 + i] = static_cast<std::uint8_t>(crc >> (8 * i));
+    return out;
+  };
+  const fs::path bad = dir / "bad.omnicml";
+  const auto expect_refused = [&](const std::vector<std::uint8_t>& file, const std::string& text) {
+    WriteAll(bad, file);
+    try {
+      LoadEngine(bad.string());
+      ADD_FAILURE() << "loaded a file with " << text;
+    } catch (const Error& e) {
+      const std::string message = e.what();
+      EXPECT_EQ(message.rfind(bad.string() + ": ", 0), 0u) << message;
+      EXPECT_NE(message.find(text), std::string::npos) << message;
+      EXPECT_EQ(message.find('\n'), std::string::npos) << message;
+    }
+  };
+  const std::string v = std::to_string(kEngineFormatVersion);
+  for (const std::uint32_t version : {kEngineFormatVersion - 1, kEngineFormatVersion + 1, 0u}) {
+    expect_refused(with_u32(8, version), StrCat("unsupported engine format version ", version,
+                                                " (this build reads ", v, "..", v, ")"));
+  }
+  const std::string m = std::to_string(EnvironmentModel::kFormatVersion);
+  for (const std::uint32_t version :
+       {EnvironmentModel::kFormatVersion - 1, EnvironmentModel::kFormatVersion + 1, 1u, 0u}) {
+    expect_refused(with_u32(model_version_at, version),
+                   StrCat("unsupported environment model version ", version, " (this build reads ",
+                          m, "..", m, ")"));
+  }
+  // The unchanged bytes, checksum recomputed the same way, still load.
+  WriteAll(bad, with_u32(model_version_at, EnvironmentModel::kFormatVersion));
+  EXPECT_NO_THROW(LoadEngine(bad.string()));
 }
 
 // Saving over an existing file replaces it atomically; an unwritable place is an error.

@@ -1,9 +1,15 @@
-// Crash safety of the writers (common/file_io.h): a child process that saves engine maps
-// (engine_io SaveEngine) and writes run directories (RunRecorder) in a loop is killed with
-// SIGKILL at seeded random moments; afterwards the map is the old or the new complete
-// file, every run directory file present is complete, and the next writer leaves no
-// temporary behind. A full disk (a 1 MB tmpfs in a private mount namespace, when the
-// test may mount one) makes a save fail with an error naming the file, the old map intact.
+// Crash safety of the writers (common/file_io.h): a child process that writes run
+// directories with their map and trajectory beside them (RunRecorder: `omnicml run
+// --map-out --trajectory-out --out`) in a loop is killed with SIGKILL at seeded random
+// moments; after the next writer settles what the killed one left (StagedDirectory's
+// commit journal), the map, the trajectory and the run directory are all old or all
+// new, never mixed, and nothing is left behind. Kills at the two steps of a commit (a
+// test hook) check both directions of that recovery. A full disk (a 1 MB tmpfs in a
+// private mount namespace, when the test may mount one) makes a save fail with an error
+// naming the file, the old map intact.
+//
+// The "next writer" runs as a new process image: this test binary started with
+// --next-writer DIR (see main() below), as the next `omnicml` command would be.
 #include <fcntl.h>
 #include <sched.h>
 #include <signal.h>
@@ -12,9 +18,9 @@
 #include <unistd.h>
 
 #include <algorithm>
-#include <cstdlib>
 #include <chrono>
 #include <cstdint>
+#include <cstdlib>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -28,6 +34,7 @@
 
 #include "omnicml/common/common.h"
 #include "omnicml/common/file_io.h"
+#include "omnicml/common/yaml_io.h"
 #include "omnicml/engine/cml_engine.h"
 #include "omnicml/engine/engine_io.h"
 #include "omnicml/run/run_config.h"
@@ -56,7 +63,9 @@ std::vector<std::string> Leftovers(const fs::path& dir) {
   std::vector<std::string> out;
   for (const auto& e : fs::recursive_directory_iterator(dir)) {
     const std::string name = e.path().filename().string();
-    if (IsAtomicTempName(name) || name.find(".partial-") != std::string::npos) {
+    if (IsAtomicTempName(name) || name.find(".partial-") != std::string::npos ||
+        name.find(".old-") != std::string::npos ||
+        name.find(".omnicml-prev-") != std::string::npos || name == ".omnicml-commit") {
       out.push_back(e.path().string());
     }
   }
@@ -93,25 +102,49 @@ SimRun MakeRun(int frames) {
   return run;
 }
 
-void WriteRunDir(const SimRun& run, const fs::path& dir) {
+// `omnicml run --map-out DIR/map.omap --trajectory-out DIR/trajectory.tum --out DIR/run`
+// with the results of `run`.
+void WriteRunWithMap(const SimRun& run, const fs::path& dir) {
   RunRecorderOptions options;
-  options.run_dir = dir;
+  options.run_dir = dir / "run";
   options.trajectory_path = dir / "trajectory.tum";
   RunRecorder recorder(options);
+  recorder.AddOutput("--map-out", dir / "map.omap", EncodeEngine(*run.engine));
   for (const auto& [frame, result] : run.records) recorder.Record(frame, result);
   recorder.Commit(*run.engine);
 }
 
-// Runs the "next writer" as a new process image (the test binary again, filtered to
-// CrashSafety.DISABLED_NextWriter), as the next `omnicml` command would be: AtomicFile
-// sweeps a directory for stale temporaries once per process, and a forked child would
-// inherit this process's record of directories already swept. Returns its exit code.
+// The sha256 that DIR/run/outputs.yaml records for `flag`, "" when none.
+std::string RecordedSha(const fs::path& dir, const std::string& flag) {
+  const YAML::Node list = LoadYaml(ReadTextFile(dir / "run" / "outputs.yaml"), "outputs.yaml");
+  for (const auto& item : list) {
+    if (item["flag"].as<std::string>() == flag) return item["sha256"].as<std::string>();
+  }
+  return "";
+}
+
+// The state a user finds in DIR: "a" or "b" when the map, the outside trajectory and the
+// run directory all belong to that run; otherwise a description of the mix.
+std::string StateOf(const fs::path& dir, const std::vector<std::uint8_t>& map_a,
+                    const std::vector<std::uint8_t>& map_b) {
+  const std::vector<std::uint8_t> map = ReadAll(dir / "map.omap");
+  const std::string map_is = map == map_a ? "a" : map == map_b ? "b" : "torn";
+  if (!fs::exists(dir / "run" / "outputs.yaml")) return "run directory without outputs.yaml";
+  if (RecordedSha(dir, "--map-out") != Sha256Hex(map)) {
+    return StrCat("map ", map_is, " is not the map the run directory records");
+  }
+  if (RecordedSha(dir, "--trajectory-out") != Sha256OfFile(dir / "trajectory.tum")) {
+    return StrCat("map ", map_is, ", trajectory of another run");
+  }
+  return map_is;
+}
+
+// Runs the next writer as a new process (this binary with --next-writer DIR): it writes
+// DIR/run with its map and trajectory once. Returns its exit code.
 int RunNextWriterProcess(const fs::path& dir) {
   const pid_t child = ::fork();
   if (child == 0) {
-    ::setenv("OMNICML_CRASH_SAFETY_DIR", dir.c_str(), 1);
-    ::execl("/proc/self/exe", "crash_safety_test", "--gtest_also_run_disabled_tests",
-            "--gtest_filter=CrashSafety.DISABLED_NextWriter", "--gtest_brief=1",
+    ::execl("/proc/self/exe", "crash_safety_test", "--next-writer", dir.c_str(),
             static_cast<char*>(nullptr));
     ::_exit(127);
   }
@@ -120,45 +153,102 @@ int RunNextWriterProcess(const fs::path& dir) {
   return WEXITSTATUS(status);
 }
 
-// The next writer of KilledWritersLeaveOldOrNewFilesAndNoTemporaries (started by it with
-// OMNICML_CRASH_SAFETY_DIR set): saves the map and writes the run directory once.
-TEST(CrashSafety, DISABLED_NextWriter) {
-  const char* dir = std::getenv("OMNICML_CRASH_SAFETY_DIR");
-  if (dir == nullptr) GTEST_SKIP() << "started only by KilledWritersLeaveOldOrNewFilesAndNoTemporaries";
-  const SimRun a = MakeRun(20);
-  SaveEngine(*a.engine, (fs::path(dir) / "map.omap").string());
-  WriteRunDir(a, fs::path(dir) / "run");
+// Forks a child that writes run `run` into `dir` and is killed by the test hook at
+// `point` (common/file_io.h TestKillPoint). Returns true when it died by SIGKILL.
+bool KilledAt(const SimRun& run, const fs::path& dir, const char* point) {
+  const pid_t child = ::fork();
+  if (child == 0) {
+    ::setenv("OMNICML_TEST_KILL_AT", point, 1);
+    try {
+      WriteRunWithMap(run, dir);
+    } catch (...) {
+      ::_exit(3);
+    }
+    ::_exit(0);
+  }
+  int status = 0;
+  return child > 0 && ::waitpid(child, &status, 0) == child && WIFSIGNALED(status) &&
+         WTERMSIG(status) == SIGKILL;
 }
 
-// SIGKILL at random moments of a child saving maps and writing run directories.
-TEST(CrashSafety, KilledWritersLeaveOldOrNewFilesAndNoTemporaries) {
+// A writer killed after the map and trajectory replaced theirs but before the run
+// directory was swapped in leaves a mix (new map beside the old run directory) that the
+// next writer of the run directory rolls back to the old state before anything else; a
+// writer killed after the swap leaves the new state, whose journal and previous versions
+// the next writer removes. Either way nothing is left behind.
+TEST(CrashSafety, InterruptedCommitIsSettledByTheNextWriter) {
+  const fs::path dir = ScratchDir("window");
+  const SimRun a = MakeRun(20);
+  const SimRun b = MakeRun(60);
+  const std::vector<std::uint8_t> map_a = EncodeEngine(*a.engine);
+  const std::vector<std::uint8_t> map_b = EncodeEngine(*b.engine);
+  WriteRunWithMap(a, dir);
+  ASSERT_EQ(StateOf(dir, map_a, map_b), "a");
+
+  // Between the two steps: the mix is on disk until the next writer starts.
+  ASSERT_TRUE(KilledAt(b, dir, "staged-commit-swap"));
+  EXPECT_EQ(ReadAll(dir / "map.omap"), map_b);
+  EXPECT_NE(StateOf(dir, map_a, map_b), "b");
+  EXPECT_FALSE(Leftovers(dir).empty());
+  // What the next writer does first (it holds the run directory's lock): back to "a".
+  EXPECT_EQ(RecoverInterruptedCommits(dir / "run"), 1);
+  EXPECT_EQ(StateOf(dir, map_a, map_b), "a");
+  EXPECT_NO_THROW(LoadEngine((dir / "map.omap").string()));
+  // Stale staging directories go with the next writer's own staging.
+  RemoveStaleStagingDirs(dir / "run");
+  EXPECT_EQ(Leftovers(dir), std::vector<std::string>{});
+
+  // A map that did not exist before is removed again.
+  fs::remove(dir / "map.omap");
+  ASSERT_TRUE(KilledAt(b, dir, "staged-commit-swap"));
+  EXPECT_EQ(ReadAll(dir / "map.omap"), map_b);
+  EXPECT_EQ(RecoverInterruptedCommits(dir / "run"), 1);
+  EXPECT_FALSE(fs::exists(dir / "map.omap"));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  WriteRunWithMap(a, dir);
+
+  // After the swap: the new state, with a journal and the previous versions to remove.
+  ASSERT_TRUE(KilledAt(b, dir, "staged-commit-settle"));
+  EXPECT_EQ(StateOf(dir, map_a, map_b), "b");
+  EXPECT_FALSE(Leftovers(dir).empty());
+  EXPECT_EQ(RecoverInterruptedCommits(dir / "run"), 1);
+  RemoveStaleStagingDirs(dir / "run");
+  EXPECT_EQ(StateOf(dir, map_a, map_b), "b");
+  EXPECT_EQ(Leftovers(dir), std::vector<std::string>{});
+
+  // The real next writer (a new process) after a kill in the window: it settles the mix
+  // and commits its own run (a); nothing is left.
+  ASSERT_TRUE(KilledAt(b, dir, "staged-commit-swap"));
+  ASSERT_EQ(RunNextWriterProcess(dir), 0);
+  EXPECT_EQ(StateOf(dir, map_a, map_b), "a");
+  EXPECT_EQ(Leftovers(dir), std::vector<std::string>{});
+}
+
+// SIGKILL at random moments of a child writing runs with their map and trajectory.
+TEST(CrashSafety, KilledWritersLeaveOldOrNewStateAndNoDebris) {
   const fs::path dir = ScratchDir("kill");
-  const fs::path map = dir / "map.omap";
-  const fs::path run_dir = dir / "run";
   const SimRun a = MakeRun(20);
   const SimRun b = MakeRun(60);
   const std::vector<std::uint8_t> bytes_a = EncodeEngine(*a.engine);
   const std::vector<std::uint8_t> bytes_b = EncodeEngine(*b.engine);
   ASSERT_NE(bytes_a, bytes_b);
-  SaveEngine(*a.engine, map.string());
-  WriteRunDir(a, run_dir);
+  WriteRunWithMap(a, dir);
 
   std::mt19937 rng(17);
   std::uniform_int_distribution<int> delay_us(0, 40000);
   constexpr int kKills = 60;
   int kills_with_temporary = 0;
+  int kills_mixed_before_recovery = 0;
   int saw_a = 0;
   int saw_b = 0;
   for (int k = 0; k < kKills; ++k) {
     const pid_t child = ::fork();
     ASSERT_GE(child, 0) << std::strerror(errno);
     if (child == 0) {
-      // Child: alternate the two maps and rewrite the run directory until killed.
+      // Child: alternate the two runs until killed.
       try {
-        for (int i = 0;; ++i) {
-          SaveEngine(i % 2 == 0 ? *b.engine : *a.engine, map.string());
-          WriteRunDir(i % 2 == 0 ? b : a, run_dir);
-        }
+        for (int i = 0;; ++i) WriteRunWithMap(i % 2 == 0 ? b : a, dir);
       } catch (...) {
         ::_exit(3);
       }
@@ -170,30 +260,26 @@ TEST(CrashSafety, KilledWritersLeaveOldOrNewFilesAndNoTemporaries) {
     ASSERT_TRUE(WIFSIGNALED(status)) << "the child ended by itself (status " << status << ")";
 
     // The map is the old or the new file, complete, and loads.
-    const std::vector<std::uint8_t> now = ReadAll(map);
-    ASSERT_TRUE(now == bytes_a || now == bytes_b) << "kill " << k << ": torn map ("
-                                                  << now.size() << " bytes)";
-    (now == bytes_a ? saw_a : saw_b)++;
-    EXPECT_NO_THROW(LoadEngine(map.string())) << "kill " << k;
-    // Every run directory file present is complete: the configuration loads.
-    if (fs::exists(run_dir / "config.yaml")) {
-      EXPECT_NO_THROW(LoadEngineOptionsYaml((run_dir / "config.yaml").string())) << "kill " << k;
-    }
+    const std::vector<std::uint8_t> now = ReadAll(dir / "map.omap");
+    ASSERT_TRUE(now == bytes_a || now == bytes_b)
+        << "kill " << k << ": torn map (" << now.size() << " bytes)";
+    EXPECT_NO_THROW(LoadEngine((dir / "map.omap").string())) << "kill " << k;
     if (!Leftovers(dir).empty()) ++kills_with_temporary;
+    const std::string before = StateOf(dir, bytes_a, bytes_b);
+    if (before != "a" && before != "b") ++kills_mixed_before_recovery;
 
-    // The next writer (a new process) removes what the killed process left. After odd
-    // kills the next killed child is the next writer.
+    // The next writer settles what the killed one left, then writes. After odd kills
+    // the next killed child is the next writer.
     if (k % 2 == 0) {
       ASSERT_EQ(RunNextWriterProcess(dir), 0);
       const auto left = Leftovers(dir);
       EXPECT_TRUE(left.empty()) << "kill " << k << ": left behind: " << left.front();
-    }
-  }
-  // In this (long-lived) process: RemoveStaleTemporaries cleans a target on demand.
-  for (const auto& e : fs::directory_iterator(dir)) {
-    if (IsAtomicTempName(e.path().filename().string(), "map.omap")) {
-      EXPECT_GE(RemoveStaleTemporaries(map), 1);
-      break;
+      EXPECT_EQ(StateOf(dir, bytes_a, bytes_b), "a") << "kill " << k;
+    } else {
+      RecoverInterruptedCommits(dir / "run");
+      const std::string after = StateOf(dir, bytes_a, bytes_b);
+      EXPECT_TRUE(after == "a" || after == "b") << "kill " << k << ": " << after;
+      (after == "a" ? saw_a : saw_b)++;
     }
   }
   ASSERT_EQ(RunNextWriterProcess(dir), 0);
@@ -202,8 +288,10 @@ TEST(CrashSafety, KilledWritersLeaveOldOrNewFilesAndNoTemporaries) {
   EXPECT_GT(kills_with_temporary, kKills / 4);
   RecordProperty("kills", kKills);
   RecordProperty("kills_with_temporary", kills_with_temporary);
-  std::printf("crash safety: %d kills, %d left a temporary, map old/new after kill: %d/%d\n",
-              kKills, kills_with_temporary, saw_a, saw_b);
+  std::printf(
+      "crash safety: %d kills, %d left a temporary, %d left a mix before recovery, "
+      "old/new after recovery: %d/%d\n",
+      kKills, kills_with_temporary, kills_mixed_before_recovery, saw_a, saw_b);
 }
 
 // Disk full: a save into a full 1 MB tmpfs fails naming the file; the old map is intact
@@ -223,7 +311,8 @@ TEST(CrashSafety, DiskFullSaveFailsCleanly) {
       (void)!::write(pipe_fds[1], message.data(), message.size());
       ::_exit(code);
     };
-    if (::unshare(CLONE_NEWNS) != 0) report(77, StrCat("unshare(CLONE_NEWNS): ", std::strerror(errno)));
+    if (::unshare(CLONE_NEWNS) != 0)
+      report(77, StrCat("unshare(CLONE_NEWNS): ", std::strerror(errno)));
     if (::mount(nullptr, "/", nullptr, MS_REC | MS_PRIVATE, nullptr) != 0) {
       report(77, StrCat("mount --make-rprivate /: ", std::strerror(errno)));
     }
@@ -249,7 +338,8 @@ TEST(CrashSafety, DiskFullSaveFailsCleanly) {
     } catch (const Error& e) {
       message = e.what();
     }
-    if (message.find(map.string()) == std::string::npos) report(1, "error without the path: " + message);
+    if (message.find(map.string()) == std::string::npos)
+      report(1, "error without the path: " + message);
     if (ReadAll(map) != bytes_a) report(1, "the old map changed: " + message);
     const auto left = Leftovers(dir);
     if (!left.empty()) report(1, "temporary left: " + left.front() + " after: " + message);
@@ -275,3 +365,20 @@ TEST(CrashSafety, DiskFullSaveFailsCleanly) {
 
 }  // namespace
 }  // namespace omnicml
+
+// `crash_safety_test --next-writer DIR`: the next writer of the kill tests (writes
+// DIR/run with its map and trajectory once, settling what a killed writer left); any
+// other arguments run the tests.
+int main(int argc, char** argv) {
+  if (argc == 3 && std::string(argv[1]) == "--next-writer") {
+    try {
+      omnicml::WriteRunWithMap(omnicml::MakeRun(20), argv[2]);
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "next writer: %s\n", e.what());
+      return 2;
+    }
+    return 0;
+  }
+  ::testing::InitGoogleTest(&argc, argv);
+  return RUN_ALL_TESTS();
+}

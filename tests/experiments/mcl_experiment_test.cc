@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -10,6 +11,7 @@
 #include <gtest/gtest.h>
 
 #include "omnicml/common/common.h"
+#include "omnicml/common/file_io.h"
 #include "omnicml/experiments/mcl_experiment.h"
 #include "omnicml/report/report.h"
 
@@ -182,23 +184,51 @@ TEST_F(MclExperimentTest, ColumnNormalisedHistogramsAreRecordedAndNeedIfh) {
 
 TEST_F(MclExperimentTest, SingleRunWritesEveryFileOfTheRunDirectory) {
   // One frames.csv row per query, summary.txt = the summary text, the grid, no
-  // temporaries; an unrelated file in an existing run directory is kept.
-  const fs::path dir = FreshDir("experiment");
-  { std::ofstream(dir / "notes.txt") << "mine\n"; }
+  // temporaries or staging directories; a rerun replaces the run directory whole.
+  const fs::path parent = FreshDir("experiment");
+  const fs::path dir = parent / "run";
   MclExperimentOptions o = Options();
   o.out_dir = dir.string();
   const MclSingleResult r = RunMclSingle(o, *prepared_);
   EXPECT_EQ(r.steps.size(), prepared_->test.size());
   ASSERT_EQ(r.records.size(), prepared_->test.size());
-  std::vector<std::string> names;
-  for (const auto& e : fs::directory_iterator(dir)) names.push_back(e.path().filename().string());
-  std::sort(names.begin(), names.end());
-  EXPECT_EQ(names,
-            (std::vector<std::string>{"config.yaml", "days.csv", "frames.csv", "groundtruth.tum",
-                                      "map.pgm", "map.yaml", "notes.txt", "odometry.tum",
-                                      "report.html", "summary.txt", "trajectory.tum"}));
+  const auto names_in = [](const fs::path& d) {
+    std::vector<std::string> names;
+    for (const auto& e : fs::directory_iterator(d)) names.push_back(e.path().filename().string());
+    std::sort(names.begin(), names.end());
+    return names;
+  };
+  const std::vector<std::string> expected = {
+      "config.yaml", "days.csv",    "frames.csv",  "groundtruth.tum", "map.pgm",       "map.yaml",
+      "odometry.tum", "report.html", "summary.txt", "trajectory.tum"};
+  EXPECT_EQ(names_in(dir), expected);
+  EXPECT_EQ(names_in(parent), std::vector<std::string>{"run"});
   EXPECT_EQ(ReadTextFile(dir / "summary.txt"), r.summary_text);
   EXPECT_EQ(Lines(ReadTextFile(dir / "frames.csv")), 1 + prepared_->test.size());
+  // A file added to the run directory does not survive the next run (committed whole).
+  { std::ofstream(dir / "notes.txt") << "mine\n"; }
+  RunMclSingle(o, *prepared_);
+  EXPECT_EQ(names_in(dir), expected);
+  EXPECT_EQ(names_in(parent), std::vector<std::string>{"run"});
+  fs::remove_all(parent);
+}
+
+TEST_F(MclExperimentTest, UnrelatedDirectoryIsRefusedBeforeAnyWork) {
+  // A non-empty directory that is not a run directory would be replaced whole: refused,
+  // naming it, by the preparation and by the writer; its file is untouched.
+  const fs::path dir = FreshDir("unrelated");
+  { std::ofstream(dir / "notes.txt") << "mine\n"; }
+  MclExperimentOptions o = Options();
+  o.out_dir = dir.string();
+  for (const auto& call : {std::function<void()>([&] { PrepareMclExperiment(o); }),
+                           std::function<void()>([&] { RunMclSingle(o, *prepared_); })}) {
+    try {
+      call();
+      ADD_FAILURE() << "an unrelated directory was accepted";
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find(dir.string()), std::string::npos) << e.what();
+    }
+  }
   EXPECT_EQ(ReadTextFile(dir / "notes.txt"), "mine\n");
   fs::remove_all(dir);
 }

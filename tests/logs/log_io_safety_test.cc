@@ -6,7 +6,9 @@
 
 #include <filesystem>
 #include <fstream>
+#include <sstream>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <gmock/gmock.h>
@@ -121,6 +123,108 @@ TEST(LogIoSafety, FramesCsvMustBeARegularFile) {
   fs::remove(yaml);
   ASSERT_EQ(::mkfifo(yaml.c_str(), 0600), 0);
   EXPECT_THAT(ErrorOf([&] { LogReader reader(log.string()); }), HasSubstr("FIFO"));
+}
+
+// Replaces the image name of the first row of `csv` by `image`.
+void SetFirstImage(const fs::path& csv, const std::string& image) {
+  std::ifstream in(csv);
+  std::string header, row, rest((std::istreambuf_iterator<char>(in)), {});
+  std::istringstream lines(rest);
+  std::getline(lines, header);
+  std::getline(lines, row);
+  std::string tail((std::istreambuf_iterator<char>(lines)), {});
+  const std::size_t a = row.find(','), b = row.find(',', a + 1);
+  row = row.substr(0, a + 1) + image + row.substr(b);
+  in.close();
+  std::ofstream(csv, std::ios::trunc) << header << "\n" << row << "\n" << tail;
+}
+
+// The message of reading every frame of `log` ("" when all frames load).
+std::string ReadAllFrames(const fs::path& log, LogReaderOptions options = {}) {
+  return ErrorOf([&] {
+    LogReader reader(log.string(), options);
+    Frame frame;
+    while (reader.Next(&frame)) {
+    }
+  });
+}
+
+// frames.csv may name only images inside its log: an absolute name, one climbing out
+// with "..", or a link leading out is refused, with the same message whether or not the
+// outside file exists; names into a sibling session are fine; the opt-in (the option or
+// the process-wide switch) reads outside images.
+TEST(LogIoSafety, ImagesOutsideTheLogAreRefusedUnlessAllowed) {
+  const fs::path root = FreshDir("confined");
+  const fs::path good = root / "good";
+  WriteLog(good);
+  const fs::path day = good / "day_01";
+  std::string first_image;
+  {
+    std::ifstream in(day / "frames.csv");
+    std::string header, row;
+    std::getline(in, header);
+    std::getline(in, row);
+    const std::size_t a = row.find(','), b = row.find(',', a + 1);
+    first_image = row.substr(a + 1, b - a - 1);
+  }
+  fs::create_directories(root / "outside");
+  fs::copy_file(day / first_image, root / "outside" / "present.png");
+  const fs::path log = root / "log";
+  // Pairs of names: one whose outside target exists, one whose target does not.
+  const std::vector<std::pair<std::string, std::string>> names = {
+      {(root / "outside" / "present.png").string(), (root / "outside" / "absent.png").string()},
+      {"../../outside/present.png", "../../outside/absent.png"},
+      {"./../day_01/../../outside/present.png", "./../day_01/../../outside/absent.png"},
+      {"link_present.png", "link_absent.png"},
+      {"dirlink/present.png", "dirlink/absent.png"},
+  };
+  for (const auto& [present, absent] : names) {
+    std::string messages[2];
+    for (int k = 0; k < 2; ++k) {
+      fs::remove_all(log);
+      fs::copy(good, log, fs::copy_options::recursive);
+      fs::create_symlink(root / "outside" / "present.png", log / "day_01" / "link_present.png");
+      fs::create_symlink(root / "outside" / "absent.png", log / "day_01" / "link_absent.png");
+      fs::create_directory_symlink(root / "outside", log / "day_01" / "dirlink");
+      const std::string name = k == 0 ? present : absent;
+      SetFirstImage(log / "day_01" / "frames.csv", name);
+      std::string message = ReadAllFrames(log);
+      EXPECT_THAT(message, HasSubstr("lies outside the log directory")) << name;
+      EXPECT_THAT(message, HasSubstr((log / "day_01" / "frames.csv").string() + ":2: ")) << name;
+      EXPECT_EQ(message.find('\n'), std::string::npos) << message;
+      for (const std::string word : {"present", "absent"}) {
+        for (std::size_t at; (at = message.find(word)) != std::string::npos;) {
+          message.replace(at, word.size(), "X");
+        }
+      }
+      messages[k] = message;
+      // The opt-in reads the existing one and reports the missing one as missing.
+      LogReaderOptions allow;
+      allow.allow_images_outside_log = true;
+      const std::string allowed = ReadAllFrames(log, allow);
+      if (k == 0) {
+        EXPECT_EQ(allowed, "") << name;
+      } else {
+        EXPECT_THAT(allowed, HasSubstr("absent.png")) << name;
+      }
+      SetAllowImagesOutsideLog(true);
+      EXPECT_EQ(ReadAllFrames(log), allowed) << name;
+      SetAllowImagesOutsideLog(false);
+    }
+    EXPECT_EQ(messages[0], messages[1]) << "the message tells whether " << present << " exists";
+  }
+  // Inside the log: a sibling session's image, and a link within the log.
+  fs::remove_all(log);
+  fs::create_directories(log);
+  fs::copy(day, log / "day_01", fs::copy_options::recursive);
+  fs::copy(day, log / "day_02", fs::copy_options::recursive);
+  SetFirstImage(log / "day_02" / "frames.csv", "../day_01/" + first_image);
+  fs::create_symlink(first_image, log / "day_01" / "inner_link.png");
+  SetFirstImage(log / "day_01" / "frames.csv", "inner_link.png");
+  EXPECT_EQ(ReadAllFrames(log), "");
+  // A log given through a symbolic link to it reads the same.
+  fs::create_directory_symlink(log, root / "log_link");
+  EXPECT_EQ(ReadAllFrames(root / "log_link"), "");
 }
 
 // An overlong frames.csv line is an error with file and line number and a short

@@ -3,6 +3,8 @@
 
 #include <cmath>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
@@ -106,6 +108,65 @@ TEST(World, BadValuesAreReported) {
   } catch (const Error& e) {
     EXPECT_THAT(std::string(e.what()), HasSubstr("/nonexistent/dir/w.yaml"));
   }
+}
+
+// Every number a world file sets is checked against its range when the file is loaded
+// (not late in the renderer or the log writer): a one-line error naming the file and the
+// field, for sizes beyond the limits (2^31 pixels, people, shelves) and places far off
+// the floor (lights, windows, shelf moves).
+TEST(World, EveryNumberIsCheckedWhenLoaded) {
+  const std::vector<std::pair<std::string, std::string>> cases = {
+      {"lights:\n  - {name: l, polygon_m: [[0, 0], [1e300, 0], [0, 1]]}\n", "lights[0].polygon_m"},
+      {"windows:\n  - {name: w, from_m: [0, 0], to_m: [1e300, 0]}\n", "windows[0].to_m"},
+      {"events:\n  - {type: shelf_moved, day: 2, target: s1, dx_m: 1e300}\n", "events[0].dx_m"},
+      {"events:\n  - {type: shelf_moved, day: 2, target: s1, dy_m: -7}\n", "events[0].dy_m"},
+      {"camera: {panorama_width_px: 2147483648}\n", "camera.panorama_width_px"},
+      {"camera: {panorama_width_px: 16385}\n", "camera.panorama_width_px"},
+      {"camera: {ring_width_px: -2147483649}\n", "camera.ring_width_px"},
+      {"people: {count: 2147483648}\n", "people.count"},
+      {"days_between_sessions: 1e300\n", "days_between_sessions"},
+      {"shelf_blocks:\n  - {name: b, origin_m: [1, 1], size_m: [1, 1], pitch_m: [0, 0], count: "
+       "2147483648, height_m: 1}\n",
+       "shelf_blocks[0].count"},
+      {"shelf_blocks:\n  - {name: b, origin_m: [1, 1], size_m: [1, 1], pitch_m: [1e305, 0], "
+       "count: 3, height_m: 1}\n",
+       "b_2"},
+  };
+  for (const auto& [extra, field] : cases) {
+    const std::string msg = ErrorOf(SmallWorld("", extra), "worlds/big.yaml");
+    EXPECT_THAT(msg, HasSubstr("worlds/big.yaml")) << extra;
+    EXPECT_THAT(msg, HasSubstr(field)) << extra;
+    EXPECT_EQ(msg.find('\n'), std::string::npos) << msg;
+  }
+  // The same kinds of values inside the limits load.
+  EXPECT_EQ(ErrorOf(SmallWorld("",
+                               "lights:\n  - {name: l, polygon_m: [[0, 0], [10, 0], [0, 6]]}\n"
+                               "events:\n  - {type: shelf_moved, day: 2, target: s1, dx_m: "
+                               "-3}\ncamera: {panorama_width_px: 16384}\n")),
+            "");
+}
+
+// A simulation's start sigmas become the logs' start covariance: a value whose square
+// leaves the logs' variance limits (2^31 m), zero or not a number is refused when the
+// options are loaded, naming the file and the field.
+TEST(World, SimulationStartSigmasAreCheckedWhenLoaded) {
+  for (const std::string& yaml :
+       {std::string("start_sigma_xy_m: 2147483648\n"), std::string("start_sigma_xy_m: 0\n"),
+        std::string("start_sigma_xy_m: 1e-200\n"), std::string("start_sigma_phi_rad: 11\n"),
+        std::string("start_sigma_phi_rad: .nan\n")}) {
+    try {
+      ParseSimulatorOptionsYaml(yaml, "sims/start.yaml");
+      ADD_FAILURE() << "accepted " << yaml;
+    } catch (const Error& e) {
+      const std::string msg = e.what();
+      EXPECT_THAT(msg, HasSubstr("sims/start.yaml"));
+      EXPECT_THAT(msg, HasSubstr(yaml.substr(0, yaml.find(':'))));
+      EXPECT_EQ(msg.find('\n'), std::string::npos) << msg;
+    }
+  }
+  const SimulatorOptions o =
+      ParseSimulatorOptionsYaml("start_sigma_xy_m: 1e6\nstart_sigma_phi_rad: 10\n", "ok.yaml");
+  EXPECT_DOUBLE_EQ(o.start_sigma_xy_m, 1e6);
 }
 
 // Day events are applied on their day, and the state at a day's start depends only on

@@ -20,7 +20,11 @@
 // FIFOs, sockets, symbolic links (also to a regular file) and, for files, directories are
 // refused with an omnicml::Error naming the path: CheckOutputNode() before any work, and
 // AtomicFile again when it opens and when it renames, so nothing is ever renamed over a
-// device (/dev/null) or through a link.
+// device (/dev/null) or through a link. One process-wide exception, off by default
+// (SetFollowOutputSymlinks, the CLI's --follow-output-symlinks): an output file that is
+// a symbolic link to a regular file is then written through, i.e. the file the link
+// resolves to is replaced atomically and the link stays; links to anything else (a
+// device, a directory, nothing) are still refused, and directory outputs never follow.
 //
 // Two writers. OutputLock takes an advisory lock (flock) on ".<name>.omnicml-lock"
 // beside an output; a second process asking for the same output refuses at once with an
@@ -101,8 +105,13 @@ class AtomicFile {
   const std::filesystem::path& target() const { return target_; }
   const std::filesystem::path& temp_path() const { return temp_; }
 
-  // Flushes, closes, fsyncs (FileSync::kFsync) and renames onto the target, then fsyncs
-  // the directory (kFsync).
+  // Flushes, closes and fsyncs the temporary (whatever the FileSync) without renaming
+  // it: the data is durable, the target untouched. Throws omnicml::Error naming the
+  // target on a write or fsync failure (the temporary is then removed). Idempotent;
+  // nothing can be written after it.
+  void Sync();
+  // Flushes, closes, fsyncs (FileSync::kFsync, unless Sync() did) and renames onto the
+  // target, then fsyncs the directory (kFsync).
   // Throws omnicml::Error naming the target on a write, fsync or rename failure (the
   // temporary is then removed, the target untouched). Idempotent.
   void Commit();
@@ -116,6 +125,8 @@ class AtomicFile {
   int fd_ = -1;  // the temporary, holding the flock that marks it as in use
   FileSync sync_ = FileSync::kFsync;
   bool done_ = false;
+  bool closed_ = false;  // the stream is flushed and closed (Sync or Commit)
+  bool synced_ = false;  // Sync() made the data durable
 };
 
 // Writes `content` to `path` atomically (AtomicFile + Commit). Throws omnicml::Error.
@@ -168,7 +179,8 @@ class OutputLock {
 };
 
 // A directory output assembled under "<target>.partial-<pid>" and renamed onto `target`
-// by Commit(). Lifecycle: construct (takes the target's OutputLock, removes stale
+// by Commit(), optionally together with files outside it (companions: a run's map and
+// trajectory beside its run directory). Lifecycle: construct (takes the target's OutputLock, removes stale
 // staging directories, creates the staging directory) -> write files into path() (with
 // FileSync::kDeferred: Commit makes them durable at once) -> Commit() or destruction
 // (removes the staging directory). An existing target is replaced whole (exchanged
@@ -190,9 +202,31 @@ class StagedDirectory {
   // Makes every file under path() durable (syncfs), renames the staging directory onto
   // the target and removes the old target. Throws omnicml::Error; the target is then the
   // old one. Idempotent.
-  void Commit();
+  //
+  // With `companions` (AtomicFiles written completely but not committed, each outside
+  // the staging directory) they commit with the directory as one unit, old or new:
+  //   1. every companion's data is made durable (AtomicFile::Sync);
+  //   2. a journal ".omnicml-commit" is written (fsync'ed) into the staging directory:
+  //      each companion's target, the name of its previous version and the identity
+  //      (device, inode) of its new file;
+  //   3. each existing target is kept under its previous-version name
+  //      ".<name>.omnicml-prev-<pid>" (a hard link, or a copy where the file system has
+  //      none), then the companions are renamed onto their targets;
+  //   4. the staging directory is renamed onto the target (the commit point);
+  //   5. the previous versions and the journal (now inside the target) are removed.
+  // A failure in 3-4 restores the previous versions before the Error propagates. A kill
+  // anywhere leaves a journal that the next writer of the target (holding its lock)
+  // finds: before the commit point (journal in a stale staging directory) it rolls the
+  // companions back to their previous versions, after it (journal in the target) it
+  // completes step 5 (RecoverInterruptedCommits). Companions must not lie in path().
+  void Commit(std::span<AtomicFile* const> companions = {});
 
  private:
+  // Step 4 of Commit: the staging directory renamed onto the target (exchanged with an
+  // existing one, which is then removed). Throws omnicml::Error; the target is then the
+  // old one.
+  void SwapIntoPlace();
+
   std::filesystem::path target_;
   std::filesystem::path staging_;
   std::string flag_;
@@ -200,15 +234,46 @@ class StagedDirectory {
   bool done_ = false;
 };
 
+// Completes or undoes StagedDirectory commits of `target` that a killed writer left
+// half done (see StagedDirectory::Commit): a journal inside `target` (the directory was
+// committed) has its previous versions and itself removed; a journal in a stale
+// "<target>.partial-<pid>" (not committed) has every companion that already replaced
+// its target put back to its previous version (or removed, when there was none) and,
+// when the old directory had been moved aside to "<target>.old-<pid>" but the new one
+// not yet renamed in, the old directory put back. A companion target whose file is no
+// longer the one the journal names (another writer replaced it since) is left alone.
+// Does nothing unless this process holds, or can take, the target's OutputLock; the
+// StagedDirectory constructor calls it. Returns how many journals were settled; never
+// throws.
+int RecoverInterruptedCommits(const std::filesystem::path& target);
+
+// A test hook in a commit sequence: when the environment variable OMNICML_TEST_KILL_AT
+// equals `point`, the process sends itself SIGKILL (tests of crash recovery; the
+// StagedDirectory commit names "staged-commit-swap": companions renamed, the directory
+// not yet; and "staged-commit-settle": the directory swapped in, journal and previous
+// versions not yet removed). Otherwise nothing.
+void TestKillPoint(std::string_view point);
+
 // Throws omnicml::Error "<flag> '<target>': ..." unless an existing `target` is a
 // directory that is empty or holds one of `markers` (what StagedDirectory replaces).
 void CheckReplaceableDirectory(const std::filesystem::path& target, std::string_view flag,
                                const std::vector<std::string>& markers);
 
+// Whether output files that are symbolic links to regular files are written through
+// (see the file comment). Process-wide, off by default; set once at start-up (the CLI's
+// global --follow-output-symlinks), before any output is checked. Thread-safe.
+void SetFollowOutputSymlinks(bool follow);
+bool FollowOutputSymlinks();
+// The file an output file path writes: `path` itself, or, when FollowOutputSymlinks()
+// and `path` is a symbolic link (or a chain of them) to a regular file, that file's
+// canonical path. Never throws.
+std::filesystem::path ResolveOutputFile(const std::filesystem::path& path);
+
 // The type check of every output path, before any work: throws omnicml::Error
 // "<flag> '<path>': is a symbolic link" / "...: is a character device (not a regular
 // file)" / ... unless `path` does not exist or is (without following a final symbolic
-// link) a regular file, or a directory when `directory`. Creates nothing.
+// link) a regular file, or a directory when `directory`; with FollowOutputSymlinks() a
+// file output may also be a symbolic link to a regular file. Creates nothing.
 void CheckOutputNode(const std::filesystem::path& path, std::string_view flag,
                      bool directory = false);
 // What CheckOutputNode refuses, as text ("is a symbolic link", "is a FIFO (not a regular

@@ -136,8 +136,11 @@ MclSingleResult RunMclSingle(const MclExperimentOptions& options, const MclPrepa
 //   report.html  summary, per-day table, error over frames, error histogram, configuration
 //   summary.txt  the text printed on stdout
 //   map.yaml + map.pgm  the occupancy grid used (map_server format)
-// Each file is written atomically (AtomicFile: complete or absent); a run directory the
-// call created is removed again when writing fails.
+// The directory commits as one unit: it is assembled in "<out_dir>.partial-<pid>" and
+// renamed onto out_dir at the end (common/file_io.h StagedDirectory), so after a failure
+// or a kill out_dir is the earlier run directory or absent, never half-written. An
+// existing out_dir must be empty or an earlier run directory (frames.csv, summary.txt,
+// ...). RunMclSingle holds out_dir's OutputLock from before the filter runs.
 void WriteMclRunDirectory(const MclExperimentOptions& options, const MclPrepared& prepared,
                           const MclSingleResult& result);
 

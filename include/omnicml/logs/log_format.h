@@ -7,6 +7,14 @@
 //     <session>/frames.csv stamp_s,image,odom_x_m,odom_y_m,odom_phi_rad,gt_x_m,gt_y_m,gt_phi_rad
 //     <session>/000000.png     images, named in frames.csv relative to the session directory
 //
+// Images stay inside the log: a name in frames.csv that is absolute, climbs out with
+// "..", or leads out through a symbolic link is refused (the log directory given to the
+// reader, after following links, must contain the image), with one message that does not
+// depend on whether the outside path exists. A log that deliberately keeps its images
+// elsewhere (a symbolic link to a data disk, absolute paths) is read with
+// LogReaderOptions::allow_images_outside_log or the CLI's global
+// --allow-images-outside-log (SetAllowImagesOutsideLog).
+//
 // session.yaml:
 //   format_version: 1
 //   day_label: "day 1"                  free text
@@ -35,6 +43,7 @@
 #define OMNICML_LOGS_LOG_FORMAT_H_
 
 #include <cstdint>
+#include <filesystem>
 #include <fstream>
 #include <functional>
 #include <memory>
@@ -63,9 +72,22 @@ struct LogReaderOptions {
   // (LogReader::SkippedFrameMessages). Problems of session.yaml or of the frames.csv
   // header are always errors.
   bool skip_unreadable_frames = false;
+  // With false (the default) an image named in frames.csv must lie inside the log
+  // directory the reader was given, after following symbolic links (see the file
+  // comment); with true any readable path is taken. The process-wide
+  // SetAllowImagesOutsideLog(true) turns it on for every reader.
+  bool allow_images_outside_log = false;
   // Nothing can be invalid today; kept for the house style (throws omnicml::Error).
   void Validate() const {}
 };
+
+// Process-wide opt-in to images outside the log for every LogReader (the CLI's global
+// --allow-images-outside-log), in addition to LogReaderOptions::allow_images_outside_log.
+// Off by default; set at start-up. Thread-safe.
+void SetAllowImagesOutsideLog(bool allow);
+bool AllowImagesOutsideLog();
+
+struct LogReaderRoot;  // where a session's images may lie (log_format.cc)
 
 // Reads one or more logs as one stream of sessions. Lifecycle: the constructor lists the
 // sessions and validates every session.yaml and every frames.csv header (it throws
@@ -113,6 +135,9 @@ class LogReader : public FrameSource {
   LogReaderOptions options_;
   std::vector<SessionInfo> sessions_;
   std::vector<std::string> session_dirs_;
+  // Per session: where its images may lie (null when images outside the log are
+  // allowed); log_format.cc.
+  std::vector<std::shared_ptr<const LogReaderRoot>> session_roots_;
   int session_ = -1;  // session being read; -1 before the first
   std::unique_ptr<LineReader> csv_;  // frames.csv of session_; null between sessions
   std::string csv_path_;

@@ -183,9 +183,17 @@ class EnvironmentModel {
   // updates. Options are NOT written (the caller stores them). Same model => same bytes.
   void Serialize(BinaryWriter& out) const;
   // Reads what Serialize wrote. Throws omnicml::Error on truncated or malformed bytes, or
-  // when the stored descriptor kind / feature length differ from `extractor`'s.
+  // when the stored descriptor kind / feature length differ from `extractor`'s. A section
+  // whose version lies outside [min_version, kFormatVersion] is refused with the one-line
+  // Error "<source>: unsupported environment model version N (this build reads A..B)"
+  // before any of it is read (an engine file embeds exactly one model version).
   static EnvironmentModel Deserialize(BinaryReader& in, const EnvironmentModelOptions& options,
-                                      std::shared_ptr<const DescriptorExtractor> extractor);
+                                      std::shared_ptr<const DescriptorExtractor> extractor,
+                                      std::uint32_t min_version = kOldestFormatVersion);
+  // Versions of the serialized model: Serialize writes kFormatVersion; Deserialize reads
+  // kOldestFormatVersion..kFormatVersion (see environment_model_io.cc for the layouts).
+  static constexpr std::uint32_t kFormatVersion = 4;
+  static constexpr std::uint32_t kOldestFormatVersion = 1;
 
   // Checks internal invariants (the store's, the indexes', weights in [0, 1], ids
   // unique); throws omnicml::InternalError. For tests.

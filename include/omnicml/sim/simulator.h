@@ -62,7 +62,9 @@ struct SimulatorOptions {
   bool sensor_noise = true;
   // Draw the world's people (occluders).
   bool people = true;
-  // Standard deviations of the start pose covariance of SessionStart (m, m, rad).
+  // Standard deviations of the start pose covariance of SessionStart (m, m, rad): in
+  // (0, 1e6] m and (0, 10] rad, the square roots of the logs' variance limits
+  // (common/limits.h kMaxPositionVarianceM2, kMaxHeadingVarianceRad2).
   double start_sigma_xy_m = 0.1;
   double start_sigma_phi_rad = 0.03;
 

@@ -49,7 +49,7 @@ struct SimulateArgs {
   std::string config;  // SimulatorOptions YAML; flags given override it
   bool change_report = false;
   double layout_intensity = -1;  // < 0: the world's own
-  double report_spacing_m = 2.0;
+  double pose_spacing_m = 2.0;
 };
 
 // Prints, for days 2..days, how much of the panorama differs from day 1 at the same
@@ -64,13 +64,13 @@ void PrintChangeReport(const World& world, const SimulateArgs& args) {
   };
   World layout_only = world;
   layout_only.events.clear();
-  const std::vector<Pose2> poses = RoutePoses(world, args.report_spacing_m);
+  const std::vector<Pose2> poses = RoutePoses(world, args.pose_spacing_m);
   const double threshold = 3.0 * std::sqrt(2.0) * world.camera.noise_sigma_gray;
   const double p = world.changes.layout_intensity;
   const WorldState first_all = StateAtDayStart(world, 1, args.seed);
   const WorldState first_layout = StateAtDayStart(layout_only, 1, args.seed);
   std::cout << "world " << world.name << ", layout_intensity " << p << ", seed " << args.seed
-            << ", " << poses.size() << " route poses every " << args.report_spacing_m
+            << ", " << poses.size() << " route poses every " << args.pose_spacing_m
             << " m; fraction of panorama pixels differing from day 1 (> " << fixed(threshold, 2)
             << " grey levels)\n";
   std::cout << "day\texpected_elements\tchanged_layout_only\tchanged_with_events\n";
@@ -275,7 +275,7 @@ const CommandRegistration kRegistration{
                       "With --change-report: changes.layout_intensity in [0, 1] instead of the "
                       "world's")
           ->check(CLI::Range(0.0, 1.0));
-      cmd->add_option("--report-spacing-m", args->report_spacing_m,
+      cmd->add_option("--pose-spacing-m", args->pose_spacing_m,
                       "With --change-report: distance between the route poses compared, m")
           ->capture_default_str()
           ->check(CLI::PositiveNumber);

@@ -1,12 +1,15 @@
 // `omnicml simulate --world NAME|FILE --days N --frames-per-day M --seed S --out DIR
 //   [--panorama] [--preview PNG] [--start known|continue|global] [--step-m D] [--overwrite]
 //   [--config SIMULATION.yaml]`
+// `omnicml simulate --change-report --world W --days N --seed S [--layout-intensity X]`
+// prints how much of the panorama differs from day 1 along the route, per day.
 // writes a simulated multi-day log (one session per day: day_001, day_002, ...) with
 // ground truth, plus simulation.yaml (the effective options) and world.yaml (the world
 // used) next to the sessions. `omnicml simulate --list` lists the built-in worlds.
 #include <algorithm>
 #include <cctype>
 #include <chrono>
+#include <cmath>
 #include <filesystem>
 #include <functional>
 #include <iomanip>
@@ -44,7 +47,43 @@ struct SimulateArgs {
   bool overwrite = false;
   bool list = false;
   std::string config;  // SimulatorOptions YAML; flags given override it
+  bool change_report = false;
+  double layout_intensity = -1;  // < 0: the world's own
+  double pose_spacing_m = 2.0;
 };
+
+// Prints, for days 2..days, how much of the panorama differs from day 1 at the same
+// poses (world.h ChangedPanoramaFraction, the threshold of change detection: 3 sqrt(2)
+// sensor-noise sigmas): with the world's events and layout changes, and with the layout
+// changes alone (events dropped), beside the expected fraction of changed layout elements.
+void PrintChangeReport(const World& world, const SimulateArgs& args) {
+  const auto fixed = [](double v, int decimals) {
+    std::ostringstream os;
+    os << std::fixed << std::setprecision(decimals) << v;
+    return os.str();
+  };
+  World layout_only = world;
+  layout_only.events.clear();
+  const std::vector<Pose2> poses = RoutePoses(world, args.pose_spacing_m);
+  const double threshold = 3.0 * std::sqrt(2.0) * world.camera.noise_sigma_gray;
+  const double p = world.changes.layout_intensity;
+  const WorldState first_all = StateAtDayStart(world, 1, args.seed);
+  const WorldState first_layout = StateAtDayStart(layout_only, 1, args.seed);
+  std::cout << "world " << world.name << ", layout_intensity " << p << ", seed " << args.seed
+            << ", " << poses.size() << " route poses every " << args.pose_spacing_m
+            << " m; fraction of panorama pixels differing from day 1 (> " << fixed(threshold, 2)
+            << " grey levels)\n";
+  std::cout << "day\texpected_elements\tchanged_layout_only\tchanged_with_events\n";
+  for (int d = 2; d <= args.days; ++d) {
+    const double expected = 1.0 - std::pow(1.0 - p, d - 1);
+    const double layout = ChangedPanoramaFraction(
+        layout_only, first_layout, StateAtDayStart(layout_only, d, args.seed), poses, threshold);
+    const double all = ChangedPanoramaFraction(
+        world, first_all, StateAtDayStart(world, d, args.seed), poses, threshold);
+    std::cout << d << "\t" << fixed(expected, 3) << "\t" << fixed(layout, 3) << "\t"
+              << fixed(all, 3) << "\n";
+  }
+}
 
 // Samples of one day for the preview strip.
 struct DaySamples {
@@ -129,6 +168,16 @@ void RunSimulate(const SimulateArgs& args, const CLI::App& cmd) {
     }
     return;
   }
+  if (args.change_report) {
+    World world = LoadWorld(args.world);
+    if (args.layout_intensity >= 0) world = WithLayoutIntensity(world, args.layout_intensity);
+    PrintChangeReport(world, args);
+    return;
+  }
+  if (args.layout_intensity >= 0)
+    throw Error(
+        "simulate: --layout-intensity goes with --change-report (in a log, set "
+        "changes.layout_intensity in a world file)");
   if (args.out.empty()) throw Error("simulate: --out DIR is required (or --list)");
   const SimulatorOptions options = ResolveOptions(args, cmd);
   // Outputs are checked before the first frame is rendered.
@@ -219,6 +268,17 @@ const CommandRegistration kRegistration{
       cmd->add_option("--step-m", args->step_m, "Distance between frames, m")
           ->capture_default_str();
       cmd->add_flag("--overwrite", args->overwrite, "Replace an existing log directory");
+      cmd->add_flag("--change-report", args->change_report,
+                    "Print, per day, the fraction of the panorama that differs from day 1 along "
+                    "the route (layout changes alone and with the world's events); no log");
+      cmd->add_option("--layout-intensity", args->layout_intensity,
+                      "With --change-report: changes.layout_intensity in [0, 1] instead of the "
+                      "world's")
+          ->check(CLI::Range(0.0, 1.0));
+      cmd->add_option("--pose-spacing-m", args->pose_spacing_m,
+                      "With --change-report: distance between the route poses compared, m")
+          ->capture_default_str()
+          ->check(CLI::PositiveNumber);
       cmd->callback([args, cmd] { RunSimulate(*args, *cmd); });
     }};
 

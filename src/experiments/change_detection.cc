@@ -42,9 +42,12 @@ WorldDayChanges ChangesOfDay(const World& world, int day, std::uint64_t seed) {
     const bool moved = before.obstacle_offset_m[i] != after.obstacle_offset_m[i];
     const bool retextured = before.texture_seed[i] != after.texture_seed[i];
     const bool cleared = before.cleared[i] != after.cleared[i];
-    if (!moved && !retextured && !cleared) continue;
-    std::string what = moved ? "moved" : cleared ? (after.cleared[i] ? "cleared" : "refilled")
-                                                 : "restocked";
+    const bool placed = before.present[i] != after.present[i];
+    if (!moved && !retextured && !cleared && !placed) continue;
+    std::string what = placed    ? (after.present[i] ? "placed" : "taken away")
+                       : moved   ? "moved"
+                       : cleared ? (after.cleared[i] ? "cleared" : "refilled")
+                                 : "restocked";
     out.items.push_back(StrCat(ToString(o.kind), " ", o.name, " ", what));
     out.outlines.push_back(
         {ObstacleOutline(world, after, static_cast<int>(i)), o.closed});
@@ -54,9 +57,12 @@ WorldDayChanges ChangesOfDay(const World& world, int day, std::uint64_t seed) {
     }
   }
   for (std::size_t i = 0; i < world.lights.size(); ++i) {
-    if (before.light_on[i] == after.light_on[i]) continue;
-    out.items.push_back(
-        StrCat("light ", world.lights[i].name, after.light_on[i] ? " on" : " off"));
+    if (before.light_on[i] == after.light_on[i] && before.light_scale[i] == after.light_scale[i])
+      continue;
+    out.items.push_back(StrCat("light ", world.lights[i].name,
+                               before.light_on[i] != after.light_on[i]
+                                   ? (after.light_on[i] ? " on" : " off")
+                                   : " re-lit"));
     out.areas_m.push_back(world.lights[i].polygon_m);
   }
   for (std::size_t i = 0; i < world.windows.size(); ++i) {
@@ -166,13 +172,14 @@ VisibleChanges::VisibleChanges(const World& world, int day, std::uint64_t seed,
   const WorldState after = StateAtDayStart(world, day, seed);
   WorldState surfaces = after;
   surfaces.light_on = before.light_on;
+  surfaces.light_scale = before.light_scale;
   impl_->threshold_gray =
       options.pixel_threshold_sigmas * std::sqrt(2.0) * world.camera.noise_sigma_gray;
   impl_->before = std::make_unique<Renderer>(world);
   impl_->before->SetState(before);
   impl_->surfaces = std::make_unique<Renderer>(world);
   impl_->surfaces->SetState(surfaces);
-  if (after.light_on != before.light_on) {
+  if (after.light_on != before.light_on || after.light_scale != before.light_scale) {
     impl_->after = std::make_unique<Renderer>(world);
     impl_->after->SetState(after);
   }

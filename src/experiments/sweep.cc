@@ -1,6 +1,7 @@
 #include "omnicml/experiments/sweep.h"
 
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <cstdio>
 #include <functional>
@@ -191,6 +192,18 @@ SweepRow RowFromRunDir(const fs::path& run_dir) {
     row.views = table.records.back().views;
     row.components = table.records.back().map_components;
   }
+  for (const DayEvaluation& d : eval.days) {
+    SweepDay day;
+    day.session = d.session;
+    day.frames = d.frames;
+    day.frames_localized = d.frames_with_estimate;
+    day.error_mean_m = d.position_m.count > 0 ? d.position_m.mean : kNaN;
+    day.error_max_m = d.position_m.count > 0 ? d.position_m.max : kNaN;
+    day.nees_xy_median = d.nees_xy.median;
+    day.nees_xy_in_band = d.nees_xy_in_band;
+    day.views_at_end = d.views_at_end;
+    row.days.push_back(day);
+  }
   return row;
 }
 
@@ -256,6 +269,73 @@ void AddGroupedPlots(HtmlReport* report, const std::vector<SweepRow>& rows) {
        [](const SweepRow& r) { return r.coverage * 100; });
   plot("Reference views at the end", "views", true,
        [](const SweepRow& r) { return static_cast<double>(r.views); });
+}
+
+// A group label as a file name: [A-Za-z0-9._-], the rest '_'.
+std::string FileNameOf(const std::string& label) {
+  std::string out;
+  for (char ch : label) {
+    const bool ok = std::isalnum(static_cast<unsigned char>(ch)) || ch == '.' || ch == '-';
+    out += ok ? ch : '_';
+  }
+  return out.empty() ? std::string("group") : out;
+}
+
+// Per group of runs (input and option values other than forgetting): the mean over seeds
+// of each mode's error per day and of its map size per day, into the report and into
+// dir/day_plots/<group>.svg.
+void AddDayPlots(HtmlReport* report, const std::vector<SweepRow>& rows, const fs::path& dir) {
+  std::vector<std::string> labels;
+  std::map<std::string, std::map<std::string, std::vector<const SweepRow*>>> groups;
+  for (const SweepRow& r : rows) {
+    if (r.status == "missing" || r.days.empty()) continue;
+    std::string label = r.input;
+    for (const auto& [flag, value] : r.options) {
+      if (flag != "forgetting") label += " " + flag + "=" + value;
+    }
+    if (!groups.count(label)) labels.push_back(label);
+    groups[label][r.mode.empty() ? std::string("-") : r.mode].push_back(&r);
+  }
+  if (labels.empty()) return;
+  report->AddHeading("Per day");
+  report->AddParagraph(
+      "Per input and option values: the mean over seeds of each forgetting mode's mean "
+      "position error per day (localized frames) and of its map size at the end of each day.");
+  std::error_code ec;
+  fs::create_directories(dir / "day_plots", ec);
+  for (const std::string& label : labels) {
+    SvgPlot error(label + ": mean error per day", "day", "error [m]", 560, 320);
+    SvgPlot views(label + ": map size", "day", "views", 560, 320);
+    for (const auto& [mode, runs] : groups[label]) {
+      std::size_t n_days = 0;
+      for (const SweepRow* r : runs) n_days = std::max(n_days, r->days.size());
+      std::vector<double> x, e, v;
+      for (std::size_t d = 0; d < n_days; ++d) {
+        double se = 0, sv = 0;
+        int ne = 0, nv = 0;
+        for (const SweepRow* r : runs) {
+          if (d >= r->days.size()) continue;
+          if (std::isfinite(r->days[d].error_mean_m)) se += r->days[d].error_mean_m, ++ne;
+          sv += r->days[d].views_at_end, ++nv;
+        }
+        x.push_back(static_cast<double>(d + 1));
+        e.push_back(ne > 0 ? se / ne : kNaN);
+        v.push_back(nv > 0 ? sv / nv : kNaN);
+      }
+      const std::string name = StrCat(mode, " (", runs.size(), " seeds)");
+      error.AddLine(name, x, e);
+      views.AddLine(name, x, v);
+    }
+    const std::string svg_error = error.Render();
+    const std::string svg_views = views.Render();
+    report->AddSvg(svg_error);
+    report->AddSvg(svg_views);
+    // One file holding both plots side by side.
+    const std::string combined =
+        StrCat("<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"1120\" height=\"320\">", "<g>",
+               svg_error, "</g><g transform=\"translate(560,0)\">", svg_views, "</g></svg>\n");
+    WriteFileAtomic(dir / "day_plots" / (FileNameOf(label) + ".svg"), combined);
+  }
 }
 
 }  // namespace
@@ -548,6 +628,27 @@ std::string SweepRowsToCsv(const std::vector<SweepRow>& rows) {
   return os.str();
 }
 
+std::string SweepDaysToCsv(const std::vector<SweepRow>& rows) {
+  std::ostringstream os;
+  os << "job,mode,input,seed";
+  const auto& option_names =
+      rows.empty() ? std::vector<std::pair<std::string, std::string>>{} : rows.front().options;
+  for (const auto& [flag, value] : option_names) os << ',' << CsvCell(flag);
+  os << ",day,frames,frames_localized,error_mean_m,error_max_m,nees_xy_median,nees_xy_in_band,"
+        "views_at_end\n";
+  for (const SweepRow& r : rows) {
+    for (const SweepDay& d : r.days) {
+      os << CsvCell(r.job) << ',' << CsvCell(r.mode) << ',' << CsvCell(r.input) << ',' << r.seed;
+      for (const auto& [flag, value] : r.options) os << ',' << CsvCell(value);
+      os << ',' << d.session + 1 << ',' << d.frames << ',' << d.frames_localized << ','
+         << Fixed(d.error_mean_m, 4) << ',' << Fixed(d.error_max_m, 4) << ','
+         << Fixed(d.nees_xy_median, 4) << ',' << Fixed(d.nees_xy_in_band, 4) << ','
+         << d.views_at_end << '\n';
+    }
+  }
+  return os.str();
+}
+
 std::vector<SweepRow> CollectSweep(const fs::path& dir) {
   const fs::path sweep_json = dir / "sweep.json";
   std::error_code ec;
@@ -608,6 +709,7 @@ std::vector<SweepRow> CollectSweep(const fs::path& dir) {
     }
   }
   WriteFileAtomic(dir / "summary.csv", SweepRowsToCsv(rows));
+  WriteFileAtomic(dir / "summary_days.csv", SweepDaysToCsv(rows));
 
   HtmlReport report("omnicml sweep " + fs::absolute(dir).lexically_normal().string());
   int complete = 0;
@@ -617,6 +719,7 @@ std::vector<SweepRow> CollectSweep(const fs::path& dir) {
                        {"jobs", std::to_string(j.at("jobs").size())},
                        {"run directories complete", StrCat(complete, " of ", rows.size())}});
   AddGroupedPlots(&report, rows);
+  AddDayPlots(&report, rows, dir);
   report.AddHeading("Runs");
   std::vector<std::string> header = {"job", "mode", "seed", "status"};
   for (const auto& [flag, value] : rows.empty() ? decltype(rows.front().options){}

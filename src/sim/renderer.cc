@@ -420,7 +420,9 @@ struct Renderer::Impl {
 
   void Build(const WorldState& s) {
     OMNICML_CHECK(s.obstacle_offset_m.size() == world.obstacles.size() &&
+                  s.present.size() == world.obstacles.size() &&
                   s.light_on.size() == world.lights.size() &&
+                  s.light_scale.size() == world.lights.size() &&
                   s.curtains_closed.size() == world.windows.size())
         << "world state does not belong to world " << world.name;
     // Rebuild only what the change touches (the bytes rendered are the same as after a
@@ -428,10 +430,12 @@ struct Renderer::Impl {
     // and the baked planes (only the boxes of the zones switched); curtains are read at
     // draw time.
     const bool geometry_same = built && s.obstacle_offset_m == state.obstacle_offset_m &&
-                               s.texture_seed == state.texture_seed && s.cleared == state.cleared;
+                               s.texture_seed == state.texture_seed && s.cleared == state.cleared &&
+                               s.present == state.present;
     std::vector<int> zones_switched;
     for (std::size_t z = 0; z < world.lights.size(); ++z) {
-      if (!built || s.light_on[z] != state.light_on[z]) zones_switched.push_back(static_cast<int>(z));
+      if (!built || s.light_on[z] != state.light_on[z] || s.light_scale[z] != state.light_scale[z])
+        zones_switched.push_back(static_cast<int>(z));
     }
     state = s;
     if (!geometry_same) BuildGeometry(s);
@@ -460,6 +464,7 @@ struct Renderer::Impl {
     segments.clear();
     for (std::size_t i = 0; i < world.obstacles.size(); ++i) {
       const Obstacle& o = world.obstacles[i];
+      if (!s.present[i]) continue;  // taken away (layout changes)
       const auto pts = ObstacleOutline(world, s, static_cast<int>(i));
       const std::size_t n = o.closed ? pts.size() : pts.size() - 1;
       double u = 0;
@@ -668,7 +673,7 @@ struct Renderer::Impl {
           const Eigen::Vector2d p((cx + 0.5) * kLightCellM, (cy + 0.5) * kLightCellM);
           if (!geometry::PointInPolygon(zone.polygon_m, p)) continue;
           const std::size_t idx = static_cast<std::size_t>(cy) * light_w + cx;
-          if (on) light[idx] += static_cast<float>(zone.intensity);
+          if (on) light[idx] += static_cast<float>(zone.intensity * state.light_scale[z]);
           // Lamps: 0.6 m x 0.3 m panels centred on the zone's lamp grid.
           const double gx = (p.x() - xmin) / sp, gy = (p.y() - ymin) / sp;
           const double fx = gx - std::floor(gx) - 0.5, fy = gy - std::floor(gy) - 0.5;
@@ -1056,6 +1061,7 @@ cv::Mat DrawFloorPlan(const World& world, const WorldState& state,
   }
   for (std::size_t i = 0; i < world.obstacles.size(); ++i) {
     const Obstacle& o = world.obstacles[i];
+    if (!state.present[i]) continue;
     std::vector<cv::Point> poly;
     for (const auto& p : ObstacleOutline(world, state, static_cast<int>(i)))
       poly.push_back(to_px(p));

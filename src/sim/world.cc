@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <filesystem>
 #include <fstream>
 #include <map>
 #include <set>
@@ -9,12 +10,13 @@
 
 #include <yaml-cpp/yaml.h>
 
-#include "sim/internal/sim_builtin_worlds.h"
-#include "omnicml/geometry/planar_geometry.h"
 #include "omnicml/common/common.h"
-#include "omnicml/common/yaml_io.h"
 #include "omnicml/common/file_io.h"
 #include "omnicml/common/limits.h"
+#include "omnicml/common/yaml_io.h"
+#include "omnicml/geometry/planar_geometry.h"
+#include "sim/internal/layout_changes.h"
+#include "sim/internal/sim_builtin_worlds.h"
 
 namespace omnicml {
 namespace {
@@ -360,6 +362,51 @@ void CheckWorld(const World& w) {
   }
 }
 
+// The text of a base world: a built-in name, else a file relative to the directory of
+// `source` (when that is a file path).
+std::string BaseWorldText(const std::string& name, const std::string& source) {
+  for (const auto& w : internal::BuiltinWorldTexts()) {
+    if (w.name == name) return w.text;
+  }
+  std::filesystem::path path(name);
+  if (path.is_relative() && source.rfind("builtin:", 0) != 0)
+    path = std::filesystem::path(source).parent_path() / path;
+  return ReadTextFile(path.string(), kMaxTextFileBytes, "base world file");
+}
+
+// A mapping with `base: NAME` becomes the base world's mapping with every other key of
+// `root` replacing the base's key of that name.
+YAML::Node ResolveBase(const YAML::Node& root, const std::string& source) {
+  const YAML::Node base_key = root["base"];
+  if (!base_key) return root;
+  if (!base_key.IsScalar())
+    throw Error(StrCat(source, ":", base_key.Mark().line + 1, ": base: expected a world name"));
+  const std::string name = base_key.Scalar();
+  YAML::Node base;
+  try {
+    base = LoadYaml(BaseWorldText(name, source), name);
+  } catch (const YAML::ParserException& e) {
+    throw Error(
+        StrCat(source, ": base '", name, "':", e.mark.line + 1, ": YAML syntax error: ", e.msg));
+  } catch (const Error& e) {
+    throw Error(StrCat(source, ":", base_key.Mark().line + 1, ": base: ", e.what()));
+  }
+  if (!base || !base.IsMap())
+    throw Error(StrCat(source, ": base '", name, "' is not a YAML mapping"));
+  if (base["base"])
+    throw Error(StrCat(source, ": base '", name, "' has a base of its own (one level only)"));
+  YAML::Node merged(YAML::NodeType::Map);
+  for (const auto& kv : base) {
+    const std::string key = kv.first.Scalar();
+    if (!root[key]) merged[kv.first] = kv.second;
+  }
+  for (const auto& kv : root) {
+    if (kv.first.IsScalar() && kv.first.Scalar() == "base") continue;
+    merged[kv.first] = kv.second;
+  }
+  return merged;
+}
+
 }  // namespace
 
 std::string ToString(TextureKind kind) {
@@ -461,6 +508,7 @@ World ParseWorld(const std::string& yaml_text, const std::string& source) {
   }
   if (!root || !root.IsMap())
     throw Error(StrCat(source, ":1: a world file must be a YAML mapping"));
+  root = ResolveBase(root, source);
   MapReader r(root, source, "");
   World w;
   w.source = source;
@@ -619,9 +667,19 @@ World ParseWorld(const std::string& yaml_text, const std::string& source) {
     er.CheckNoUnknownKeys();
     w.events.push_back(e);
   });
+  if (r.Has("changes")) {
+    MapReader cr(r.Get("changes"), source, "changes");
+    LayoutChanges& c = w.changes;
+    c.layout_intensity = cr.Double("layout_intensity", c.layout_intensity, 0.0, 1.0);
+    c.seed = cr.Uint64("seed", c.seed);
+    c.display_spots = cr.Int("display_spots", c.display_spots, 0, 10000);
+    c.route_clearance_m = cr.Double("route_clearance_m", c.route_clearance_m, 0.0, 10.0);
+    cr.CheckNoUnknownKeys();
+  }
   r.CheckNoUnknownKeys();
   if (w.route.waypoints_m.empty()) r.Fail("route", "missing");
   CheckWorld(w);
+  internal::AddDisplaySpots(&w);
   return w;
 }
 
@@ -680,8 +738,12 @@ WorldState InitialWorldState(const World& world) {
   WorldState s;
   s.obstacle_offset_m.assign(world.obstacles.size(), Eigen::Vector2d::Zero());
   s.cleared.assign(world.obstacles.size(), 0);
-  for (const auto& o : world.obstacles) s.texture_seed.push_back(o.texture.seed);
+  for (const auto& o : world.obstacles) {
+    s.texture_seed.push_back(o.texture.seed);
+    s.present.push_back(o.initially_present ? 1 : 0);
+  }
   for (const auto& l : world.lights) s.light_on.push_back(l.on ? 1 : 0);
+  s.light_scale.assign(world.lights.size(), 1.0);
   for (const auto& w : world.windows) s.curtains_closed.push_back(w.curtains_closed ? 1 : 0);
   return s;
 }
@@ -793,7 +855,10 @@ WorldChange ApplyStepEvents(const World& world, int day, std::int64_t step, std:
 
 WorldState StateAtDayStart(const World& world, int day, std::uint64_t seed) {
   WorldState s = InitialWorldState(world);
-  for (int d = 1; d <= day; ++d) ApplyDayEvents(world, d, seed, &s);
+  for (int d = 1; d <= day; ++d) {
+    ApplyDayEvents(world, d, seed, &s);
+    ApplyLayoutChanges(world, d, seed, &s);
+  }
   return s;
 }
 
@@ -811,6 +876,7 @@ bool IsFree(const World& world, const WorldState& state, const Eigen::Vector2d& 
     return false;
   }
   for (std::size_t i = 0; i < world.obstacles.size(); ++i) {
+    if (!state.present[i]) continue;
     const auto pts = ObstacleOutline(world, state, static_cast<int>(i));
     const bool closed = world.obstacles[i].closed;
     if (closed && PointInPolygon(pts, p)) return false;
@@ -826,6 +892,7 @@ bool IsPathFree(const World& world, const WorldState& state, const Eigen::Vector
                 const Eigen::Vector2d& b, double radius_m) {
   if (!IsFree(world, state, a, radius_m) || !IsFree(world, state, b, radius_m)) return false;
   for (std::size_t i = 0; i < world.obstacles.size(); ++i) {
+    if (!state.present[i]) continue;
     const auto pts = ObstacleOutline(world, state, static_cast<int>(i));
     const std::size_t n = world.obstacles[i].closed ? pts.size() : pts.size() - 1;
     for (std::size_t k = 0; k < n; ++k) {

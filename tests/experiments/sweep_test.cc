@@ -136,6 +136,20 @@ TEST(SweepEndToEnd, TwoByTwoLocally) {
     EXPECT_TRUE(row.at("seed") == "1" || row.at("seed") == "2") << row.at("job");
   }
   EXPECT_TRUE(fs::exists(dir / "sweep" / "summary.html"));
+  // summary_days.csv: one row per run and day, the days' frames adding up to the run's;
+  // a per-day plot per group of runs.
+  const auto days = ReadCsv(dir / "sweep" / "summary_days.csv");
+  ASSERT_FALSE(days.empty());
+  for (const auto& row : rows) {
+    int frames = 0;
+    for (const auto& d : days) {
+      if (d.at("job") == row.at("job") && d.at("mode") == row.at("mode"))
+        frames += std::stoi(d.at("frames"));
+    }
+    EXPECT_EQ(frames, std::stoi(row.at("frames"))) << row.at("job");
+  }
+  ASSERT_TRUE(fs::is_directory(dir / "sweep" / "day_plots"));
+  EXPECT_FALSE(fs::is_empty(dir / "sweep" / "day_plots"));
 
   // Rerun: nothing to do, no marker rewritten.
   std::map<std::string, fs::file_time_type> stamps;

@@ -195,6 +195,111 @@ TEST(World, DayEventsApplyOnTheirDay) {
   EXPECT_NE(StateAtDayStart(w, 2, 5).texture_seed, StateAtDayStart(w, 2, 6).texture_seed);
 }
 
+// `base:` starts from another world and replaces its top-level keys.
+TEST(World, BaseWorldKeysAreReplaced) {
+  const World base = LoadBuiltinWorld("home_store");
+  const World w = ParseWorld("base: home_store\nname: hs2\nambient_light: 0.5\n", "d.yaml");
+  EXPECT_EQ(w.name, "hs2");
+  EXPECT_DOUBLE_EQ(w.ambient_light, 0.5);
+  EXPECT_EQ(w.obstacles.size(), base.obstacles.size());
+  EXPECT_EQ(w.events.size(), base.events.size());
+  EXPECT_THAT(ErrorOf("base: no_such_world\n"), HasSubstr("base"));
+  EXPECT_THAT(ErrorOf("base: home_store\nchanges: {layout_intensity: 1.5}\n"),
+              HasSubstr("changes.layout_intensity"));
+  EXPECT_THAT(ErrorOf("base: home_store\nchanges: {intensity: 0.1}\n"),
+              HasSubstr("changes.intensity: unknown key"));
+}
+
+// The home_store world with its own events dropped, at a layout intensity.
+World LayoutOnly(double intensity) {
+  World w = LoadBuiltinWorld("home_store");
+  w.events.clear();
+  return WithLayoutIntensity(w, intensity);
+}
+
+// Layout changes depend on the seed only, add display spots that start empty, and leave
+// day 1 as parsed; intensity 0 changes nothing on any day.
+TEST(LayoutChanges, DeterministicPerSeed) {
+  const World today = LoadBuiltinWorld("home_store");
+  const World zero = WithLayoutIntensity(today, 0.0);
+  ASSERT_EQ(zero.obstacles.size(), today.obstacles.size());
+  for (int d = 1; d <= 6; ++d)
+    EXPECT_EQ(StateAtDayStart(zero, d, 3), StateAtDayStart(today, d, 3)) << d;
+
+  const World w = WithLayoutIntensity(today, 0.3);
+  ASSERT_GT(w.obstacles.size(), today.obstacles.size());  // display spots
+  const WorldState initial = InitialWorldState(w);
+  for (std::size_t i = today.obstacles.size(); i < w.obstacles.size(); ++i)
+    EXPECT_FALSE(initial.present[i]) << w.obstacles[i].name;
+  EXPECT_EQ(StateAtDayStart(w, 1, 3), StateAtDayStart(WithLayoutIntensity(today, 0.3), 1, 3));
+  EXPECT_EQ(StateAtDayStart(w, 5, 3), StateAtDayStart(w, 5, 3));
+  EXPECT_NE(StateAtDayStart(w, 5, 3), StateAtDayStart(w, 5, 4));
+  // Day d's state is day d - 1's with that day's events and layout changes on top.
+  WorldState s = StateAtDayStart(w, 3, 3);
+  ApplyDayEvents(w, 4, 3, &s);
+  ApplyLayoutChanges(w, 4, 3, &s);
+  EXPECT_EQ(s, StateAtDayStart(w, 4, 3));
+}
+
+// Whatever moves or appears keeps route_clearance_m from the robot's path, so the
+// simulated robot never drives through a display or a moved gondola.
+TEST(LayoutChanges, ChangedOutlinesKeepClearOfTheRoute) {
+  for (const char* name : {"home_store", "store_large"}) {
+    World base = LoadBuiltinWorld(name);
+    base.events.clear();
+    const World w = WithLayoutIntensity(base, 1.0);
+    const RoutePath route(w.route.waypoints_m, w.route.turn_radius_m);
+    const std::vector<Eigen::Vector2d> path = route.Sample(0.1);
+    const WorldState initial = InitialWorldState(w);
+    int changed = 0;
+    for (int d = 2; d <= 6; ++d) {
+      const WorldState s = StateAtDayStart(w, d, 11);
+      for (std::size_t i = 0; i < w.obstacles.size(); ++i) {
+        if (!s.present[i] || (initial.present[i] && s.obstacle_offset_m[i].isZero())) continue;
+        ++changed;
+        World one = w;
+        one.obstacles = {w.obstacles[i]};
+        WorldState one_state = InitialWorldState(one);
+        one_state.obstacle_offset_m[0] = s.obstacle_offset_m[i];
+        one_state.present[0] = 1;
+        for (const auto& p : path) {
+          ASSERT_TRUE(IsFree(one, one_state, p, w.changes.route_clearance_m - 0.02))
+              << name << " day " << d << " " << w.obstacles[i].name << " at (" << p.x() << ", "
+              << p.y() << ")";
+        }
+      }
+    }
+    EXPECT_GT(changed, 10) << name;
+  }
+}
+
+// The measured share of the panorama that differs from day 1 (ChangedPanoramaFraction)
+// is 0 without changes and grows with the intensity and with the sessions.
+TEST(LayoutChanges, ChangedFractionGrowsWithIntensityAndSessions) {
+  const World probe = LoadBuiltinWorld("home_store");
+  const std::vector<Pose2> poses = RoutePoses(probe, 4.0);
+  ASSERT_GE(poses.size(), 10u);
+  const double threshold = 3.0 * std::sqrt(2.0) * probe.camera.noise_sigma_gray;
+  auto fraction = [&](double intensity, int day) {
+    double sum = 0;
+    for (std::uint64_t seed : {1u, 2u}) {
+      const World w = LayoutOnly(intensity);
+      sum += ChangedPanoramaFraction(w, StateAtDayStart(w, 1, seed), StateAtDayStart(w, day, seed),
+                                     poses, threshold);
+    }
+    return sum / 2;
+  };
+  EXPECT_EQ(fraction(0.0, 6), 0.0);
+  const double low2 = fraction(0.05, 2), low6 = fraction(0.05, 6);
+  const double mid2 = fraction(0.3, 2), mid6 = fraction(0.3, 6);
+  const double high6 = fraction(0.8, 6);
+  EXPECT_LT(low2, low6);
+  EXPECT_LT(mid2, mid6);
+  EXPECT_LT(low6, mid6);
+  EXPECT_LT(mid6, high6);
+  EXPECT_GT(high6, 0.3);
+}
+
 // Step events make the institute change continuously within a day.
 TEST(World, StepEventsChangeInstituteContinuously) {
   const World w = LoadBuiltinWorld("institute");

@@ -91,6 +91,17 @@ std::vector<std::string> SnakemakeCommand(const std::filesystem::path& dir, int 
 // The argv as one shell-quoted line.
 std::string ShellJoin(const std::vector<std::string>& argv);
 
+// One day (session) of a run directory of the sweep: a row of summary_days.csv.
+struct SweepDay {
+  int session = 0;  // 0-based
+  int frames = 0;   // frames of the day (localized or not)
+  int frames_localized = 0;
+  double error_mean_m = 0, error_max_m = 0;  // over the localized frames with truth; NaN if none
+  double nees_xy_median = std::numeric_limits<double>::quiet_NaN();
+  double nees_xy_in_band = std::numeric_limits<double>::quiet_NaN();
+  int views_at_end = 0;  // map size at the day's last frame
+};
+
 // One row of summary.csv: a run directory of the sweep.
 struct SweepRow {
   std::string job;
@@ -117,14 +128,21 @@ struct SweepRow {
   double nees_xy_in_band = std::numeric_limits<double>::quiet_NaN();
   double nees_phi_median = std::numeric_limits<double>::quiet_NaN();
   double nis_median = std::numeric_limits<double>::quiet_NaN();
+  std::vector<SweepDay> days;  // per session, in order
 };
 
 // Reads the runs of the sweep in `dir` (jobs from sweep.json; missing runs give a row of
-// status "missing") and writes dir/summary.csv and dir/summary.html. Throws
-// omnicml::Error when sweep.json is missing or a run file is malformed.
+// status "missing") and writes dir/summary.csv, dir/summary_days.csv (one row per run and
+// day), dir/summary.html and, per group of runs (input and option values other than
+// forgetting), dir/day_plots/<group>.svg: the mean position error per day of each
+// forgetting mode over the seeds and the map size per day. Throws omnicml::Error when
+// sweep.json is missing or a run file is malformed.
 std::vector<SweepRow> CollectSweep(const std::filesystem::path& dir);
 // The CSV text of the rows (header line first; option columns from the first row).
 std::string SweepRowsToCsv(const std::vector<SweepRow>& rows);
+// The CSV text of the rows' days: job, mode, input, seed, options, then the SweepDay
+// fields with day = session + 1.
+std::string SweepDaysToCsv(const std::vector<SweepRow>& rows);
 
 }  // namespace omnicml
 

@@ -21,6 +21,7 @@
 
 #include <Eigen/Core>
 
+#include "omnicml/geometry/pose.h"
 #include "omnicml/tracking/tracker.h"
 
 namespace omnicml {
@@ -59,6 +60,9 @@ struct Obstacle {
   bool closed = true;                     // false: open polyline (a wall of zero thickness)
   double height_m = 1.0;                  // top above the floor
   TextureSpec texture;
+  // False for the promotional-display spots the layout change model adds (LayoutChanges):
+  // they stand on the floor only while the state says so. Not a YAML key.
+  bool initially_present = true;
 };
 
 // A window in a wall: a vertical rectangle from `from_m` to `to_m` between bottom_m and
@@ -157,6 +161,29 @@ struct WorldEvent {
   std::uint64_t seed = 0;  // kShelfRestocked
 };
 
+// The layout change model (docs/design.md "Layout changes"): from session 2 on, between
+// sessions, every layout element of the store changes independently with probability
+// layout_intensity, cumulatively and on top of the `events`:
+//   a gondola or box (shelves, boxes, shelf_blocks) is moved (a random shift, with new
+//     goods) or taken away; one taken away comes back elsewhere, with new goods;
+//   a promotional-display spot (one of `display_spots` free places next to the robot's
+//     route, generated from `seed`) gets a display, or loses or swaps its display;
+//   a light zone is re-lit to a new level (its intensity times U(0.4, 1.6)).
+// Every shifted or placed outline keeps route_clearance_m from the robot's path (the route
+// with its rounded corners) and 0.2 m from every other present outline; a draw that
+// violates this is redrawn (at most 4 times, then the element stays).
+// The expected fraction of layout elements that differ from session 1 after N sessions is
+// 1 - (1 - layout_intensity)^(N - 1) (less the few that return to their first state); the
+// fraction of the panorama that differs is measured (ChangedPanoramaFraction, `omnicml
+// simulate --change-report`; docs/results.md "Layout changes").
+// YAML: `changes: {layout_intensity: 0.1, seed: 0, display_spots: 0, route_clearance_m: 0.5}`.
+struct LayoutChanges {
+  double layout_intensity = 0.0;  // per-session change probability of each element, [0, 1]
+  std::uint64_t seed = 0;         // places the display spots (a property of the store)
+  int display_spots = 0;          // 0: one per 10 m of route; >= 0
+  double route_clearance_m = 0.5;  // free distance kept between the robot's path and outlines
+};
+
 // The static description of a world.
 struct World {
   std::string name;
@@ -176,6 +203,7 @@ struct World {
   CameraSpec camera;
   MotionNoise odometry_noise;
   std::vector<WorldEvent> events;
+  LayoutChanges changes;  // YAML `changes`
 
   // Index of the obstacle / light zone / window with this name, or -1.
   int FindObstacle(const std::string& name) const;
@@ -186,6 +214,11 @@ struct World {
 // Parses a world from YAML text; `source` names it in error messages. Throws
 // omnicml::Error "<source>:<line>: <key>: what" on any problem, including unknown keys,
 // unknown event targets and a route that runs through an obstacle.
+// A top-level key `base: NAME` (a built-in world, or a world file relative to the directory
+// of `source`) starts from that world's YAML: every other top-level key of this text
+// replaces the base's key of the same name (one level of base only), e.g.
+//   base: store_large
+//   changes: {layout_intensity: 0.2}
 World ParseWorld(const std::string& yaml_text, const std::string& source);
 // Reads a world file. Throws omnicml::Error naming the file.
 World LoadWorldFile(const std::string& path);
@@ -204,7 +237,9 @@ struct WorldState {
   std::vector<Eigen::Vector2d> obstacle_offset_m;  // displacement of each obstacle
   std::vector<std::uint64_t> texture_seed;         // current texture seed per obstacle
   std::vector<char> cleared;                       // shelf emptied (goods removed)
+  std::vector<char> present;                       // obstacle on the floor (else taken away)
   std::vector<char> light_on;
+  std::vector<double> light_scale;  // factor on each zone's intensity (re-lit zones), > 0
   std::vector<char> curtains_closed;
 
   bool operator==(const WorldState&) const = default;
@@ -228,16 +263,40 @@ WorldChange ApplyDayEvents(const World& world, int day, std::uint64_t seed, Worl
 WorldChange ApplyStepEvents(const World& world, int day, std::int64_t step, std::uint64_t seed,
                             WorldState* state);
 
-// The state at the start of `day`: the initial state with the day events of days 1..day
-// applied in order (step events do not carry over from one day to the next).
+// Applies the layout change model (LayoutChanges) between day - 1 and `day` (nothing for
+// day < 2 or layout_intensity 0). Random draws come from a stream of their own, a
+// function of (seed, day, element) only, so the events, odometry, people and sensor noise
+// draw the same numbers with and without it.
+WorldChange ApplyLayoutChanges(const World& world, int day, std::uint64_t seed,
+                               WorldState* state);
+
+// The state at the start of `day`: the initial state with, for each day 1..day in order,
+// that day's events and then its layout changes applied (step events do not carry over
+// from one day to the next).
 WorldState StateAtDayStart(const World& world, int day, std::uint64_t seed);
 
-// The outline of obstacle `index` in `state` (moved by its offset).
+// Fraction (0..1) of panorama pixels whose colour differs between states `a` and `b` of
+// `world`, averaged over `poses`: a pixel differs when some channel differs by more than
+// threshold_gray grey levels; panoramas rendered without people and sensor noise. The
+// measure of layout_intensity's effect (LayoutChanges). Throws omnicml::Error on no poses.
+double ChangedPanoramaFraction(const World& world, const WorldState& a, const WorldState& b,
+                               const std::vector<Pose2>& poses, double threshold_gray);
+
+// `world` with changes.layout_intensity set to `intensity` (in [0, 1]) and its display
+// spots regenerated (none for 0), as if the world file said so. Throws omnicml::Error
+// on an intensity outside [0, 1].
+World WithLayoutIntensity(World world, double intensity);
+
+// Poses every spacing_m along the world's route loop, heading along the route (> 0).
+std::vector<Pose2> RoutePoses(const World& world, double spacing_m);
+
+// The outline of obstacle `index` in `state` (moved by its offset; also for an obstacle
+// that is not present).
 std::vector<Eigen::Vector2d> ObstacleOutline(const World& world, const WorldState& state,
                                              int index);
 
 // True when the disc of radius_m around p_m is inside the floor and touches no obstacle
-// of `state` (windows are part of their walls and ignored).
+// present in `state` (windows are part of their walls and ignored).
 bool IsFree(const World& world, const WorldState& state, const Eigen::Vector2d& p_m,
             double radius_m);
 // True when a disc of radius_m moved along the segment a_m -> b_m stays free.

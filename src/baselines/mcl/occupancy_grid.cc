@@ -255,6 +255,7 @@ OccupancyGrid MakeOccupancyGrid(const World& world, const WorldState& state,
   std::vector<std::vector<Eigen::Vector2d>> outlines;
   std::vector<bool> closed;
   for (std::size_t i = 0; i < world.obstacles.size(); ++i) {
+    if (!state.present[i]) continue;  // taken away (layout changes)
     outlines.push_back(ObstacleOutline(world, state, static_cast<int>(i)));
     closed.push_back(world.obstacles[i].closed);
   }

@@ -1,0 +1,126 @@
+#!/usr/bin/env python3
+"""Tables of a layout-change sweep (datasets/sweeps/layout_changes_store_large.yaml).
+
+Reads SWEEP_DIR/summary_days.csv (written by `omnicml sweep` / `omnicml collect`) and prints
+markdown tables for docs/results.md "Layout changes":
+
+1. per intensity (the sweep input) and forgetting mode: the mean position error over days
+   2..N (the days after the survey), frame-weighted, as the mean and the worst over seeds;
+   frames counted (localized / all); the position NEES median averaged over those days;
+   the map size at the end (mean over seeds);
+2. the check of docs/results.md: static's last-day error over its day-2 error (mean over
+   seeds); the lowest intensity where that ratio is >= 2; there active's mean error over
+   the last three days against static's and passive's, and active's map against passive's.
+
+Usage: scripts/layout_change_table.py SWEEP_DIR
+"""
+import csv
+import math
+import sys
+from collections import defaultdict
+
+
+def main() -> int:
+    if len(sys.argv) != 2:
+        print(__doc__.strip().splitlines()[-1], file=sys.stderr)
+        return 2
+    path = sys.argv[1].rstrip("/") + "/summary_days.csv"
+    try:
+        with open(path, newline="") as f:
+            rows = list(csv.DictReader(f))
+    except OSError as e:
+        print(f"{path}: {e.strerror}", file=sys.stderr)
+        return 2
+    # (input, mode, seed) -> list of day rows, by day.
+    runs = defaultdict(dict)
+    for r in rows:
+        runs[(r["input"], r["mode"], int(r["seed"]))][int(r["day"])] = r
+
+    def num(v):
+        return float(v) if v not in ("", None) else math.nan
+
+    def weighted(days, first, last):
+        """Frame-weighted mean error over days first..last; (error, localized, frames)."""
+        s = n = frames = 0
+        for d in range(first, last + 1):
+            r = days.get(d)
+            if r is None:
+                continue
+            frames += int(r["frames"])
+            loc = int(r["frames_localized"])
+            e = num(r["error_mean_m"])
+            if loc > 0 and math.isfinite(e):
+                s += e * loc
+                n += loc
+        return (s / n if n else math.nan), n, frames
+
+    inputs = sorted({k[0] for k in runs}, key=lambda s: float(s.lstrip("i")) if s.lstrip("i").replace(".", "").isdigit() else s)
+    modes = ["static", "passive", "active"]
+    last_day = max(int(r["day"]) for r in rows)
+    print(f"Days 2-{last_day} (after the survey day), per seed frame-weighted, then over seeds:\n")
+    print("| intensity | mode | seeds | frames (localized / all) | mean error (m) | worst seed (m) | NEES xy median | views at end |")
+    print("|---|---|---|---|---|---|---|---|")
+    summary = {}
+    for inp in inputs:
+        for mode in modes:
+            seeds = sorted(k[2] for k in runs if k[0] == inp and k[1] == mode)
+            if not seeds:
+                continue
+            errs, loc_total, frames_total, nees, views = [], 0, 0, [], []
+            day2, lastd, last3 = [], [], []
+            for s in seeds:
+                days = runs[(inp, mode, s)]
+                e, loc, fr = weighted(days, 2, last_day)
+                errs.append(e)
+                loc_total += loc
+                frames_total += fr
+                nees += [num(days[d]["nees_xy_median"]) for d in range(2, last_day + 1) if d in days]
+                views.append(int(days[max(days)]["views_at_end"]))
+                day2.append(weighted(days, 2, 2)[0])
+                lastd.append(weighted(days, last_day, last_day)[0])
+                last3.append(weighted(days, last_day - 2, last_day)[0])
+            finite_nees = [v for v in nees if math.isfinite(v)]
+            mean = sum(errs) / len(errs)
+            summary[(inp, mode)] = dict(
+                mean=mean, worst=max(errs), views=sum(views) / len(views),
+                day2=sum(day2) / len(day2), last=sum(lastd) / len(lastd),
+                last3=sum(last3) / len(last3), seeds=len(seeds))
+            print(f"| {inp.lstrip('i')} | {mode} | {len(seeds)} | {loc_total} / {frames_total} | "
+                  f"{mean:.3f} | {max(errs):.3f} | "
+                  f"{(sum(finite_nees) / len(finite_nees)) if finite_nees else math.nan:.2f} | "
+                  f"{sum(views) / len(views):.0f} |")
+    print("\nStatic's last day against its day 2, and at each intensity the last three days:\n")
+    print(f"| intensity | static day 2 (m) | static day {last_day} (m) | ratio | "
+          f"last 3 days static / passive / active (m) | active / static | active / passive | "
+          f"views active / passive |")
+    print("|---|---|---|---|---|---|---|---|")
+    lowest = None
+    for inp in inputs:
+        st, pa, ac = (summary.get((inp, m)) for m in modes)
+        if not (st and pa and ac):
+            continue
+        ratio = st["last"] / st["day2"]
+        if lowest is None and ratio >= 2:
+            lowest = inp
+        print(f"| {inp.lstrip('i')} | {st['day2']:.3f} | {st['last']:.3f} | {ratio:.2f} | "
+              f"{st['last3']:.3f} / {pa['last3']:.3f} / {ac['last3']:.3f} | "
+              f"{ac['last3'] / st['last3']:.2f} | {ac['last3'] / pa['last3']:.2f} | "
+              f"{ac['views']:.0f} / {pa['views']:.0f} = {ac['views'] / pa['views']:.2f} |")
+    if lowest is None:
+        print("\nNo intensity where static's last-day error reaches twice its day-2 error.")
+    else:
+        st, pa, ac = (summary[(lowest, m)] for m in modes)
+        checks = [
+            ("active <= 0.6 x static (last 3 days)", ac["last3"] <= 0.6 * st["last3"]),
+            ("active <= 1.1 x passive (last 3 days)", ac["last3"] <= 1.1 * pa["last3"]),
+            ("active map <= 0.5 x passive map", ac["views"] <= 0.5 * pa["views"]),
+        ]
+        print(f"\nLowest intensity with static's day {last_day} >= 2 x its day 2: "
+              f"{lowest.lstrip('i')}")
+        for name, ok in checks:
+            print(f"- {name}: {'met' if ok else 'NOT met'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

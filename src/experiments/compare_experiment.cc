@@ -7,21 +7,23 @@
 #include <filesystem>
 #include <map>
 #include <memory>
+#include <optional>
 #include <sstream>
 #include <thread>
 
 #include "omnicml/common/common.h"
 #include "omnicml/common/limits.h"
 #include "omnicml/engine/engine_io.h"
-#include "omnicml/run/floor_plan.h"
 #include "omnicml/experiments/replay.h"
 #include "omnicml/experiments/run_experiment.h"
-#include "omnicml/run/run_recorder.h"
-#include "omnicml/run/run_report.h"
 #include "omnicml/experiments/survey.h"
 #include "omnicml/report/map_export.h"
 #include "omnicml/report/report.h"
 #include "omnicml/report/svg_plot.h"
+#include "omnicml/run/cml_run.h"
+#include "omnicml/run/floor_plan.h"
+#include "omnicml/run/run_recorder.h"
+#include "omnicml/run/run_report.h"
 
 namespace omnicml {
 
@@ -81,9 +83,8 @@ std::vector<std::vector<std::string>> TableRows(const std::vector<CompareModeRes
 std::vector<std::string> TableHeader(const std::vector<std::int64_t>& steps) {
   std::vector<std::string> header = {"forgetting"};
   for (std::int64_t s : steps) header.push_back("views@" + std::to_string(s));
-  for (const char* h :
-       {"views_end", "mean_err_m", "max_err_m", "head_mean_deg", "unimodal%", "odom_err_m",
-        "coverage%", "min_day_coverage%"})
+  for (const char* h : {"views_end", "mean_err_m", "max_err_m", "head_mean_deg", "unimodal%",
+                        "odom_err_m", "coverage%", "min_day_coverage%"})
     header.push_back(h);
   return header;
 }
@@ -105,10 +106,11 @@ std::vector<double> MovingAverage(const std::vector<double>& v, int window) {
 }
 
 // The final map of a mode over its trajectory, views removed during the run marked
-// (from the mode's events.csv, complete although the model keeps only recent events),
-// and the removals counted per session: (by active forgetting, otherwise).
+// (from the mode's map events, what its events.csv holds: complete although the model
+// keeps only recent events), and the removals counted per session: (by active
+// forgetting, otherwise).
 std::string ModeMapSvg(const CmlEngine& engine, const std::vector<FrameRecord>& records,
-                       const std::filesystem::path& events_csv, const std::string& input,
+                       const std::vector<MapEvent>& events, const std::string& input,
                        std::map<int, std::pair<int, int>>* removed_by_session) {
   MapPictureOptions pic;
   pic.width_px = 900;
@@ -119,7 +121,7 @@ std::string ModeMapSvg(const CmlEngine& engine, const std::vector<FrameRecord>& 
     if (r.has_estimate) trajectory.push_back(r.estimate);
   }
   std::map<std::uint64_t, bool> last_loss_active;  // view -> its latest component removal
-  for (const MapEvent& e : ReadEventsCsv(events_csv)) {
+  for (const MapEvent& e : events) {
     if (e.type == MapEventType::kComponentRemoved) {
       last_loss_active[e.view_id] = e.reason == kActiveForgettingReason;
     } else if (e.type == MapEventType::kViewRemoved) {
@@ -293,165 +295,190 @@ std::string FormatCompareTable(const std::vector<CompareModeResult>& modes,
   return FormatTextTable(TableHeader(steps), TableRows(modes, steps), /*left_align_first=*/true);
 }
 
-CompareExperimentResult RunCompareExperiment(const CompareExperimentOptions& options) {
-  const RunSettings& f = options.settings;
-  const std::vector<std::int64_t>& steps = options.steps;
+namespace {
+
+// The settings' checks before any work, in the command's order (steps, input, jobs,
+// progress); the engine options are checked after them.
+void CheckCompareSettings(const RunInput& input, const std::vector<std::int64_t>& steps, int jobs,
+                          std::int64_t log_every_frames) {
   if (steps.empty()) throw Error("--steps needs at least one step");
   for (std::int64_t s : steps) {
     if (s < 1) throw Error(StrCat("--steps: ", s, " is not a positive integer"));
   }
-  f.input.Validate();
-  CheckLimit("--jobs", options.jobs, 0, kMaxThreads);
-  if (f.log_every_frames < 1) throw Error("--log-every must be >= 1");
-  const CmlEngineOptions base = ResolveEngineOptions(
-      WithDefaultThreads(f.overrides), f.base_options.value_or(CmlEngineOptions{}));
-  f.survey.Validate();
+  input.Validate();
+  CheckLimit("--jobs", jobs, 0, kMaxThreads);
+  if (log_every_frames < 1) throw Error("--log-every must be >= 1");
+}
+
+}  // namespace
+
+CmlEngineOptions CompareModeOptions(const CmlEngineOptions& options, ForgettingMode mode) {
+  CmlEngineOptions o = options;
+  // static: learn the first day actively, then freeze (see the file comment).
+  o.model.forgetting.mode = mode == ForgettingMode::kStatic ? ForgettingMode::kActive : mode;
+  return o;
+}
+
+CompareExperimentResult RunCompare(const CmlEngineOptions& options, const RunInput& input,
+                                   const CompareSettings& settings) {
+  const std::vector<std::int64_t>& steps = settings.steps;
+  const SurveyOptions& survey = settings.survey;
+  CheckCompareSettings(input, steps, settings.jobs, settings.progress.log_every_frames);
+  options.Validate();
+  survey.Validate();
   // One reading of the survey trajectory, shared (read-only) by the modes' threads.
   std::shared_ptr<const SurveyPoses> survey_poses;
-  if (!f.survey.poses_path.empty()) {
-    survey_poses = std::make_shared<const SurveyPoses>(SurveyPoses::Read(f.survey.poses_path));
+  if (!survey.poses_path.empty()) {
+    survey_poses = std::make_shared<const SurveyPoses>(SurveyPoses::Read(survey.poses_path));
   }
   // static freezes the map after the last day that builds it: day 1, or the last survey day.
-  const int freeze_after_session = std::max(f.survey.days, 1) - 1;
-  const std::filesystem::path out_dir = f.out_dir.empty() ? DefaultRunDir("compare") : f.out_dir;
+  const int freeze_after_session = std::max(survey.days, 1) - 1;
+  const CompareOutputs& outputs = settings.outputs;
   // The whole comparison is assembled in a staging directory and renamed into place at
   // the end (common/file_io.h StagedDirectory): a failure or a kill leaves the old one.
-  StagedDirectory staged(out_dir, "--out", RunDirectoryMarkers());
+  std::optional<StagedDirectory> staged;
+  if (!outputs.out_dir.empty()) staged.emplace(outputs.out_dir, "--out", RunDirectoryMarkers());
   const std::vector<ForgettingMode> modes = {ForgettingMode::kPassive, ForgettingMode::kActive,
                                              ForgettingMode::kStatic};
   // The three modes are independent runs (each with its own frame source and engine,
   // each deterministic whatever the timing), so they may run in parallel threads; the
   // results are identical to a sequential run. Progress then comes as plain log lines.
   const int jobs = std::clamp(
-      options.jobs > 0 ? options.jobs : static_cast<int>(std::thread::hardware_concurrency()), 1,
+      settings.jobs > 0 ? settings.jobs : static_cast<int>(std::thread::hardware_concurrency()), 1,
       static_cast<int>(modes.size()));
-  CheckOutputDirectory(options.map_out_dir, "--map-out");
+  CheckOutputDirectory(outputs.map_out_dir, "--map-out");
   std::vector<std::vector<std::uint8_t>> map_bytes(modes.size());
+  auto run_mode = [&](std::size_t index) {
+    const ForgettingMode mode = modes[index];
+    CompareModeResult result;
+    result.mode = ToString(mode);
+    CmlRunSettings run;
+    if (staged) {
+      run.outputs.run_dir = staged->path() / result.mode;
+      run.outputs.stage_run_dir = false;  // inside the staging directory
+    }
+    run.outputs.title = "omnicml run (" + result.mode + " forgetting)";
+    run.progress = settings.progress;
+    run.progress.label = result.mode;
+    if (jobs > 1) run.progress.progress_bar = false;
+    // The errors cover the days after the survey (survey.h); views@step all frames.
+    run.evaluate_from_session = survey.days;
+    run.keep_events = true;
+    if (mode == ForgettingMode::kStatic) {
+      run.on_session_end = [freeze_after_session](CmlEngine& e, int session) {
+        if (session == freeze_after_session) e.SetForgettingMode(ForgettingMode::kStatic);
+      };
+    }
+    if (survey.enabled()) run.process = MakeSurveyFrameProcessor(survey, survey_poses);
+    CmlRunResult r = RunCml(CompareModeOptions(options, mode), input, run);
+    result.survey_frames = static_cast<std::int64_t>(
+        std::count_if(r.records.begin(), r.records.end(),
+                      [&survey](const FrameRecord& f) { return f.session < survey.days; }));
+    if (result.survey_frames == static_cast<std::int64_t>(r.records.size())) {
+      throw Error(StrCat("--survey-days ", survey.days, ": the input (", input.Describe(),
+                         ") has no frames after the survey days to evaluate"));
+    }
+    result.evaluation = std::move(r.evaluation);
+    result.records = std::move(r.records);
+    for (std::int64_t s : steps) result.views_at_steps.push_back(ViewsAtStep(result.records, s));
+    result.wall_s = r.summary.wall_s;
+    result.final_views = static_cast<int>(r.engine->model().NumViews());
+    result.final_components = static_cast<int>(r.engine->model().NumComponents());
+    result.map_svg = ModeMapSvg(*r.engine, result.records, r.events, input.Describe(),
+                                &result.views_removed_by_session);
+    if (!outputs.map_out_dir.empty()) map_bytes[index] = EncodeEngine(*r.engine);
+    if (settings.keep_engines) result.engine = std::move(r.engine);
+    return result;
+  };
+  std::vector<CompareModeResult> results(modes.size());
+  std::vector<std::exception_ptr> errors(modes.size());
+  // Worker w runs modes w, w + jobs, ...; every exception is kept and the first (in mode
+  // order) rethrown once all threads are done, so no thread outlives the cleanup.
+  auto worker = [&](int w) {
+    for (std::size_t i = static_cast<std::size_t>(w); i < modes.size();
+         i += static_cast<std::size_t>(jobs)) {
+      try {
+        results[i] = run_mode(i);
+      } catch (...) {
+        errors[i] = std::current_exception();
+      }
+    }
+  };
+  if (jobs == 1) {
+    worker(0);
+  } else {
+    std::vector<std::thread> threads;
+    for (int w = 0; w < jobs; ++w) threads.emplace_back(worker, w);
+    for (auto& t : threads) t.join();
+  }
+  for (const auto& e : errors) {
+    if (e) std::rethrow_exception(e);
+  }
+  CompareExperimentResult out;
+  out.out_dir = outputs.out_dir.string();
+  out.input = input.Describe();
+  out.survey_note = SurveyExcludedNote(survey, results.front().survey_frames);
+  // table.txt says which frames its errors cover.
   {
-    auto run_mode = [&](std::size_t index) {
-      const ForgettingMode mode = modes[index];
-      CompareModeResult result;
-      result.mode = ToString(mode);
-      CmlEngineOptions engine_options = base;
-      // static: learn the first day actively, then freeze (see the file comment).
-      engine_options.model.forgetting.mode =
-          mode == ForgettingMode::kStatic ? ForgettingMode::kActive : mode;
-      CmlEngine engine(engine_options);
-      auto source = OpenFrameSource(f.input);
-      RunRecorderOptions ro;
-      ro.run_dir = staged.path() / result.mode;
-      ro.stage = false;  // inside the staging directory
-      ro.title = "omnicml run (" + result.mode + " forgetting)";
-      ro.input_description = f.input.Describe();
-      RunRecorder recorder(ro);
-      SessionEndHook freeze;
-      if (mode == ForgettingMode::kStatic) {
-        freeze = [freeze_after_session](CmlEngine& e, int session) {
-          if (session == freeze_after_session) e.SetForgettingMode(ForgettingMode::kStatic);
-        };
-      }
-      ProgressOptions progress = MakeProgressOptions(f, result.mode, CountFrames(f.input, *source));
-      if (jobs > 1) progress.progress_bar = false;
-      FrameProcessor process;
-      if (f.survey.enabled()) process = MakeSurveyFrameProcessor(f.survey, survey_poses);
-      const RunSummary summary =
-          RunEngineOverSource(engine, *source, &recorder, progress, freeze, process);
-      if (summary.frames == 0)
-        throw Error(StrCat("the input (", f.input.Describe(), ") has no frames"));
-      engine.Finish();
-      recorder.Commit(engine, {{"wall time", FormatFixed(summary.wall_s, 1) + " s"}});
-      FramesTable table;
-      table.stage_names = StageNames();
-      // The errors cover the days after the survey (survey.h); views@step all frames.
-      table.records = RecordsAfterSurvey(recorder.records(), f.survey);
-      result.survey_frames =
-          static_cast<std::int64_t>(recorder.records().size() - table.records.size());
-      table.skipped_frames = recorder.skipped_frames();
-      if (table.records.empty()) {
-        throw Error(StrCat("--survey-days ", f.survey.days, ": the input (", f.input.Describe(),
-                           ") has no frames after the survey days to evaluate"));
-      }
-      result.evaluation = Evaluate(table, Alignment::kNone);
-      result.records = recorder.records();
-      result.wall_s = summary.wall_s;
-      result.final_views = static_cast<int>(engine.model().NumViews());
-      result.final_components = static_cast<int>(engine.model().NumComponents());
-      result.map_svg = ModeMapSvg(engine, recorder.records(), ro.run_dir / "events.csv",
-                                  f.input.Describe(), &result.views_removed_by_session);
-      if (!options.map_out_dir.empty()) map_bytes[index] = EncodeEngine(engine);
-      return result;
-    };
-    std::vector<CompareModeResult> results(modes.size());
-    std::vector<std::exception_ptr> errors(modes.size());
-    // Worker w runs modes w, w + jobs, ...; every exception is kept and the first (in mode
-    // order) rethrown once all threads are done, so no thread outlives the cleanup.
-    auto worker = [&](int w) {
-      for (std::size_t i = static_cast<std::size_t>(w); i < modes.size();
-           i += static_cast<std::size_t>(jobs)) {
-        try {
-          results[i] = run_mode(i);
-        } catch (...) {
-          errors[i] = std::current_exception();
-        }
-      }
-    };
-    if (jobs == 1) {
-      worker(0);
-    } else {
-      std::vector<std::thread> threads;
-      for (int w = 0; w < jobs; ++w) threads.emplace_back(worker, w);
-      for (auto& t : threads) t.join();
+    const EvaluationResult& e = results.front().evaluation;
+    std::ostringstream head;
+    if (!out.survey_note.empty()) head << "# " << out.survey_note << "\n";
+    head << "# errors over " << e.overall.frames << " frames";
+    if (!e.days.empty())
+      head << " (days " << e.days.front().session + 1 << "-" << e.days.back().session + 1 << ")";
+    head << ", localized frames only (coverage%)\n";
+    head << "# views@s: views after frame s (updates of the last update_delay_frames frames "
+            "still queued); views_end: at the end, queued updates applied (the saved map)\n";
+    out.table_text = head.str() + FormatCompareTable(results, steps);
+  }
+  // The maps are written completely, then commit with the run directory as one unit
+  // (StagedDirectory::Commit with companions): old maps and directory or new ones.
+  std::vector<std::unique_ptr<AtomicFile>> maps;
+  if (!outputs.map_out_dir.empty()) {
+    std::filesystem::create_directories(outputs.map_out_dir);
+    for (std::size_t i = 0; i < modes.size(); ++i) {
+      maps.push_back(
+          std::make_unique<AtomicFile>(outputs.map_out_dir / (ToString(modes[i]) + ".omap")));
+      maps.back()->stream().write(reinterpret_cast<const char*>(map_bytes[i].data()),
+                                  static_cast<std::streamsize>(map_bytes[i].size()));
     }
-    for (const auto& e : errors) {
-      if (e) std::rethrow_exception(e);
-    }
-    CompareExperimentResult out;
-    out.out_dir = out_dir.string();
-    out.input = f.input.Describe();
-    out.survey_note = SurveyExcludedNote(f.survey, results.front().survey_frames);
-    // table.txt says which frames its errors cover.
-    {
-      const EvaluationResult& e = results.front().evaluation;
-      std::ostringstream head;
-      if (!out.survey_note.empty()) head << "# " << out.survey_note << "\n";
-      head << "# errors over " << e.overall.frames << " frames";
-      if (!e.days.empty())
-        head << " (days " << e.days.front().session + 1 << "-" << e.days.back().session + 1 << ")";
-      head << ", localized frames only (coverage%)\n";
-      head << "# views@s: views after frame s (updates of the last update_delay_frames frames "
-              "still queued); views_end: at the end, queued updates applied (the saved map)\n";
-      out.table_text = head.str() + FormatCompareTable(results, steps);
-    }
-    // The maps are written completely, then commit with the run directory as one unit
-    // (StagedDirectory::Commit with companions): old maps and directory or new ones.
-    std::vector<std::unique_ptr<AtomicFile>> maps;
-    if (!options.map_out_dir.empty()) {
-      std::filesystem::create_directories(options.map_out_dir);
-      for (std::size_t i = 0; i < modes.size(); ++i) {
-        maps.push_back(std::make_unique<AtomicFile>(
-            std::filesystem::path(options.map_out_dir) / (ToString(modes[i]) + ".omap")));
-        maps.back()->stream().write(reinterpret_cast<const char*>(map_bytes[i].data()),
-                                    static_cast<std::streamsize>(map_bytes[i].size()));
-      }
-    }
-    WriteFileAtomic(staged.path() / "table.txt", out.table_text, FileSync::kDeferred);
-    WriteFileAtomic(staged.path() / "report.html",
+  }
+  std::vector<AtomicFile*> companions;
+  for (auto& m : maps) companions.push_back(m.get());
+  if (staged) {
+    WriteFileAtomic(staged->path() / "table.txt", out.table_text, FileSync::kDeferred);
+    WriteFileAtomic(staged->path() / "report.html",
                     RenderCompareReport(out.input, results, steps, out.table_text),
                     FileSync::kDeferred);
-    std::vector<AtomicFile*> companions;
-    for (auto& m : maps) companions.push_back(m.get());
-    staged.Commit(companions);
-    out.modes = std::move(results);
-    return out;
+    staged->Commit(companions);
+  } else {
+    for (AtomicFile* m : companions) m->Commit();
   }
+  out.modes = std::move(results);
+  return out;
+}
+
+CompareExperimentResult RunCompareExperiment(const CompareExperimentOptions& options) {
+  const RunSettings& f = options.settings;
+  CheckCompareSettings(f.input, options.steps, options.jobs, f.log_every_frames);
+  // The modes set forgetting; --forgetting is not a flag of the command.
+  const CmlEngineOptions base = ResolveEngineOptions(WithDefaultThreads(f.overrides),
+                                                     f.base_options.value_or(CmlEngineOptions{}));
+  CompareSettings s;
+  s.steps = options.steps;
+  s.jobs = options.jobs;
+  s.survey = f.survey;
+  s.progress = MakeProgressOptions(f, "", std::nullopt);
+  s.outputs.out_dir = f.out_dir.empty() ? DefaultRunDir("compare") : f.out_dir;
+  s.outputs.map_out_dir = options.map_out_dir;
+  return RunCompare(base, f.input, s);
 }
 
 std::string FormatCompareExperimentResult(const CompareExperimentResult& result) {
   std::ostringstream os;
   os << "input: " << result.input << "\n" << result.table_text;
   for (const auto& r : result.modes) {
-    os << r.mode << ": " << r.records.size() << " frames in " << FormatFixed(r.wall_s, 1)
-       << " s";
+    os << r.mode << ": " << r.records.size() << " frames in " << FormatFixed(r.wall_s, 1) << " s";
     if (r.evaluation.overall.frames_skipped > 0)
       os << " (" << r.evaluation.overall.frames_skipped << " unreadable frames skipped)";
     os << "; per-day mean error m (localized frames, days "
@@ -462,13 +489,14 @@ std::string FormatCompareExperimentResult(const CompareExperimentResult& result)
     const DayEvaluation& all = r.evaluation.overall;
     if (all.nees_xy.count > 0) {
       os << "; position NEES median " << FormatFixed(all.nees_xy.median, 2) << " p95 "
-         << FormatFixed(all.nees_xy.p95, 2) << " in band " << FormatFixed(all.nees_xy_in_band * 100, 1)
-         << " %, heading NEES median " << FormatFixed(all.nees_phi.median, 2)
-         << " (consistent 1.39 / 5.99 / 95 %, 0.45)";
+         << FormatFixed(all.nees_xy.p95, 2) << " in band "
+         << FormatFixed(all.nees_xy_in_band * 100, 1) << " %, heading NEES median "
+         << FormatFixed(all.nees_phi.median, 2) << " (consistent 1.39 / 5.99 / 95 %, 0.45)";
     }
     os << "\n";
   }
-  os << "report: " << (std::filesystem::path(result.out_dir) / "report.html").string() << "\n";
+  if (!result.out_dir.empty())
+    os << "report: " << (std::filesystem::path(result.out_dir) / "report.html").string() << "\n";
   return os.str();
 }
 

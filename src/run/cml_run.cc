@@ -17,13 +17,15 @@ namespace omnicml {
 std::vector<std::unique_ptr<OutputLock>> CheckRunOutputs(const RunOutputs& o) {
   std::vector<std::unique_ptr<OutputLock>> locks;
   if (!o.any()) return locks;
-  if (!o.run_dir.empty()) CheckOutputDirectory(o.run_dir, "--out");
+  // An unstaged run directory lies in one the caller stages, checks and locks.
+  const std::filesystem::path run_dir = o.stage_run_dir ? o.run_dir : std::filesystem::path();
+  if (!run_dir.empty()) CheckOutputDirectory(run_dir, "--out");
   CheckOutputFile(o.map_path, "--map-out", o.run_dir);
   CheckOutputFile(o.trajectory_path, "--trajectory-out", o.run_dir);
-  if (!o.run_dir.empty()) CheckReplaceableDirectory(o.run_dir, "--out", RunDirectoryMarkers());
+  if (!run_dir.empty()) CheckReplaceableDirectory(run_dir, "--out", RunDirectoryMarkers());
   CheckRunOutputPlacement("--map-out", o.map_path, o.run_dir);
   CheckRunOutputPlacement("--trajectory-out", o.trajectory_path, o.run_dir);
-  if (!o.run_dir.empty()) locks.push_back(std::make_unique<OutputLock>(o.run_dir, "--out"));
+  if (!run_dir.empty()) locks.push_back(std::make_unique<OutputLock>(run_dir, "--out"));
   for (const auto& [flag, path] :
        {std::pair{"--map-out", o.map_path}, std::pair{"--trajectory-out", o.trajectory_path}}) {
     // A file in the run directory is covered by the run directory's lock.
@@ -77,6 +79,8 @@ CmlRunResult RunCml(std::unique_ptr<CmlEngine> engine, const RunInput& input,
   RunRecorderOptions ro;
   ro.run_dir = out.run_dir;
   ro.trajectory_path = out.trajectory_path;
+  ro.stage = out.stage_run_dir;
+  ro.keep_events = settings.keep_events;
   ro.title = out.title;
   ro.input_description = out.input_description.empty() ? input.Describe() : out.input_description;
   RunRecorder recorder(ro);
@@ -120,6 +124,7 @@ CmlRunResult RunCml(std::unique_ptr<CmlEngine> engine, const RunInput& input,
   if (!table.records.empty()) result.evaluation = Evaluate(table, Alignment::kNone);
   result.skipped_frames = recorder.skipped_frames();
   result.records = recorder.TakeRecords();
+  result.events = recorder.TakeEvents();
   result.engine = std::move(engine);
   return result;
 }

@@ -106,10 +106,9 @@ void RunRecorder::RecordEvents(const EnvironmentModel& model) {
     next_event_ = first;
   }
   const std::deque<MapEvent>& events = model.events();
-  if (events_csv_) {
-    for (std::size_t i = static_cast<std::size_t>(*next_event_ - first); i < events.size(); ++i) {
-      WriteEventsCsvRow(events_csv_->stream(), events[i]);
-    }
+  for (std::size_t i = static_cast<std::size_t>(*next_event_ - first); i < events.size(); ++i) {
+    if (events_csv_) WriteEventsCsvRow(events_csv_->stream(), events[i]);
+    if (options_.keep_events) events_.push_back(events[i]);
   }
   next_event_ = model.events_logged();
 }

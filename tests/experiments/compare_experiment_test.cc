@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
+#include <fstream>
+#include <iterator>
 #include <string>
 #include <vector>
 
@@ -13,6 +15,7 @@
 #include "omnicml/experiments/compare_experiment.h"
 #include "omnicml/experiments/run_experiment.h"
 #include "omnicml/report/report.h"
+#include "omnicml/run/run_config.h"
 
 namespace omnicml {
 namespace {
@@ -133,6 +136,123 @@ TEST_F(CompareExperimentTest, BadStepsAndInputAreErrorsThatLeaveNothing) {
   EXPECT_FALSE(fs::exists(dir_ / "bad"));
 }
 
+// The in-memory study of ShortRun's input: two days of home_store, 150 frames each.
+RunInput ShortInput() {
+  RunInput in;
+  in.world = "home_store";
+  in.days = 2;
+  in.frames_per_day = 150;
+  in.seed = 1;
+  return in;
+}
+
+CmlEngineOptions OneThread() {
+  CmlEngineOptions o;
+  o.threads = 1;
+  return o;
+}
+
+std::vector<std::uint8_t> ReadBytes(const fs::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+}
+
+TEST_F(CompareExperimentTest, InMemoryResultsEqualWhatTheWrittenDirectoryHolds) {
+  // RunCompare without outputs returns what the same study writes when asked: each
+  // mode's records are its frames.csv, its evaluation that of frames.csv, views_at_steps
+  // the table's columns, the table is table.txt, the engine is <mode>.omap.
+  CompareSettings memory;
+  memory.steps = {100, 200, 400};
+  memory.jobs = 1;
+  memory.keep_engines = true;
+  CompareSettings written = memory;
+  written.keep_engines = false;
+  written.jobs = 3;
+  written.outputs.out_dir = dir_ / "cmp";
+  written.outputs.map_out_dir = dir_ / "maps";
+  const CompareExperimentResult a = RunCompare(OneThread(), ShortInput(), memory);
+  const CompareExperimentResult b = RunCompare(OneThread(), ShortInput(), written);
+
+  EXPECT_EQ(a.out_dir, "");
+  EXPECT_EQ(b.out_dir, (dir_ / "cmp").string());
+  EXPECT_EQ(a.table_text, b.table_text);
+  EXPECT_EQ(a.table_text, ReadTextFile(dir_ / "cmp" / "table.txt"));
+  ASSERT_EQ(a.modes.size(), 3u);
+  ASSERT_EQ(b.modes.size(), 3u);
+  for (std::size_t m = 0; m < 3; ++m) {
+    const CompareModeResult& r = a.modes[m];
+    SCOPED_TRACE(r.mode);
+    EXPECT_EQ(r.mode, b.modes[m].mode);
+    ExpectSameRecords(r.records, b.modes[m].records);
+    const FramesTable csv = ReadFramesCsv(dir_ / "cmp" / r.mode / "frames.csv");
+    ExpectSameRecords(r.records, csv.records);
+    const EvaluationResult from_csv = Evaluate(csv, Alignment::kNone);
+    EXPECT_EQ(r.evaluation.overall.frames, from_csv.overall.frames);
+    EXPECT_EQ(r.evaluation.overall.position_m.mean, from_csv.overall.position_m.mean);
+    EXPECT_EQ(r.evaluation.overall.coverage, from_csv.overall.coverage);
+    ASSERT_EQ(r.evaluation.days.size(), from_csv.days.size());
+    for (std::size_t d = 0; d < r.evaluation.days.size(); ++d) {
+      EXPECT_EQ(r.evaluation.days[d].position_m.max, from_csv.days[d].position_m.max);
+      EXPECT_EQ(r.evaluation.days[d].views_at_end, from_csv.days[d].views_at_end);
+    }
+    // views@100, views@200 from the records; 400 is beyond the 300 frames.
+    EXPECT_EQ(r.views_at_steps, (std::vector<int>{r.records[99].views, r.records[199].views, -1}));
+    EXPECT_EQ(r.views_removed_by_session, b.modes[m].views_removed_by_session);
+    EXPECT_EQ(r.map_svg, b.modes[m].map_svg);
+    // The engine after Finish, byte for byte the saved map; only when asked.
+    ASSERT_NE(r.engine, nullptr);
+    EXPECT_EQ(b.modes[m].engine, nullptr);
+    EXPECT_EQ(static_cast<int>(r.engine->model().NumViews()), r.final_views);
+    EXPECT_EQ(EncodeEngine(*r.engine), ReadBytes(dir_ / "maps" / (r.mode + ".omap")));
+    // Each mode ran with the study's options, forgetting set by the mode (static: learnt
+    // actively, then frozen).
+    const ForgettingMode mode = ForgettingModeFromString(r.mode);
+    CmlEngineOptions expected = CompareModeOptions(OneThread(), mode);
+    EXPECT_EQ(expected.model.forgetting.mode,
+              mode == ForgettingMode::kStatic ? ForgettingMode::kActive : mode);
+    expected.model.forgetting.mode = mode;
+    EXPECT_TRUE(SameEngineOptions(expected, r.engine->options()));
+    EXPECT_NE(ReadTextFile(dir_ / "cmp" / r.mode / "config.yaml").find("mode: " + r.mode),
+              std::string::npos);
+  }
+  EXPECT_EQ(FormatCompareExperimentResult(a).find("report:"), std::string::npos);
+  EXPECT_NE(FormatCompareExperimentResult(b).find("report:"), std::string::npos);
+}
+
+TEST_F(CompareExperimentTest, InMemoryStudyWritesNothingWhenNotAsked) {
+  // Without outputs, no file or directory appears (run in an empty working directory,
+  // where the command's default runs/ would go); bad settings are errors before any run.
+  const fs::path cwd = fs::current_path();
+  fs::create_directories(dir_ / "cwd");
+  fs::current_path(dir_ / "cwd");
+  CompareSettings settings;
+  settings.steps = {50};
+  settings.jobs = 2;
+  RunInput input = ShortInput();
+  input.days = 1;
+  input.frames_per_day = 60;
+  const CompareExperimentResult r = RunCompare(OneThread(), input, settings);
+  fs::current_path(cwd);
+  EXPECT_TRUE(fs::is_empty(dir_ / "cwd"));
+  ASSERT_EQ(r.modes.size(), 3u);
+  for (const CompareModeResult& m : r.modes) {
+    EXPECT_EQ(m.records.size(), 60u);
+    EXPECT_EQ(m.engine, nullptr);
+  }
+  CompareSettings bad = settings;
+  bad.steps = {0};
+  EXPECT_THROW(RunCompare(OneThread(), input, bad), Error);
+  bad = settings;
+  bad.progress.log_every_frames = 0;
+  EXPECT_THROW(RunCompare(OneThread(), input, bad), Error);
+  CmlEngineOptions bad_options = OneThread();
+  bad_options.threads = 0;
+  bad = settings;
+  bad.outputs.out_dir = dir_ / "never";
+  EXPECT_THROW(RunCompare(bad_options, input, bad), Error);
+  EXPECT_FALSE(fs::exists(dir_ / "never"));
+}
+
 TEST_F(CompareExperimentTest, ResumingWithStaticForgettingFreezesTheSavedMap) {
   // run day 1 with --map-out, then day 2 from it with --forgetting static
   // (CmlEngine::SetForgettingMode): Update never changes a static model, so the second
@@ -157,8 +277,7 @@ TEST_F(CompareExperimentTest, ResumingWithStaticForgettingFreezesTheSavedMap) {
   const std::size_t saved_views = LoadEngine(first.map_out)->model().NumViews();
   EXPECT_GT(saved_views, 0u);
   EXPECT_EQ(r2.views, saved_views);
-  EXPECT_NE(ReadTextFile(dir_ / "day2" / "config.yaml").find("mode: static"),
-            std::string::npos);
+  EXPECT_NE(ReadTextFile(dir_ / "day2" / "config.yaml").find("mode: static"), std::string::npos);
   // Change detection (change_detection.h): not scored on the map's first day; the resumed
   // run scores simulated day 2 (its first_day + 1) against the day-2 events, in the
   // result and in change_detection.csv.

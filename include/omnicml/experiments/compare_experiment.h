@@ -9,6 +9,12 @@
 // every mode (survey.h), static freezes it after day N ([G]'s static "old" map versus
 // the adapted one), and the errors cover days N + 1 on.
 //
+// The study runs in memory (RunCompare: engine options as a value, each mode's results
+// returned: per-frame records, per-day evaluation, views at the table's steps, the
+// engines when asked) on the in-memory run API (run/cml_run.h); it writes OUTDIR and
+// the maps only when CompareOutputs asks. `omnicml compare` (RunCompareExperiment: the
+// command's flags, OUTDIR always) and the Python compare() are built on it.
+//
 // OUTDIR layout (every file written atomically; a failure removes what the call created):
 //   passive/, active/, static/   each mode's full run directory (run/run_recorder.h; with
 //                                trajectory.tum, groundtruth.tum, odometry.tum)
@@ -27,13 +33,19 @@
 #define OMNICML_EXPERIMENTS_COMPARE_EXPERIMENT_H_
 
 #include <cstdint>
+#include <filesystem>
 #include <map>
+#include <memory>
 #include <string>
 #include <utility>
 #include <vector>
 
+#include "omnicml/engine/cml_engine.h"
 #include "omnicml/evaluation/evaluation.h"
 #include "omnicml/experiments/run_experiment.h"
+#include "omnicml/experiments/survey.h"
+#include "omnicml/run/engine_driver.h"
+#include "omnicml/run/frame_sources.h"
 
 namespace omnicml {
 
@@ -55,10 +67,44 @@ struct CompareExperimentOptions {
   std::string map_out_dir;
 };
 
+// What RunCompare writes; by default nothing.
+struct CompareOutputs {
+  // OUTDIR (the layout above), staged and renamed into place whole; "" = none.
+  std::filesystem::path out_dir;
+  // MAPDIR (created when missing) receiving each mode's engine/map after Finish as
+  // <mode>.omap, written only once every mode has succeeded; "" = none.
+  std::filesystem::path map_out_dir;
+
+  bool any() const { return !out_dir.empty() || !map_out_dir.empty(); }
+};
+
+struct CompareSettings {
+  // Frames (1-based) at which the table reports the number of views; >= 1 each.
+  std::vector<std::int64_t> steps = {2000, 4000, 6000, 8000};
+  // Modes run in parallel: 0 = one per core; clamped to [1, 3].
+  int jobs = 0;
+  // Survey days (--survey-days, --survey-poses): the first days build the map from
+  // trusted poses in every mode and are left out of the errors (survey.h).
+  SurveyOptions survey;
+  // Progress of every mode (label: the mode; no bar with jobs > 1). Quiet by default;
+  // log_every_frames >= 1.
+  ProgressOptions progress = [] {
+    ProgressOptions p;
+    p.quiet = true;
+    return p;
+  }();
+  // Also return each mode's engine after Finish (CompareModeResult::engine).
+  bool keep_engines = false;
+  CompareOutputs outputs;  // nothing written by default
+};
+
 // One mode's run.
 struct CompareModeResult {
   std::string mode;                  // "passive", "active", "static"
   std::vector<FrameRecord> records;  // every frame, in order
+  // Views in the map right after each of the settings' steps (records[step - 1].views),
+  // -1 for a step beyond the run: the map-size columns of the table.
+  std::vector<int> views_at_steps;
   // Alignment::kNone; of the frames after the survey days (settings.survey), all
   // frames without a survey.
   EvaluationResult evaluation;
@@ -73,19 +119,35 @@ struct CompareModeResult {
   // active forgetting (its last component went by (18)-(19)) and otherwise (passive
   // forgetting, weight below w_min, merges). Sessions without removals are absent.
   std::map<int, std::pair<int, int>> views_removed_by_session;
+  // The mode's engine after Finish (what <mode>.omap holds); only with keep_engines.
+  std::unique_ptr<CmlEngine> engine;
 };
 
 struct CompareExperimentResult {
-  std::string out_dir;
+  std::string out_dir;                   // OUTDIR; "" when none was written
   std::string input;                     // RunInput::Describe()
   std::vector<CompareModeResult> modes;  // passive, active, static
   std::string table_text;                // table.txt
   std::string survey_note;               // SurveyExcludedNote ("" without a survey)
 };
 
-// Runs the experiment of the file comment and writes OUTDIR. Throws omnicml::Error for
-// bad input or options (naming the flag), an input without frames, or I/O failure; the
-// first error in mode order is rethrown after every thread has finished.
+// The engine options mode `mode` runs with: `options` with model.forgetting.mode = mode,
+// except static, which learns actively until the study freezes it (the file comment).
+CmlEngineOptions CompareModeOptions(const CmlEngineOptions& options, ForgettingMode mode);
+
+// Runs the study of the file comment over `input` (passive, active, static; each a
+// RunCml with CompareModeOptions(options, mode)) and writes what settings.outputs asks,
+// nothing otherwise. The results equal what the written run directories hold (records:
+// frames.csv; evaluation: the errors of days.csv and table.txt). Throws omnicml::Error
+// for bad input, options or settings (naming the flag or field), an input without
+// frames (or none after the survey days), or I/O failure; the first error in mode order
+// is rethrown after every thread has finished, and nothing partial is left behind.
+CompareExperimentResult RunCompare(const CmlEngineOptions& options, const RunInput& input,
+                                   const CompareSettings& settings = {});
+
+// `omnicml compare`: RunCompare with the engine options resolved from the settings'
+// overrides (forgetting ignored) and OUTDIR always written (settings.out_dir, or
+// runs/compare-<date>-<time>). Throws what RunCompare throws.
 CompareExperimentResult RunCompareExperiment(const CompareExperimentOptions& options);
 
 // The table (header "forgetting", "views@<step>"..., views_end, mean_err_m, max_err_m,
@@ -97,7 +159,7 @@ std::string FormatCompareTable(const std::vector<CompareModeResult>& modes,
 
 // What `omnicml compare` prints on stdout: the input, the table, per-mode frames (and
 // skipped unreadable frames), wall time, per-day mean errors and coverage, the report
-// path.
+// path (when OUTDIR was written).
 std::string FormatCompareExperimentResult(const CompareExperimentResult& result);
 
 }  // namespace omnicml

@@ -37,6 +37,10 @@ struct RunOutputs {
   std::filesystem::path trajectory_path;  // the estimate as a TUM file
   std::string title = "omnicml run";      // report title
   std::string input_description;          // config.yaml and the report; "" = input.Describe()
+  // true: run_dir is checked, locked and staged beside its target here and committed
+  // whole; false: its files go straight into run_dir, a directory inside one that the
+  // caller stages and locks (the per-mode directories of experiments/compare_experiment.h).
+  bool stage_run_dir = true;
 
   bool any() const { return !run_dir.empty() || !map_path.empty() || !trajectory_path.empty(); }
 };
@@ -60,6 +64,8 @@ struct CmlRunSettings {
   int evaluate_from_session = 0;
   // Also return the engine as it was before Finish (CmlRunResult::resumable_engine).
   bool keep_resumable_engine = false;
+  // Also return every map event of the run (CmlRunResult::events).
+  bool keep_events = false;
   FrameProcessor process;               // replaces ProcessFrame (engine_driver.h)
   SessionEndHook on_session_end;        // between sessions (engine_driver.h)
   std::vector<RunObserver*> observers;  // not owned; outlive the call
@@ -79,6 +85,9 @@ struct CmlRunResult {
   // The engine before Finish (what the map file holds): a resumed run goes on from it as
   // one uninterrupted run would. Only with keep_resumable_engine.
   std::unique_ptr<CmlEngine> resumable_engine;
+  // Every map event of the run, oldest first, as events.csv holds them (complete although
+  // the model keeps only its most recent events). Only with keep_events.
+  std::vector<MapEvent> events;
 };
 
 // The engine of a run: a new one with ResolveEngineOptions(overrides, base), or with

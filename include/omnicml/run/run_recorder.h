@@ -48,6 +48,7 @@
 #include "omnicml/common/file_io.h"
 #include "omnicml/engine/cml_engine.h"
 #include "omnicml/evaluation/evaluation.h"
+#include "omnicml/mapping/map_events.h"
 #include "omnicml/report/report.h"
 #include "omnicml/run/run_directory.h"
 #include "omnicml/sensor/frame.h"
@@ -64,6 +65,9 @@ struct RunRecorderOptions {
   // go straight into run_dir, which the caller stages (compare's per-mode directories
   // inside its own staging directory).
   bool stage = true;
+  // Also keep every map event of the run in memory (events(): what events.csv holds),
+  // with or without a run directory.
+  bool keep_events = false;
 };
 
 class RunRecorder {
@@ -119,6 +123,10 @@ class RunRecorder {
   // Moves the records out (after Commit; records() is then empty).
   std::vector<FrameRecord> TakeRecords() { return std::move(records_); }
   const std::map<int, std::int64_t>& skipped_frames() const { return skipped_frames_; }
+  // The map events recorded so far, oldest first (empty unless options.keep_events).
+  const std::vector<MapEvent>& events() const { return events_; }
+  // Moves the events out (after Commit; events() is then empty).
+  std::vector<MapEvent> TakeEvents() { return std::move(events_); }
   const RunRecorderOptions& options() const { return options_; }
 
  private:
@@ -131,6 +139,7 @@ class RunRecorder {
   std::optional<std::uint64_t> next_event_;  // number of the next event to write
   std::uint64_t events_lost_ = 0;
   std::vector<FrameRecord> records_;
+  std::vector<MapEvent> events_;                                  // options_.keep_events
   std::vector<std::pair<std::string, std::string>> extra_files_;  // AddFile
   std::map<int, std::int64_t> skipped_frames_;                    // by engine session
   RunStampClock clock_;

@@ -35,7 +35,7 @@ std::vector<std::unique_ptr<OutputLock>> CheckRunOutputs(const RunOutputs& o) {
   }
   // A commit of this run directory that a killed writer left half done is settled before
   // anything is read: it may have replaced the file --map-in names.
-  if (!o.run_dir.empty()) RecoverInterruptedCommits(o.run_dir);
+  if (!run_dir.empty()) RecoverInterruptedCommits(run_dir);
   return locks;
 }
 

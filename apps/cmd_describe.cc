@@ -72,7 +72,7 @@ void MakeSample(const DescribeArgs& args) {
 // Reads one input and returns the panorama to describe.
 cv::Mat LoadPanorama(const std::string& path, const DescribeArgs& args,
                      std::map<std::pair<int, int>, std::unique_ptr<OmniUnwrapper>>& unwrappers,
-                     const std::optional<OmniCalibration>& calibration) {
+                     const std::optional<CameraCalibration>& calibration) {
   const cv::Mat image = ReadImage(path);
   try {
     if (calibration) {
@@ -111,8 +111,8 @@ void RunDescribe(const DescribeArgs& args) {
   if (!args.config.empty()) options = LoadEngineOptionsYaml(args.config).descriptor;
   if (!args.descriptor.empty()) options.kind = DescriptorKindFromString(args.descriptor);
   const std::unique_ptr<DescriptorExtractor> extractor = MakeDescriptorExtractor(options);
-  std::optional<OmniCalibration> calibration;
-  if (!args.calibration.empty()) calibration = OmniCalibration::FromYamlFile(args.calibration);
+  std::optional<CameraCalibration> calibration;
+  if (!args.calibration.empty()) calibration = CameraCalibration::FromYamlFile(args.calibration);
 
   std::map<std::pair<int, int>, std::unique_ptr<OmniUnwrapper>> unwrappers;
   std::vector<Descriptor> descriptors;
@@ -205,7 +205,7 @@ const CommandRegistration kRegistration{
                       "Engine configuration YAML whose descriptor section sets the descriptor options")
           ->check(CLI::ExistingFile);
       auto* unwrap = cmd->add_option("--unwrap", args->calibration,
-                                     "Unwrap raw ring images with this calibration YAML");
+                                     "Unwrap raw camera images (any camera model) with this calibration YAML");
       auto* autocal = cmd->add_flag("--auto-calibrate", args->auto_calibrate,
                                     "Unwrap raw ring images, estimating each ring's calibration");
       auto* pano =

@@ -71,7 +71,7 @@ void AddImport(CLI::App& app) {
                   "Ground truth (Odometry or PoseStamped, map frame)");
   cmd->add_option(
       "--calibration", o.calibration_yaml,
-      "OmniCalibration YAML of raw ring images (default: automatic from the first frame)");
+      "Camera calibration YAML of raw images, any camera model (default: automatic from the first frame)");
   cmd->add_option("--split-gap", o.split_gap_s,
                   "New session where image stamps jump by more, seconds")
       ->capture_default_str();

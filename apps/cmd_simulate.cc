@@ -1,5 +1,5 @@
 // `omnicml simulate --world NAME|FILE --days N --frames-per-day M --seed S --out DIR
-//   [--panorama] [--preview PNG] [--start known|continue|global] [--step-m D] [--overwrite]
+//   [--panorama] [--camera KIND] [--preview PNG] [--start known|continue|global] [--step-m D] [--overwrite]
 //   [--config SIMULATION.yaml]`
 // `omnicml simulate --change-report --world W --days N --seed S [--layout-intensity X]`
 // prints how much of the panorama differs from day 1 along the route, per day.
@@ -41,6 +41,7 @@ struct SimulateArgs {
   std::uint64_t seed = 1;
   std::string out;
   bool panorama = false;
+  std::string camera = "ring";  // SimulatedCamera name
   std::string preview;
   std::string start = "known";
   double step_m = 0.2;
@@ -145,6 +146,7 @@ SimulatorOptions ResolveOptions(const SimulateArgs& args, const CLI::App& cmd) {
   }
   if (given("--seed")) options.seed = args.seed;
   if (given("--panorama")) options.output = args.panorama ? ImageKind::kPanorama : ImageKind::kRawRing;
+  if (given("--camera")) options.camera = SimulatedCameraFromString(args.camera);
   if (given("--step-m")) options.step_m = args.step_m;
   if (given("--start")) options.later_days_start = SessionStartModeFromString(args.start);
   if (static_cast<std::int64_t>(options.days) * options.frames_per_day > kMaxSimulatedFrames) {
@@ -260,6 +262,11 @@ const CommandRegistration kRegistration{
       cmd->add_option("--seed", args->seed, "Seed of every random stream")->capture_default_str();
       AddOutputDirectory(cmd, "--out", &args->out, "Output log directory");
       cmd->add_flag("--panorama", args->panorama, "Write panoramas instead of raw ring images");
+      cmd->add_option("--camera", args->camera,
+                      "Raw camera: ring | clipped_ring | bright_centre_ring | fisheye (each with "
+                      "its ground-truth calibration in session.yaml)")
+          ->check(CLI::IsMember({"ring", "clipped_ring", "bright_centre_ring", "fisheye"}))
+          ->capture_default_str();
       AddOutputFile(cmd, "--preview", &args->preview,
                       "Write a PNG with the floor plan, route and sample panoramas");
       cmd->add_option("--start", args->start,

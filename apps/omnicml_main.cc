@@ -1,5 +1,7 @@
 // The omnicml command-line tool: parses flags, calls the library, maps errors to exit
 // codes. Subcommands live in apps/cmd_*.cc (see command_registry.h).
+#include <stdlib.h>  // setenv
+
 #include <algorithm>
 #include <exception>
 #include <filesystem>
@@ -28,6 +30,11 @@ std::string FilesystemMessage(const std::filesystem::filesystem_error& e) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  // A video FFmpeg cannot decode is reported as one line naming the file (logs/video.h);
+  // OpenCV's and FFmpeg's own log lines would precede it on stderr. Set either variable
+  // beforehand to see them.
+  ::setenv("OPENCV_FFMPEG_LOGLEVEL", "-8", /*overwrite=*/0);  // AV_LOG_QUIET
+  ::setenv("OPENCV_LOG_LEVEL", "SILENT", /*overwrite=*/0);
   CLI::App app{"omnicml: omniview-based concurrent map building and localization"};
   app.require_subcommand(1);
   app.set_version_flag("--version", "omnicml 0.1.0");

@@ -15,7 +15,9 @@ packages=(build-essential cmake ninja-build pkg-config libeigen3-dev libopencv-d
   # The replay's browser test: headless Chromium driven over the DevTools protocol.
   chromium python3-websocket
   # SHA-256 of the outputs a run directory records; libpng's messages in the one-line error.
-  libssl-dev libpng-dev)
+  libssl-dev libpng-dev
+  # Video frames of logs and `import video`: OpenCV's FFmpeg backend (FFV1, MJPG, H.264 ...).
+  libopencv-videoio-dev)
 # shellcheck source=lib/packages.sh
 source scripts/lib/packages.sh
 install_missing setup "${packages[@]}"

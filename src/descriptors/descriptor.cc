@@ -207,13 +207,10 @@ void CheckValidMask(const cv::Mat& panorama, const cv::Mat& valid_mask) {
 }
 }  // namespace internal
 
-Descriptor DescriptorExtractor::ComputeMasked(const cv::Mat& panorama,
-                                              const cv::Mat& valid_mask) const {
-  if (valid_mask.empty()) return Compute(panorama);
-  if (panorama.empty()) return Compute(panorama);  // Compute reports the empty image
+cv::Mat FillInvalidPixels(const cv::Mat& panorama, const cv::Mat& valid_mask) {
+  if (valid_mask.empty()) return panorama;
   internal::CheckValidMask(panorama, valid_mask);
-  if (cv::countNonZero(valid_mask) == valid_mask.rows * valid_mask.cols) return Compute(panorama);
-  // Fill invalid pixels with the mean of their row's valid pixels.
+  if (cv::countNonZero(valid_mask) == valid_mask.rows * valid_mask.cols) return panorama;
   cv::Mat filled = panorama.clone();
   const cv::Scalar global = cv::mean(panorama, valid_mask);
   for (int r = 0; r < filled.rows; ++r) {
@@ -224,7 +221,13 @@ Descriptor DescriptorExtractor::ComputeMasked(const cv::Mat& panorama,
     cv::Mat invalid = row_mask == 0;
     row.setTo(mean, invalid);
   }
-  return Compute(filled);
+  return filled;
+}
+
+Descriptor DescriptorExtractor::ComputeMasked(const cv::Mat& panorama,
+                                              const cv::Mat& valid_mask) const {
+  if (valid_mask.empty() || panorama.empty()) return Compute(panorama);  // Compute reports
+  return Compute(FillInvalidPixels(panorama, valid_mask));
 }
 
 double DescriptorExtractor::Similarity(double distance, double e_max) {

@@ -105,13 +105,16 @@ cv::Mat FourierSignature::MaskedBandSignals(const cv::Mat& panorama,
   std::vector<std::uint32_t> sums(static_cast<std::size_t>(bands) * w, 0u);
   std::vector<std::uint32_t> counts(sums.size(), 0u);
   for (int b = 0; b < bands; ++b) {
+    std::uint32_t* band_sums = sums.data() + static_cast<std::size_t>(b) * w;
+    std::uint32_t* band_counts = counts.data() + static_cast<std::size_t>(b) * w;
     for (int r = b * height / bands; r < (b + 1) * height / bands; ++r) {
       const std::uint8_t* row = grey.ptr<std::uint8_t>(r);
       const std::uint8_t* m = valid_mask.ptr<std::uint8_t>(r);
+      // Branch-free (vectorises): v = 1 for a valid pixel, 0 for an invalid one.
       for (int c = 0; c < width; ++c) {
-        if (!m[c]) continue;
-        sums[b * w + c] += row[c];
-        counts[b * w + c] += 1;
+        const std::uint32_t v = m[c] != 0;
+        band_sums[c] += row[c] * v;
+        band_counts[c] += v;
       }
     }
   }

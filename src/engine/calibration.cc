@@ -44,7 +44,7 @@ Calibration Calibrate(FrameSource& source, const CmlEngineOptions& options,
   std::unique_ptr<OmniUnwrapper> unwrapper;
   if (session.camera.kind == ImageKind::kRawRing) {
     unwrapper = std::make_unique<OmniUnwrapper>(session.camera.calibration, session.camera.image_width,
-                                                session.camera.image_height);
+                                                session.camera.image_height, session.camera.mask);
   }
   std::vector<Descriptor> y;
   std::vector<double> path_m;  // odometry path length from the first frame
@@ -56,7 +56,9 @@ Calibration Calibrate(FrameSource& source, const CmlEngineOptions& options,
         unwrapper ? PreparePanorama(unwrapper->Unwrap(frame.image), options.panorama_width,
                                     options.panorama_height)
                   : PreparePanorama(frame.image, options.panorama_width, options.panorama_height);
-    y.push_back(extractor->Compute(panorama));
+    // Pixels outside a clipped ring or under the user mask do not count (descriptor.h).
+    y.push_back(extractor->ComputeMasked(
+        panorama, unwrapper ? unwrapper->MaskFor(panorama.cols, panorama.rows) : cv::Mat()));
     const double step = path_m.empty() ? 0.0
                                        : std::hypot(frame.odom_T_robot.x() - last.x(),
                                                     frame.odom_T_robot.y() - last.y());

@@ -25,6 +25,7 @@
 #include "omnicml/common/yaml_io.h"
 #include "omnicml/common/file_io.h"
 #include "omnicml/common/limits.h"
+#include "omnicml/logs/video.h"
 #include "omnicml/unwrap/omni_unwrapper.h"
 
 namespace omnicml {
@@ -505,6 +506,7 @@ bool LogReader::OpenSession() {
   if (session_ >= NumSessions()) return false;
   csv_path_ = (fs::path(session_dirs_[session_]) / "frames.csv").string();
   csv_ = OpenFramesCsv(csv_path_);
+  video_.reset();
   line_number_ = 1;
   index_in_session_ = 0;
   have_last_stamp_ = false;
@@ -599,19 +601,29 @@ void LogReader::ParseRow(const std::string& line, Frame* frame) {
 
   cv::Mat image;
   if (options_.load_images) {
+    const std::optional<VideoFrameRef> video_frame = ParseVideoFrameRef(image_name);
+    const std::string& file_name = video_frame ? video_frame->file : image_name;
     const LogReaderRoot* root = session_roots_[session_].get();
-    if (root != nullptr && !ImageInsideLog(image_name, *root)) {
+    if (root != nullptr && !ImageInsideLog(file_name, *root)) {
       // The same words whether or not the outside path exists.
       fail(StrCat("image '", Excerpt(image_name), "' lies outside the log directory '",
                   root->lexical_root.string(),
                   "' (an absolute path, '..' or a symbolic link leading out); images outside "
                   "the log are read only with --allow-images-outside-log"));
     }
-    const std::string path = (fs::path(session_dirs_[session_]) / image_name).string();
+    const std::string path = (fs::path(session_dirs_[session_]) / file_name).string();
     try {
-      image = ReadImage(path);
+      if (video_frame) {
+        if (video_ == nullptr || video_->path() != path) {
+          video_.reset();
+          video_ = std::make_unique<VideoReader>(path);
+        }
+        image = video_->Read(video_frame->index);
+      } else {
+        image = ReadImage(path);
+      }
     } catch (const Error& e) {
-      fail(e.what());  // ReadImage names the file
+      fail(e.what());  // ReadImage and VideoReader name the file
     }
     const CameraModel& camera = sessions_[session_].camera;
     if (image.cols != camera.image_width || image.rows != camera.image_height) {
@@ -734,9 +746,10 @@ void LogWriter::BeginSession(const SessionInfo& info) {
   session_ = info;
   frames_in_session_ = 0;
   session_channels_ = 0;
+  session_videos_.clear();
 }
 
-void LogWriter::Write(const Frame& frame) {
+void LogWriter::CheckRow(const Frame& frame) const {
   if (finished_) throw Error("LogWriter: Write after Finish");
   if (csv_ == nullptr) throw Error("LogWriter: Write before BeginSession");
   const auto fail = [&](const std::string& what) {
@@ -750,6 +763,32 @@ void LogWriter::Write(const Frame& frame) {
   if (!frame.odom_T_robot.allFinite()) fail("odom_T_robot is not finite");
   if (frame.map_T_robot_truth && !frame.map_T_robot_truth->allFinite())
     fail("map_T_robot_truth is not finite");
+}
+
+void LogWriter::AppendRow(const Frame& frame, const std::string& image_column) {
+  std::ostream& csv = csv_->stream();
+  const Pose2& o = frame.odom_T_robot;
+  csv << FormatRoundTrip(frame.stamp_s) << ',' << image_column << ',' << FormatRoundTrip(o.x())
+      << ',' << FormatRoundTrip(o.y()) << ',' << FormatRoundTrip(WrapAngle(o.z())) << ',';
+  if (frame.map_T_robot_truth) {
+    const Pose2& t = *frame.map_T_robot_truth;
+    csv << FormatRoundTrip(t.x()) << ',' << FormatRoundTrip(t.y()) << ','
+        << FormatRoundTrip(WrapAngle(t.z()));
+  } else {
+    csv << ",,";
+  }
+  csv << '\n';
+  if (!csv) throw Error(StrCat(session_dir_, "/frames.csv: write error"));
+  last_stamp_s_ = frame.stamp_s;
+  ++frames_in_session_;
+}
+
+void LogWriter::Write(const Frame& frame) {
+  CheckRow(frame);
+  const auto fail = [&](const std::string& what) {
+    throw Error(
+        StrCat("LogWriter: session '", session_.name, "' frame ", frames_in_session_, ": ", what));
+  };
   const cv::Mat& image = frame.image;
   if (image.empty()) fail("empty image");
   if (image.type() != CV_8UC1 && image.type() != CV_8UC3) fail("image is not CV_8UC1 or CV_8UC3");
@@ -780,23 +819,42 @@ void LogWriter::Write(const Frame& frame) {
   }
   if (!encoded) throw Error(StrCat(path, ": cannot encode image"));
   WriteFileAtomic(path, png, FileSync::kDeferred);
-  std::ostream& csv = csv_->stream();
-
-  const Pose2& o = frame.odom_T_robot;
-  csv << FormatRoundTrip(frame.stamp_s) << ',' << name << ',' << FormatRoundTrip(o.x()) << ','
-       << FormatRoundTrip(o.y()) << ',' << FormatRoundTrip(WrapAngle(o.z())) << ',';
-  if (frame.map_T_robot_truth) {
-    const Pose2& t = *frame.map_T_robot_truth;
-    csv << FormatRoundTrip(t.x()) << ',' << FormatRoundTrip(t.y()) << ','
-         << FormatRoundTrip(WrapAngle(t.z()));
-  } else {
-    csv << ",,";
-  }
-  csv << '\n';
-  if (!csv) throw Error(StrCat(session_dir_, "/frames.csv: write error"));
+  AppendRow(frame, name);
   if (session_channels_ == 0) session_channels_ = image.channels();
-  last_stamp_s_ = frame.stamp_s;
-  ++frames_in_session_;
+}
+
+std::string LogWriter::AddSessionVideo(const std::string& video_path) {
+  if (finished_) throw Error("LogWriter: AddSessionVideo after Finish");
+  if (csv_ == nullptr) throw Error("LogWriter: AddSessionVideo before BeginSession");
+  const std::string name = fs::path(video_path).filename().string();
+  if (name.empty() || name[0] == '.' || !IsVideoFileName(name) ||
+      name.find('#') != std::string::npos) {
+    throw Error(StrCat(video_path, ": not a video file name (.avi, .mkv, .mp4, .mov or .webm, "
+                                   "without '#' and not starting with '.')"));
+  }
+  CheckRegularFile(video_path, "video file");
+  const fs::path target = fs::path(session_dir_) / name;
+  std::error_code ec;
+  if (fs::exists(target, ec)) throw Error(StrCat(target.string(), ": exists already"));
+  // A hard link costs nothing and the staging directory's removal on failure leaves the
+  // original alone; across file systems the video is copied.
+  fs::create_hard_link(video_path, target, ec);
+  if (ec) {
+    ec.clear();
+    fs::copy_file(video_path, target, ec);
+    if (ec) throw Error(StrCat(video_path, ": cannot copy into the log: ", ec.message()));
+  }
+  session_videos_.push_back(name);
+  return name;
+}
+
+void LogWriter::WriteVideoFrame(const Frame& frame, const VideoFrameRef& ref) {
+  CheckRow(frame);
+  if (std::find(session_videos_.begin(), session_videos_.end(), ref.file) == session_videos_.end())
+    throw Error(StrCat("LogWriter: session '", session_.name, "': video '", ref.file,
+                       "' was not added to the session (AddSessionVideo)"));
+  if (ref.index < 0) throw Error(StrCat("LogWriter: negative video frame index ", ref.index));
+  AppendRow(frame, FormatVideoFrameRef(ref));
 }
 
 void LogWriter::AddFile(const std::string& file_name, const std::string& contents) {

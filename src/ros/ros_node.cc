@@ -77,7 +77,7 @@ SessionInfo SessionTemplate(const RosNodeParameters& p, const std::string& mode,
   info.day_label = StrCat("live session ", number);
   if (!p.calibration.empty()) {
     info.camera.kind = ImageKind::kRawRing;
-    info.camera.calibration = OmniCalibration::FromYamlFile(p.calibration);
+    info.camera.calibration = CameraCalibration::FromYamlFile(p.calibration);
   }
   info.start.mode = SessionStartModeFromString(mode);
   info.start.map_T_robot = MakePose(p.start_pose[0], p.start_pose[1], p.start_pose[2]);

@@ -335,7 +335,7 @@ SessionInfo AutomaticSession(const cv::Mat& image, const std::string& name, int 
   info.camera.image_height = image.rows;
   if (!o.calibration_yaml.empty()) {
     info.camera.kind = ImageKind::kRawRing;
-    info.camera.calibration = OmniCalibration::FromYamlFile(o.calibration_yaml);
+    info.camera.calibration = CameraCalibration::FromYamlFile(o.calibration_yaml);
   } else if (image.cols >= 2 * image.rows) {
     info.camera.kind = ImageKind::kPanorama;
   } else {

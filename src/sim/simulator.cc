@@ -160,6 +160,7 @@ struct SimulatedFrameSource::Impl {
   World world;
   RoutePath route;
   Renderer renderer;
+  std::unique_ptr<RawCameraRenderer> raw_camera;  // raw images of a kind other than kRing
   std::vector<SessionInfo> sessions;
   std::vector<double> day_start_s;  // arc length of each day's first frame
 
@@ -179,6 +180,8 @@ struct SimulatedFrameSource::Impl {
         world(w),
         route(w.route.waypoints_m, w.route.turn_radius_m),
         renderer(w, o.seed) {
+    if (options.output == ImageKind::kRawRing && options.camera != SimulatedCamera::kRing)
+      raw_camera = std::make_unique<RawCameraRenderer>(world, options.camera);
     for (int d = 1; d <= options.days; ++d) {
       double s0 = 0;
       SessionStartMode mode = d == 1 ? SessionStartMode::kKnownPose : options.later_days_start;
@@ -205,6 +208,12 @@ struct SimulatedFrameSource::Impl {
         info.camera.image_height = world.camera.panorama_height_px;
       }
       info.camera.calibration = SimulatedCalibration(world.camera);
+      if (raw_camera != nullptr) {
+        const RawCameraSetup& setup = raw_camera->setup();
+        info.camera.image_width = setup.image_width;
+        info.camera.image_height = setup.image_height;
+        info.camera.calibration = setup.calibration;
+      }
       info.start.mode = mode;
       info.start.map_T_robot = route.PoseAt(s0);
       const double sxy = options.start_sigma_xy_m, sphi = options.start_sigma_phi_rad;
@@ -224,11 +233,16 @@ struct SimulatedFrameSource::Impl {
     return Eigen::Vector2d(-1, -1);  // none found
   }
 
+  void SetRendererState() {
+    renderer.SetState(state);
+    if (raw_camera != nullptr) raw_camera->SetState(state);
+  }
+
   void StartDay(int d) {
     day = d;
     frame_in_day = -1;
     state = StateAtDayStart(world, d, options.seed);
-    renderer.SetState(state);
+    SetRendererState();
     people.clear();
     people_rng.seed(MixSeed(MixSeed(options.seed, kPeopleDomain), static_cast<std::uint64_t>(d)));
     if (options.people) {
@@ -293,7 +307,7 @@ struct SimulatedFrameSource::Impl {
     } else {
       ++frame_in_day;
       if (ApplyStepEvents(world, day, frame_in_day, options.seed, &state).any())
-        renderer.SetState(state);
+        SetRendererState();
       MovePeople();
       const Pose2 next_truth =
           route.PoseAt(day_start_s[day - 1] + static_cast<double>(frame_in_day) * options.step_m);
@@ -311,8 +325,9 @@ struct SimulatedFrameSource::Impl {
     frame->map_T_robot_truth = truth;
     if (options.render_images) {
       renderer.RenderPanorama(truth, people_now, &panorama);
-      cv::Mat image =
-          options.output == ImageKind::kRawRing ? renderer.RenderRing(panorama) : panorama.clone();
+      cv::Mat image = options.output == ImageKind::kPanorama ? panorama.clone()
+                      : raw_camera != nullptr ? raw_camera->Render(panorama, truth, people_now)
+                                              : renderer.RenderRing(panorama);
       if (options.sensor_noise) {
         renderer.AddSensorNoise(
             &image, MixSeed(MixSeed(options.seed, kSensorDomain), FrameKey(day, frame_in_day)));

@@ -6,21 +6,18 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
-#include <set>
 #include <string_view>
 #include <system_error>
 #include <vector>
 
 #include <unistd.h>
 
-#include <yaml-cpp/yaml.h>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "unwrap/internal/png_decode.h"
 #include "omnicml/common/binary_io.h"
 #include "omnicml/common/common.h"
-#include "omnicml/common/yaml_io.h"
 #include "omnicml/common/file_io.h"
 #include "omnicml/common/limits.h"
 
@@ -189,76 +186,6 @@ std::pair<std::uint64_t, std::uint64_t> DeclaredImageSize(const std::vector<std:
   return {0, 0};
 }
 
-const std::set<std::string>& CalibrationKeys() {
-  static const std::set<std::string> keys = {
-      "center_x_px", "center_y_px", "inner_radius_px", "outer_radius_px", "azimuth0_rad",
-      "direction",   "elevation",   "panorama_width",  "panorama_height"};
-  return keys;
-}
-
-std::string Where(const std::string& path, const YAML::Node& node) {
-  const YAML::Mark mark = node.Mark();
-  if (mark.line >= 0) return StrCat(path, ":", mark.line + 1);
-  return path;
-}
-
-template <typename T>
-T YamlScalar(const std::string& path, const YAML::Node& node, const std::string& key,
-             const char* kind) {
-  if (!node.IsScalar()) throw Error(StrCat(Where(path, node), ": '", key, "' must be ", kind));
-  try {
-    return node.as<T>();
-  } catch (const YAML::Exception&) {
-    throw Error(StrCat(Where(path, node), ": '", key, "': '", node.Scalar(), "' is not ", kind));
-  }
-}
-
-// Reads the OmniCalibration keys of a YAML map into `c` (unknown key: Error naming it).
-void ParseCalibrationMap(const std::string& path, const YAML::Node& root, OmniCalibration& c) {
-  for (const auto& entry : root) {
-    if (!entry.first.IsScalar())
-      throw Error(StrCat(Where(path, entry.first), ": calibration keys must be names"));
-    const std::string key = entry.first.Scalar();
-    const YAML::Node& value = entry.second;
-    if (!CalibrationKeys().count(key)) {
-      throw Error(
-          StrCat(Where(path, entry.first), ": unknown key '", key, "' in calibration file"));
-    }
-    if (key == "center_x_px") c.center_x_px = YamlScalar<double>(path, value, key, "a number");
-    if (key == "center_y_px") c.center_y_px = YamlScalar<double>(path, value, key, "a number");
-    if (key == "inner_radius_px")
-      c.inner_radius_px = YamlScalar<double>(path, value, key, "a number");
-    if (key == "outer_radius_px")
-      c.outer_radius_px = YamlScalar<double>(path, value, key, "a number");
-    if (key == "azimuth0_rad") c.azimuth0_rad = YamlScalar<double>(path, value, key, "a number");
-    if (key == "panorama_width") c.panorama_width = YamlScalar<int>(path, value, key, "an integer");
-    if (key == "panorama_height")
-      c.panorama_height = YamlScalar<int>(path, value, key, "an integer");
-    if (key == "direction") {
-      const std::string d = YamlScalar<std::string>(path, value, key, "a string");
-      if (d == "counter_clockwise") {
-        c.direction = RingDirection::kCounterClockwise;
-      } else if (d == "clockwise") {
-        c.direction = RingDirection::kClockwise;
-      } else {
-        throw Error(StrCat(Where(path, value), ": direction '", d,
-                           "' is not counter_clockwise or clockwise"));
-      }
-    }
-    if (key == "elevation") {
-      const std::string e = YamlScalar<std::string>(path, value, key, "a string");
-      if (e == "linear") {
-        c.elevation = ElevationMapping::kLinear;
-      } else if (e == "linear_inverted") {
-        c.elevation = ElevationMapping::kLinearInverted;
-      } else {
-        throw Error(
-            StrCat(Where(path, value), ": elevation '", e, "' is not linear or linear_inverted"));
-      }
-    }
-  }
-}
-
 }  // namespace
 
 // ---------------------------------------------------------------------------------------
@@ -294,51 +221,18 @@ void OmniCalibration::ValidateFor(int image_width, int image_height) const {
 }
 
 OmniCalibration OmniCalibration::FromYamlFile(const std::string& path) {
-  // A regular file of at most kMaxTextFileBytes ("does not exist", "not a regular file").
-  const std::string text = ReadTextFile(path, kMaxTextFileBytes, "calibration file");
-  YAML::Node root;
-  try {
-    root = LoadYaml(text, path);
-  } catch (const YAML::ParserException& e) {
-    throw Error(StrCat(path, ":", e.mark.line + 1, ": YAML syntax error: ", e.msg));
-  } catch (const YAML::Exception& e) {
-    throw Error(StrCat("cannot read calibration file '", path, "': ", e.what()));
+  // One parser for every camera model (CameraCalibration::FromYamlFile); this one only
+  // insists on the ring.
+  const CameraCalibration c = CameraCalibration::FromYamlFile(path);
+  if (c.model != CameraModelType::kRing) {
+    throw Error(StrCat(path, ": model ", ToString(c.model), " is not omni_ring"));
   }
-  if (!root.IsMap())
-    throw Error(StrCat(path, ": calibration must be a YAML map of the OmniCalibration keys"));
-  OmniCalibration c;
-  try {
-    ParseCalibrationMap(path, root, c);
-  } catch (const YAML::Exception& e) {
-    throw Error(StrCat(path, ":", e.mark.line + 1, ": bad calibration entry: ", e.msg));
-  }
-  try {
-    c.Validate();
-  } catch (const Error& e) {
-    throw Error(StrCat(path, ": ", e.what()));
-  }
-  return c;
+  return c.ring;
 }
 
 void OmniCalibration::ToYamlFile(const std::string& path) const {
   Validate();
-  YAML::Emitter out;
-  out.SetDoublePrecision(17);
-  out << YAML::BeginMap;
-  out << YAML::Key << "center_x_px" << YAML::Value << center_x_px;
-  out << YAML::Key << "center_y_px" << YAML::Value << center_y_px;
-  out << YAML::Key << "inner_radius_px" << YAML::Value << inner_radius_px;
-  out << YAML::Key << "outer_radius_px" << YAML::Value << outer_radius_px;
-  out << YAML::Key << "azimuth0_rad" << YAML::Value << azimuth0_rad;
-  out << YAML::Key << "direction" << YAML::Value
-      << (direction == RingDirection::kCounterClockwise ? "counter_clockwise" : "clockwise");
-  out << YAML::Key << "elevation" << YAML::Value
-      << (elevation == ElevationMapping::kLinear ? "linear" : "linear_inverted");
-  out << YAML::Key << "panorama_width" << YAML::Value << panorama_width;
-  out << YAML::Key << "panorama_height" << YAML::Value << panorama_height;
-  out << YAML::EndMap;
-
-  WriteFileAtomic(path, StrCat(out.c_str(), "\n"));
+  WriteFileAtomic(path, CameraCalibration(*this).YamlFields(""));
 }
 
 // ---------------------------------------------------------------------------------------
@@ -375,9 +269,16 @@ OmniUnwrapper::OmniUnwrapper(const CameraCalibration& calibration, int image_wid
       bool ok = equirect || (p.x >= -0.5 && p.x <= image_width - 0.5 && p.y >= -0.5 &&
                              p.y <= image_height - 0.5);
       if (ok && !user_mask.empty()) {
-        const int xi = std::clamp(static_cast<int>(std::lround(p.x)), 0, image_width - 1);
-        const int yi = std::clamp(static_cast<int>(std::lround(p.y)), 0, image_height - 1);
-        ok = user_mask.at<std::uint8_t>(yi, xi) != 0;
+        // Every pixel the bilinear sample reads must be unmasked, so masked pixels have
+        // no influence at all on the valid panorama pixels.
+        const int x0 = static_cast<int>(std::floor(p.x)), y0 = static_cast<int>(std::floor(p.y));
+        for (int dy = 0; dy < 2 && ok; ++dy) {
+          for (int dx = 0; dx < 2 && ok; ++dx) {
+            const int xi = std::clamp(x0 + dx, 0, image_width - 1);
+            const int yi = std::clamp(y0 + dy, 0, image_height - 1);
+            ok = user_mask.at<std::uint8_t>(yi, xi) != 0;
+          }
+        }
       }
       v[c] = ok ? 255 : 0;
       valid += ok ? 1 : 0;
@@ -482,6 +383,13 @@ OmniUnwrapper::OmniUnwrapper(const CameraCalibration& calibration, int image_wid
 }
 
 cv::Mat OmniUnwrapper::Unwrap(const cv::Mat& raw) const {
+  cv::Mat panorama;
+  Unwrap(raw, &panorama);
+  return panorama;
+}
+
+void OmniUnwrapper::Unwrap(const cv::Mat& raw, cv::Mat* panorama) const {
+  OMNICML_CHECK(panorama != nullptr);
   if (raw.empty()) throw Error("Unwrap: the raw image is empty");
   if (raw.cols != image_width_ || raw.rows != image_height_) {
     throw Error(StrCat("Unwrap: raw image is ", raw.cols, "x", raw.rows,
@@ -491,9 +399,7 @@ cv::Mat OmniUnwrapper::Unwrap(const cv::Mat& raw) const {
     throw Error(StrCat("Unwrap: unsupported raw image type (", TypeName(raw),
                        "); expected 8-bit grey or BGR"));
   }
-  cv::Mat panorama;
-  cv::remap(raw, panorama, map_x_, map_y_, cv::INTER_LINEAR, border_mode_);
-  return panorama;
+  cv::remap(raw, *panorama, map_x_, map_y_, cv::INTER_LINEAR, border_mode_);
 }
 
 cv::Mat OmniUnwrapper::Render(const cv::Mat& panorama, const cv::Scalar& background) const {
@@ -530,6 +436,11 @@ cv::Mat PreparePanorama(const cv::Mat& panorama, int width, int height) {
   if (width == 0 || height == 0 || (width == panorama.cols && height == panorama.rows))
     return panorama;
   return ResizePanorama(panorama, cv::Size(width, height));
+}
+
+cv::Mat OmniUnwrapper::MaskFor(int width, int height) const {
+  if (valid_fraction_ >= 1.0) return cv::Mat();
+  return PrepareMask(valid_mask_, width, height);
 }
 
 cv::Mat PrepareMask(const cv::Mat& valid_mask, int width, int height) {

@@ -4,14 +4,22 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
+#include <filesystem>
+#include <optional>
+#include <string>
 #include <vector>
 
 #include <Eigen/Geometry>
 #include <gtest/gtest.h>
+#include <opencv2/videoio.hpp>
 
 #include "omnicml/engine/cml_engine.h"
 #include "omnicml/common/common.h"
+#include "omnicml/engine/calibration.h"
+#include "omnicml/logs/log_format.h"
+#include "omnicml/logs/video.h"
 #include "omnicml/sim/simulator.h"
+#include "testing/masked_ring_source.h"
 
 namespace omnicml {
 namespace {
@@ -193,6 +201,97 @@ TEST(EndToEnd, GlobalStartOnDayTwoFindsRobot) {
   // (the store is 25 m x 10 m).
   EXPECT_LT(day2, 1.5 * day1 + 0.5);
   EXPECT_LT(day2, 2.5);
+}
+
+// `omnicml calibrate` honours the session's user mask: noise under the mask leaves the
+// descriptor-distance curve and the derived scale unchanged; undeclared, it changes them.
+TEST(Calibrate, MaskedPixelsDoNotChangeTheCalibration) {
+  SimulatorOptions so;
+  so.world = "home_store";
+  so.days = 1;
+  so.frames_per_day = 40;
+  so.seed = 3;
+  so.people = false;
+  CalibrationOptions co;
+  co.max_frames = 40;
+  const auto calibrate = [&](bool declare_mask, bool scramble) {
+    testing::MaskedRingSource source(so, declare_mask, scramble);
+    return Calibrate(source, CmlEngineOptions{}, co);
+  };
+  const Calibration clean = calibrate(true, false), scrambled = calibrate(true, true);
+  ASSERT_EQ(clean.curve.size(), scrambled.curve.size());
+  ASSERT_FALSE(clean.curve.empty());
+  for (std::size_t i = 0; i < clean.curve.size(); ++i)
+    EXPECT_EQ(clean.curve[i].median_distance, scrambled.curve[i].median_distance) << "lag " << i;
+  EXPECT_EQ(clean.match_length_m, scrambled.match_length_m);
+  EXPECT_NE(calibrate(false, false).curve[0].median_distance,
+            calibrate(false, true).curve[0].median_distance);
+}
+
+// Per-frame point estimates (or nullopt) of a run over the log at `dir`.
+std::vector<std::optional<Pose2>> RunLog(const std::string& dir) {
+  LogReader reader(dir);
+  CmlEngine engine(CmlEngineOptions{});
+  std::vector<std::optional<Pose2>> out;
+  Frame frame;
+  int session = -1;
+  while (reader.Next(&frame)) {
+    if (frame.session_index != session) {
+      session = frame.session_index;
+      engine.BeginSession(reader.Session(session));
+    }
+    const FrameResult r = engine.ProcessFrame(frame);
+    out.push_back(r.estimate ? std::optional<Pose2>(PointEstimate(*r.estimate)) : std::nullopt);
+  }
+  engine.Finish();
+  return out;
+}
+
+// A run whose frames come from a video (40 of the simulator's raw rings through
+// cv::VideoWriter, lossless FFV1) gives the same estimate on every frame as the run from
+// the PNG log.
+TEST(EndToEnd, RunFromVideoMatchesRunFromPngLog) {
+  namespace fs = std::filesystem;
+  const fs::path root = fs::path(::testing::TempDir()) / StrCat("omnicml_video_run_", ::getpid());
+  fs::remove_all(root);
+  fs::create_directories(root);
+  SimulatorOptions sim;
+  sim.world = "home_store";
+  sim.days = 1;
+  sim.frames_per_day = 40;
+  sim.seed = 4;
+  sim.output = ImageKind::kRawRing;
+  const std::string png_log = (root / "png").string(), video_log = (root / "video").string();
+  const std::string video = (root / "day.avi").string();
+  {
+    SimulatedFrameSource source(sim);
+    LogWriter png(png_log);
+    std::vector<Frame> frames;
+    WriteFrames(source, png, [&](const Frame& f) { frames.push_back(f); });
+    png.Finish();
+    cv::VideoWriter writer(video, cv::CAP_FFMPEG, cv::VideoWriter::fourcc('F', 'F', 'V', '1'),
+                           10.0, frames.front().image.size(), true);
+    ASSERT_TRUE(writer.isOpened()) << "FFV1 encoder unavailable";
+    for (const Frame& f : frames) writer.write(f.image);
+    writer.release();
+    LogWriter log(video_log);
+    log.BeginSession(source.Session(0));
+    const std::string name = log.AddSessionVideo(video);
+    for (const Frame& f : frames) log.WriteVideoFrame(f, VideoFrameRef{name, f.index_in_session});
+    log.Finish();
+  }
+  const auto from_png = RunLog(png_log), from_video = RunLog(video_log);
+  ASSERT_EQ(from_png.size(), 40u);
+  ASSERT_EQ(from_video.size(), from_png.size());
+  int estimated = 0;
+  for (std::size_t i = 0; i < from_png.size(); ++i) {
+    ASSERT_EQ(from_png[i].has_value(), from_video[i].has_value()) << "frame " << i;
+    if (!from_png[i]) continue;
+    ++estimated;
+    EXPECT_EQ(*from_png[i], *from_video[i]) << "frame " << i;
+  }
+  EXPECT_GT(estimated, 30);
+  fs::remove_all(root);
 }
 
 }  // namespace

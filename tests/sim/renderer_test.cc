@@ -9,6 +9,7 @@
 #include <opencv2/core.hpp>
 
 #include "omnicml/common/common.h"
+#include "omnicml/sim/raw_camera.h"
 #include "omnicml/sim/world.h"
 
 namespace omnicml {
@@ -129,6 +130,50 @@ TEST(Renderer, RingUnwrapsToPanorama) {
   }
   RecordProperty("worst_mean_abs_error", std::to_string(worst));
   EXPECT_LT(worst, 4.0);
+}
+
+// Every simulated raw camera, unwrapped with its ground-truth calibration, gives back the
+// rendered panorama up to resampling (over its valid pixels: the clipped ring loses its
+// top and bottom), and the image has the kind's shape.
+TEST(RawCamera, GroundTruthUnwrapsToThePanorama) {
+  const World world = LoadBuiltinWorld("institute");
+  Renderer renderer(world);
+  for (SimulatedCamera kind : {SimulatedCamera::kRing, SimulatedCamera::kClippedRing,
+                               SimulatedCamera::kBrightCentreRing, SimulatedCamera::kFisheye}) {
+    RawCameraRenderer camera(world, kind);
+    camera.SetState(renderer.state());
+    const RawCameraSetup& setup = camera.setup();
+    EXPECT_EQ(SimulatedCameraFromString(ToString(kind)), kind);
+    const OmniUnwrapper unwrapper(setup.calibration, setup.image_width, setup.image_height);
+    double worst = 0;
+    for (const Pose2& pose : {MakePose(4.6, 3.0, 1.2), MakePose(5.4, 12.0, 2.9)}) {
+      const cv::Mat pano = renderer.RenderPanorama(pose);
+      const cv::Mat raw = camera.Render(pano, pose, {});
+      ASSERT_EQ(raw.cols, setup.image_width);
+      ASSERT_EQ(raw.rows, setup.image_height);
+      const cv::Mat back = unwrapper.Unwrap(raw);
+      ASSERT_EQ(back.size(), pano.size());
+      cv::Mat diff;
+      cv::absdiff(back, pano, diff);
+      const cv::Scalar mean = cv::mean(diff, unwrapper.valid_mask());
+      worst = std::max(worst, (mean[0] + mean[1] + mean[2]) / 3.0);
+    }
+    EXPECT_LT(worst, 6.0) << ToString(kind);
+    if (kind == SimulatedCamera::kClippedRing) {
+      EXPECT_LT(unwrapper.valid_fraction(), 0.99);  // the outermost rows leave the image
+    } else {
+      EXPECT_EQ(unwrapper.valid_fraction(), 1.0) << ToString(kind);
+    }
+    if (kind == SimulatedCamera::kBrightCentreRing) {
+      const OmniCalibration& r = setup.calibration.ring;
+      const cv::Mat raw = camera.Render(renderer.RenderPanorama(MakePose(4.6, 3.0, 1.2)),
+                                        MakePose(4.6, 3.0, 1.2), {});
+      const cv::Vec3b body = raw.at<cv::Vec3b>(static_cast<int>(std::lround(r.center_y_px)),
+                                               static_cast<int>(std::lround(r.center_x_px + 0.6 * r.inner_radius_px)));
+      EXPECT_GT(body[0], 180) << "the hole shows the robot's bright body";
+    }
+  }
+  EXPECT_THROW(SimulatedCameraFromString("pinhole"), Error);
 }
 
 // Switching off the lights of room A changes panoramas taken in room A, but not a single

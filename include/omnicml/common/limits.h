@@ -42,6 +42,10 @@ inline constexpr double kMaxHeadingVarianceRad2 = 100.0;
 // Jobs of one sweep (`omnicml sweep`: inputs x seeds x option values), checked before
 // anything is expanded or written.
 inline constexpr std::int64_t kMaxSweepJobs = 10'000;
+// Frames a video file may declare (logs' video frames, `import video`): 100 million is
+// five weeks at 30 frames/s; a larger count in a container header is a damaged or hostile
+// file, refused before any frame is decoded.
+inline constexpr std::int64_t kMaxVideoFrames = 100'000'000;
 // Pixels of one panorama side (width or height) in logs, calibrations and options: far
 // beyond any camera, small enough that a panorama's buffers fit in memory.
 inline constexpr int kMaxPanoramaSidePx = 16'384;

@@ -116,6 +116,14 @@ class DescriptorExtractor {
   virtual std::size_t FeatureSize() const = 0;
 };
 
+// The panorama with each invalid pixel (0 in `valid_mask`, CV_8UC1 of the panorama's size)
+// replaced by the mean of the valid pixels of its row, or of the whole panorama when the
+// row has none: masked areas then carry no structure of their own, and whatever they held
+// has no influence on the result. Returns the panorama itself (not a copy) when the mask is
+// empty or all valid. Throws omnicml::Error when the mask has the wrong size/type or no
+// valid pixel. What DescriptorExtractor::ComputeMasked does by default.
+cv::Mat FillInvalidPixels(const cv::Mat& panorama, const cv::Mat& valid_mask);
+
 // Rolls a panorama by k columns (any integer, negative allowed):
 //   out[c] = in[(c + k) mod W],
 // i.e. the view after a counter-clockwise turn by k * 2 pi / W (omni_unwrapper.h).

@@ -6,6 +6,7 @@
 //     <session>/session.yaml   format_version: 1, day_label, start_time_s, camera, start
 //     <session>/frames.csv stamp_s,image,odom_x_m,odom_y_m,odom_phi_rad,gt_x_m,gt_y_m,gt_phi_rad
 //     <session>/000000.png     images, named in frames.csv relative to the session directory
+//                              (or frames of a video: `<video>#<index>`, logs/video.h)
 //
 // Images stay inside the log: a name in frames.csv that is absolute, climbs out with
 // "..", or leads out through a symbolic link is refused (the log directory given to the
@@ -35,6 +36,10 @@
 // truth for that frame) or all numbers. Numbers are written in the shortest form that
 // round-trips (std::to_chars), so writing the same data twice gives byte-identical files
 // and reading them back gives bit-identical doubles. Unknown YAML keys are errors.
+//
+// The image column may name a frame of a video file instead (`day1.avi#17`, video.h):
+// such frames are decoded in order with the video kept open (a seek only on a jump) and
+// are 8-bit BGR; a reference past the video's end is an error naming the row.
 //
 // Errors: every problem in the input is an omnicml::Error whose message starts with
 // "<file>:<line>: " (the file is the full path of the session.yaml or frames.csv; for a
@@ -96,6 +101,9 @@ struct LogReaderRoot;  // where a session's images may lie (log_format.cc)
 // log. Frame::index_in_session and Frame::global_index count delivered frames. Images
 // are CV_8UC1 or CV_8UC3 (BGR); within a session all images share one channel count
 // (that of its first image). Not thread-safe: one consumer.
+class VideoReader;
+struct VideoFrameRef;
+
 class LogReader : public FrameSource {
  public:
   // log_dir: a multi-day log (a directory whose sub-directories are sessions, taken in
@@ -147,6 +155,8 @@ class LogReader : public FrameSource {
   double last_stamp_s_ = 0.0;
   bool have_last_stamp_ = false;
   int session_channels_ = 0;  // channel count of the session's first image
+  // The video of the last video frame read (one open at a time; closed between sessions).
+  std::unique_ptr<VideoReader> video_;
   std::int64_t num_skipped_ = 0;
   std::vector<std::int64_t> skipped_per_session_;
   std::vector<std::string> skipped_messages_;
@@ -205,6 +215,15 @@ class LogWriter {
   // CV_8UC1/CV_8UC3, of another size than the session's camera or of another channel
   // count than the session's first image.
   void Write(const Frame& frame);
+  // Places the video file at `video_path` in the current session directory under its file
+  // name (hard-linked when the file system allows, else copied) and returns that name.
+  // Throws omnicml::Error if no session was begun, the name is not a video file name
+  // (video.h), the session already holds a file of that name, or the file cannot be read.
+  std::string AddSessionVideo(const std::string& video_path);
+  // Appends a frame whose image is frame ref.index of a video placed by AddSessionVideo in
+  // this session (frame.image is ignored; the index is not checked against the video).
+  // Throws omnicml::Error as Write for the stamp and poses, or when ref.file was not added.
+  void WriteVideoFrame(const Frame& frame, const VideoFrameRef& ref);
   // Writes an extra file at the top of the log (e.g. the world or run configuration that
   // produced it); readers ignore plain files there. `file_name` must be a plain name (no
   // '/', not starting with '.'). May be called at any time before Finish(). Throws
@@ -218,6 +237,10 @@ class LogWriter {
 
  private:
   void CloseSession();
+  // Checks the stamp and poses of a frame (Write, WriteVideoFrame); throws via `fail`.
+  void CheckRow(const Frame& frame) const;
+  // Appends the frames.csv row of `frame` with `image_column`.
+  void AppendRow(const Frame& frame, const std::string& image_column);
 
   std::string log_dir_;
   std::string partial_dir_;
@@ -232,6 +255,7 @@ class LogWriter {
   std::int64_t frames_in_session_ = 0;
   double last_stamp_s_ = 0.0;
   int session_channels_ = 0;
+  std::vector<std::string> session_videos_;  // added to the open session
 };
 
 // Copies every frame of `source` into `writer`: BeginSession(source.Session(k)) where a new

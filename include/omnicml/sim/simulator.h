@@ -33,6 +33,7 @@
 #include "omnicml/logs/antworld.h"
 #include "omnicml/sensor/frame.h"
 #include "omnicml/geometry/pose.h"
+#include "omnicml/sim/raw_camera.h"
 #include "omnicml/sim/renderer.h"
 #include "omnicml/tracking/tracker.h"
 #include "omnicml/sim/world.h"
@@ -51,6 +52,10 @@ struct SimulatorOptions {
   // kRawRing: ring images through the unwrapper's inverse model; kPanorama: the
   // panorama itself (no unwrapping needed downstream).
   ImageKind output = ImageKind::kRawRing;
+  // Which raw camera renders the kRawRing images (raw_camera.h): today's ring, a clipped
+  // ring, a ring around the robot's bright body, or an upward fisheye; each session's
+  // camera carries the kind's ground-truth calibration.
+  SimulatedCamera camera = SimulatedCamera::kRing;
   // Distance driven between consecutive frames, metres (> 0).
   double step_m = 0.2;
   // How days after the first start (day 1 always starts at the known route start).
@@ -81,6 +86,9 @@ void VisitFields(V& v, SimulatorOptions& o) {
   v("seed", o.seed);
   v.NamedEnum("output", o.output,
               {{ImageKind::kRawRing, "raw_ring"}, {ImageKind::kPanorama, "panorama"}});
+  v.Enum("camera", o.camera,
+         {SimulatedCamera::kRing, SimulatedCamera::kClippedRing, SimulatedCamera::kBrightCentreRing,
+          SimulatedCamera::kFisheye});
   v("step_m", o.step_m);
   v.Enum("later_days_start", o.later_days_start,
          {SessionStartMode::kKnownPose, SessionStartMode::kContinue, SessionStartMode::kGlobal});

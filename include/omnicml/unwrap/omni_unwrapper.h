@@ -29,8 +29,9 @@ class OmniUnwrapper {
   // Precomputes the maps for raw images of image_width x image_height pixels of the
   // calibration's camera model (camera_model.h; an OmniCalibration converts to a ring).
   // `user_mask` (optional, CV_8UC1 of the image size): zero marks pixels that never show
-  // the scene (the robot's body, mounts, cables); panorama pixels sampling them are
-  // invalid in valid_mask(). Throws omnicml::Error if the calibration is invalid, leaves
+  // the scene (the robot's body, mounts, cables); panorama pixels whose bilinear sample
+  // reads any of them are invalid in valid_mask(), so masked pixels cannot influence a
+  // valid one. Throws omnicml::Error if the calibration is invalid, leaves
   // the image (CameraCalibration::ValidateFor) or the mask has the wrong size or type.
   OmniUnwrapper(const CameraCalibration& calibration, int image_width, int image_height,
                 const cv::Mat& user_mask = cv::Mat());
@@ -38,6 +39,9 @@ class OmniUnwrapper {
   // Raw ring (CV_8UC1 or CV_8UC3 of the construction size) -> panorama of the same type.
   // Throws omnicml::Error on an empty image, a wrong size or an unsupported type.
   cv::Mat Unwrap(const cv::Mat& raw) const;
+  // The same into *panorama, whose buffer is reused when it already has the panorama's
+  // size and type (no per-frame allocation in a loop).
+  void Unwrap(const cv::Mat& raw, cv::Mat* panorama) const;
 
   // Inverse mapping: panorama (any size; resampled to the calibration's width/height)
   // -> raw ring image of the construction size and the panorama's type; pixels outside
@@ -60,6 +64,10 @@ class OmniUnwrapper {
   const cv::Mat& valid_mask() const { return valid_mask_; }
   // Fraction of valid panorama pixels, in (0, 1].
   double valid_fraction() const { return valid_fraction_; }
+  // The validity mask for a panorama of width x height made from Unwrap's output by
+  // PreparePanorama (PrepareMask), or an empty Mat when every pixel is valid: what
+  // DescriptorExtractor::ComputeMasked takes (descriptor.h; empty = all valid).
+  cv::Mat MaskFor(int width, int height) const;
 
  private:
   CameraCalibration camera_;

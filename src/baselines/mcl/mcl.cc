@@ -543,12 +543,14 @@ std::vector<MclFrame> ReadMclFrames(FrameSource& source, const DescriptorExtract
     if (!wanted(frame.session_index) || frame.index_in_session % stride != 0) continue;
     const SessionInfo& info = source.Session(frame.session_index);
     cv::Mat panorama = frame.image;
+    cv::Mat valid_mask;  // empty: every pixel shows the scene
     if (info.camera.kind == ImageKind::kRawRing) {
       // One unwrapper per session (its calibration and ring size).
       if (unwrapper_session != frame.session_index) {
         try {
-          unwrapper = std::make_unique<OmniUnwrapper>(
-              info.camera.calibration, info.camera.image_width, info.camera.image_height);
+          unwrapper =
+              std::make_unique<OmniUnwrapper>(info.camera.calibration, info.camera.image_width,
+                                              info.camera.image_height, info.camera.mask);
         } catch (const Error& e) {
           throw Error(
               StrCat("mcl: session ", info.name, ": cannot unwrap its ring images: ", e.what()));
@@ -556,6 +558,8 @@ std::vector<MclFrame> ReadMclFrames(FrameSource& source, const DescriptorExtract
         unwrapper_session = frame.session_index;
       }
       panorama = unwrapper->Unwrap(frame.image);
+      // Pixels outside a clipped ring or under the user mask do not count (descriptor.h).
+      valid_mask = unwrapper->MaskFor(panorama.cols, panorama.rows);
     }
     MclFrame f;
     f.index = frame.global_index;
@@ -563,8 +567,9 @@ std::vector<MclFrame> ReadMclFrames(FrameSource& source, const DescriptorExtract
     f.stamp_s = frame.stamp_s;
     f.odom_T_robot = frame.odom_T_robot;
     f.truth = frame.map_T_robot_truth;
-    f.descriptor = extractor.Compute(panorama);
-    if (heading_extractor != nullptr) f.heading_descriptor = heading_extractor->Compute(panorama);
+    f.descriptor = extractor.ComputeMasked(panorama, valid_mask);
+    if (heading_extractor != nullptr)
+      f.heading_descriptor = heading_extractor->ComputeMasked(panorama, valid_mask);
     out.push_back(std::move(f));
   }
   return out;

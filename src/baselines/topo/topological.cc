@@ -495,6 +495,12 @@ Descriptor TopologicalLocalizer::Describe(const cv::Mat& panorama) const {
   return histogram_.Compute(panorama, sigma);
 }
 
+Descriptor TopologicalLocalizer::Describe(const cv::Mat& panorama,
+                                          const cv::Mat& valid_mask) const {
+  if (valid_mask.empty() || panorama.empty()) return Describe(panorama);
+  return Describe(FillInvalidPixels(panorama, valid_mask));
+}
+
 void TopologicalLocalizer::AddReference(int place, const Descriptor& descriptor) {
   if (place < 0 || place >= map_.size()) {
     throw Error(
@@ -708,15 +714,17 @@ CrossSequenceResult RunCrossSequence(FrameSource* source, TopologicalLocalizer* 
   }
   const AdjacencyMap& map = localizer->map();
   std::vector<std::unique_ptr<OmniUnwrapper>> unwrappers(sessions);
-  auto panorama_of = [&](const Frame& f) -> cv::Mat {
+  // Pixels outside a clipped ring or under the user mask do not count (descriptor.h).
+  auto describe = [&](const Frame& f) -> Descriptor {
     const SessionInfo& info = source->Session(f.session_index);
-    if (info.camera.kind == ImageKind::kPanorama) return f.image;
+    if (info.camera.kind == ImageKind::kPanorama) return localizer->Describe(f.image);
     auto& u = unwrappers[f.session_index];
     if (!u) {
       u = std::make_unique<OmniUnwrapper>(info.camera.calibration, info.camera.image_width,
-                                          info.camera.image_height);
+                                          info.camera.image_height, info.camera.mask);
     }
-    return u->Unwrap(f.image);
+    const cv::Mat panorama = u->Unwrap(f.image);
+    return localizer->Describe(panorama, u->MaskFor(panorama.cols, panorama.rows));
   };
   CrossSequenceResult result;
   std::vector<std::pair<int, Descriptor>> train;
@@ -740,12 +748,12 @@ CrossSequenceResult RunCrossSequence(FrameSource* source, TopologicalLocalizer* 
     labelled.true_place = place;
     std::optional<Descriptor> d;
     if (is_train && place >= 0 && labelled_train++ % options.reference_stride_frames == 0) {
-      d = localizer->Describe(panorama_of(frame));
+      d = describe(frame);
       train.emplace_back(place, *d);
       result.reference_frames.push_back(labelled);
     }
     if (is_test) {
-      if (!d) d = localizer->Describe(panorama_of(frame));
+      if (!d) d = describe(frame);
       result.frames.push_back(labelled);
       test_descriptors.push_back(std::move(*d));
     }

@@ -13,6 +13,7 @@
 #include "omnicml/descriptors/descriptor_factory.h"
 #include "omnicml/sim/simulator.h"
 #include "omnicml/sim/world.h"
+#include "testing/masked_ring_source.h"
 
 namespace omnicml {
 namespace {
@@ -525,6 +526,34 @@ TEST(Mcl, ReadsRawRingSessions) {
     EXPECT_FALSE(f.descriptor.features.empty());
     EXPECT_EQ(f.heading_descriptor.kind, DescriptorKind::kFourier);
     EXPECT_TRUE(f.truth.has_value());
+  }
+}
+
+// The session's user mask reaches the descriptors: noise under the mask leaves every
+// descriptor unchanged, and the same noise without a declared mask changes them.
+TEST(Mcl, MaskedPixelsDoNotChangeTheDescriptors) {
+  SimulatorOptions so;
+  so.world = "home_store";
+  so.days = 1;
+  so.frames_per_day = 3;
+  so.seed = 2;
+  so.people = false;
+  const auto extractor = Ifh();
+  const auto heading = MakeMclHeadingExtractor();
+  const auto read = [&](bool declare_mask, bool scramble) {
+    testing::MaskedRingSource source(so, declare_mask, scramble);
+    return ReadMclFrames(source, *extractor, {}, 1, heading.get());
+  };
+  const auto clean = read(true, false), scrambled = read(true, true);
+  const auto unmasked_clean = read(false, false), unmasked_scrambled = read(false, true);
+  ASSERT_EQ(clean.size(), 3u);
+  ASSERT_EQ(scrambled.size(), 3u);
+  for (std::size_t i = 0; i < clean.size(); ++i) {
+    EXPECT_EQ(clean[i].descriptor.features, scrambled[i].descriptor.features) << "frame " << i;
+    EXPECT_EQ(clean[i].heading_descriptor.coefficients, scrambled[i].heading_descriptor.coefficients)
+        << "frame " << i;
+    EXPECT_NE(unmasked_clean[i].descriptor.features, unmasked_scrambled[i].descriptor.features)
+        << "frame " << i << ": the scrambled region is not seen at all";
   }
 }
 

@@ -20,6 +20,7 @@
 #include "omnicml/sim/renderer.h"
 #include "omnicml/sim/simulator.h"
 #include "omnicml/sim/world.h"
+#include "testing/masked_ring_source.h"
 
 namespace omnicml {
 namespace {
@@ -545,6 +546,48 @@ TEST(TopologicalLocalizer, FramesOutsideEveryPlaceAreCountedApart) {
   EXPECT_GT(unlabelled, 0);
   EXPECT_EQ(r.test_frames_without_place(), unlabelled);
   EXPECT_EQ(r.counts.frames + unlabelled, static_cast<std::int64_t>(r.frames.size()));
+}
+
+// The session's user mask reaches the histograms of the cross-sequence test: noise under
+// the mask changes no belief and no descriptor; without the declared mask it does.
+TEST(TopologicalLocalizer, MaskedPixelsDoNotChangeTheCrossSequenceResult) {
+  SimulatorOptions sim;
+  sim.world = "home_store";
+  sim.days = 2;
+  sim.frames_per_day = 30;
+  sim.seed = 1;
+  sim.step_m = 0.8;
+  sim.people = false;
+  const auto run = [&](bool declare_mask, bool scramble) {
+    testing::MaskedRingSource source(sim, declare_mask, scramble);
+    SimulatedFrameSource route_source(sim);
+    TopologicalLocalizer loc(PlacesFromRoute(route_source.route(), 3.0));
+    return RunCrossSequence(&source, &loc, CrossSequenceOptions{}, &route_source.route());
+  };
+  const CrossSequenceResult clean = run(true, false), scrambled = run(true, true);
+  ASSERT_EQ(clean.frames.size(), scrambled.frames.size());
+  ASSERT_FALSE(clean.frames.empty());
+  for (std::size_t i = 0; i < clean.frames.size(); ++i) {
+    EXPECT_EQ(clean.frames[i].believed_place, scrambled.frames[i].believed_place) << "frame " << i;
+  }
+  EXPECT_EQ(clean.counts.frames, scrambled.counts.frames);
+
+  // The same panorama through Describe(panorama, mask): identical histograms.
+  SimulatorOptions one = sim;
+  one.days = 1;
+  one.frames_per_day = 1;
+  testing::MaskedRingSource a(one, true, false), b(one, true, true);
+  Frame fa, fb;
+  ASSERT_TRUE(a.Next(&fa) && b.Next(&fb));
+  const CameraModel& camera = a.Session(0).camera;
+  const OmniUnwrapper unwrapper(camera.calibration, camera.image_width, camera.image_height,
+                                camera.mask);
+  const cv::Mat pa = unwrapper.Unwrap(fa.image), pb = unwrapper.Unwrap(fb.image);
+  const cv::Mat mask = unwrapper.MaskFor(pa.cols, pa.rows);
+  ASSERT_FALSE(mask.empty());
+  TopologicalLocalizer loc(PlacesFromRoute(SimulatedFrameSource(one).route(), 3.0));
+  EXPECT_EQ(loc.Describe(pa, mask).features, loc.Describe(pb, mask).features);
+  EXPECT_NE(loc.Describe(pa).features, loc.Describe(pb).features);
 }
 
 // A short cross-day test on the simulated home_store (train on day 1, test on day 2),

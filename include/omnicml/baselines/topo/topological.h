@@ -265,6 +265,11 @@ class TopologicalLocalizer {
   // average_block_px blocks (when the image holds at least 2 x 2 blocks). Throws
   // omnicml::Error on a bad image.
   Descriptor Describe(const cv::Mat& panorama) const;
+  // The same for a panorama of which only some pixels show the scene (`valid_mask` as
+  // DescriptorExtractor::ComputeMasked, descriptor.h; empty = all valid): invalid pixels
+  // are filled with their row's valid mean (FillInvalidPixels) before the noise estimate
+  // and the histograms, so they have no influence on the result.
+  Descriptor Describe(const cv::Mat& panorama, const cv::Mat& valid_mask) const;
 
   // Adds a reference image (its Describe() result) to `place`. Throws omnicml::Error on a
   // bad place index or descriptor size.

@@ -34,7 +34,7 @@
 #include "omnicml/sensor/frame.h"
 #include "omnicml/geometry/pose.h"
 #include "omnicml/sim/renderer.h"
-#include "omnicml/tracking/tracker.h"
+#include "omnicml/geometry/motion_model.h"
 #include "omnicml/sim/world.h"
 
 namespace omnicml {

@@ -21,7 +21,7 @@
 
 #include <Eigen/Core>
 
-#include "omnicml/tracking/tracker.h"
+#include "omnicml/geometry/motion_model.h"
 
 namespace omnicml {
 

@@ -15,19 +15,10 @@
 #include <Eigen/Core>
 
 #include "omnicml/geometry/gaussian_mixture.h"
+#include "omnicml/geometry/motion_model.h"
 #include "omnicml/geometry/pose.h"
 
 namespace omnicml {
-
-// Odometry error model a1..a4 (docs/design.md "Motion model", Thrun et al.):
-// M = diag(a1 rot1^2 + a2 trans^2, a3 trans^2 + a4 (rot1^2 + rot2^2), a1 rot2^2 + a2 trans^2).
-struct MotionNoise {
-  double a1 = 0.05;  // rad^2 of rotation noise per rad^2 of rotation
-  double a2 = 0.01;  // rad^2 of rotation noise per m^2 of translation
-  double a3 = 0.05;  // m^2 of translation noise per m^2 of translation
-  double a4 = 0.01;  // m^2 of translation noise per rad^2 of rotation
-  void Validate() const;  // throws omnicml::Error naming the field if negative/non-finite
-};
 
 // How a gated pair (a from p(x|u) or an earlier fusion, b from a source) becomes one
 // component (docs/design.md "Fusion of state hypotheses").
@@ -73,13 +64,6 @@ struct TrackerOptions {
 
 // The options schema (common/options.h): YAML keys, dump, binary codec.
 template <class V>
-void VisitFields(V& v, MotionNoise& o) {
-  v("a1", o.a1);
-  v("a2", o.a2);
-  v("a3", o.a3);
-  v("a4", o.a4);
-}
-template <class V>
 void VisitFields(V& v, TrackerOptions& o) {
   v("gamma", o.gamma);
   v("w_min", o.w_min);
@@ -92,14 +76,6 @@ void VisitFields(V& v, TrackerOptions& o) {
                {FusionRule::kIndependent, "independent"}});
   v.Section("motion", o.motion);
 }
-
-// Jacobians of g(mu, u) = ApplyIncrement(mu, u): G = dg/dmu (3x3), V = dg/du (3x3, u =
-// (rot1, trans, rot2)).
-Eigen::Matrix3d MotionJacobianState(const Pose2& mu, const OdometryIncrement& u);
-Eigen::Matrix3d MotionJacobianControl(const Pose2& mu, const OdometryIncrement& u);
-
-// The control noise M of the model above for increment u.
-Eigen::Matrix3d MotionNoiseCovariance(const OdometryIncrement& u, const MotionNoise& noise);
 
 // p(x|u): mu' = g(mu, u); C' = G C G^T + V M V^T; weights unchanged.
 Mixture Propagate(const Mixture& prior, const OdometryIncrement& u, const MotionNoise& noise);

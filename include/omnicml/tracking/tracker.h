@@ -71,9 +71,13 @@ void VisitFields(V& v, TrackerOptions& o) {
   v("max_components", o.max_components);
   v("unimodal_min_weight", o.unimodal_min_weight);
   v("min_covariance_eigenvalue", o.min_covariance_eigenvalue);
-  v.NamedEnum("fusion", o.fusion,
-              {{FusionRule::kCovarianceIntersection, "covariance_intersection"},
-               {FusionRule::kIndependent, "independent"}});
+  // Fields after engine file format 14 (engine_io.h): omitted from engine files while
+  // they keep their defaults, so default files keep their bytes and older files load.
+  v.Since(15, [&](auto& w) {
+    w.NamedEnum("fusion", o.fusion,
+                {{FusionRule::kCovarianceIntersection, "covariance_intersection"},
+                 {FusionRule::kIndependent, "independent"}});
+  });
   v.Section("motion", o.motion);
 }
 

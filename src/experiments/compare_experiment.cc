@@ -303,7 +303,9 @@ CompareExperimentResult RunCompareExperiment(const CompareExperimentOptions& opt
   f.input.Validate();
   CheckLimit("--jobs", options.jobs, 0, kMaxThreads);
   if (f.log_every_frames < 1) throw Error("--log-every must be >= 1");
-  const CmlEngineOptions base = ResolveEngineOptions(WithDefaultThreads(f.overrides));
+  std::string calibration_note;
+  const CmlEngineOptions base =
+      ResolveNewMapOptions(WithDefaultThreads(f.overrides), f.input, &calibration_note);
   f.survey.Validate();
   // One reading of the survey trajectory, shared (read-only) by the modes' threads.
   std::shared_ptr<const SurveyPoses> survey_poses;
@@ -341,7 +343,8 @@ CompareExperimentResult RunCompareExperiment(const CompareExperimentOptions& opt
       ro.run_dir = staged.path() / result.mode;
       ro.stage = false;  // inside the staging directory
       ro.title = "omnicml run (" + result.mode + " forgetting)";
-      ro.input_description = f.input.Describe();
+      ro.input_description =
+          f.input.Describe() + (calibration_note.empty() ? "" : "; " + calibration_note);
       RunRecorder recorder(ro);
       SessionEndHook freeze;
       if (mode == ForgettingMode::kStatic) {

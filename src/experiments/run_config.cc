@@ -24,6 +24,7 @@
 #include "omnicml/common/file_io.h"
 #include "omnicml/common/limits.h"
 #include "omnicml/common/options.h"
+#include "omnicml/engine/calibration.h"
 #include "omnicml/logs/log_format.h"
 #include "omnicml/report/report.h"
 #include "omnicml/sim/simulator.h"
@@ -52,9 +53,14 @@ bool SameEngineOptions(const CmlEngineOptions& a, const CmlEngineOptions& b) {
 }
 
 CmlEngineOptions ResolveEngineOptions(const OptionOverrides& overrides) {
-  CmlEngineOptions options = overrides.config_path.empty()
-                                 ? CmlEngineOptions{}
-                                 : LoadEngineOptionsYaml(overrides.config_path);
+  return ResolveEngineOptions(overrides, CmlEngineOptions{});
+}
+
+CmlEngineOptions ResolveEngineOptions(const OptionOverrides& overrides, const CmlEngineOptions& base) {
+  CmlEngineOptions options =
+      overrides.config_path.empty()
+          ? base
+          : ParseEngineOptionsYaml(ReadOptionFile(overrides.config_path), overrides.config_path, base);
   if (overrides.descriptor) {
     options.descriptor.kind = DescriptorKindFromString(*overrides.descriptor);
   }
@@ -69,6 +75,32 @@ CmlEngineOptions ResolveEngineOptions(const OptionOverrides& overrides) {
     throw Error(StrCat("invalid options: ", e.what()));
   }
   return options;
+}
+
+CmlEngineOptions ResolveNewMapOptions(const OptionOverrides& overrides, const RunInput& input,
+                                      std::string* note) {
+  if (note != nullptr) note->clear();
+  const CmlEngineOptions resolved = ResolveEngineOptions(overrides);
+  if (resolved.motion_noise_source != MotionNoiseSource::kIdentified) return resolved;
+  const std::unique_ptr<FrameSource> source = OpenFrameSource(input);
+  const Calibration c = Calibrate(*source, resolved);
+  CmlEngineOptions calibrated;  // the defaults with the identified values
+  if (!ApplyMotionCalibration(c, &calibrated)) {
+    if (note != nullptr) {
+      *note = StrCat("motion noise not identified (", c.motion.pairs_used, " loop pairs in ",
+                     c.loop_frames, " frames): configured values kept");
+    }
+    return resolved;
+  }
+  if (note != nullptr) {
+    const MotionNoise& m = c.motion.noise;
+    *note = StrCat("motion noise identified from ", c.motion.pairs_used, " loop pairs in ",
+                   c.loop_frames, " frames of ", c.loop_sessions, " session(s): a1 ", m.a1, ", a2 ", m.a2, ", a3 ", m.a3,
+                   ", a4 ", m.a4, ", appearance_sigma_m ", calibrated.appearance_sigma_m,
+                   " (loop NIS median ", c.motion.median_nis, ")");
+  }
+  // Explicit values of the configuration file and the flags win over the identified ones.
+  return ResolveEngineOptions(overrides, calibrated);
 }
 
 }  // namespace omnicml

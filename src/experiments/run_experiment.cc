@@ -55,11 +55,12 @@ void CheckOutputParent(const std::string& path, const char* flag, const std::str
 namespace {
 
 // The engine of a run: a new one from the resolved options, or the saved one of map_in
-// with only its mode changed.
-std::unique_ptr<CmlEngine> MakeRunEngine(const RunExperimentOptions& o) {
+// with only its mode changed. *note: what a new map's calibration identified (or "").
+std::unique_ptr<CmlEngine> MakeRunEngine(const RunExperimentOptions& o, std::string* note) {
   const OptionOverrides& overrides = o.settings.overrides;
   if (o.map_in.empty()) {
-    return std::make_unique<CmlEngine>(ResolveEngineOptions(WithDefaultThreads(overrides)));
+    return std::make_unique<CmlEngine>(
+        ResolveNewMapOptions(WithDefaultThreads(overrides), o.settings.input, note));
   }
   if (!overrides.OnlyThreadsAndForgetting()) {
     throw Error(StrCat("--map-in '", o.map_in,
@@ -111,7 +112,8 @@ RunExperimentResult RunExperiment(const RunExperimentOptions& o) {
   // Read the survey trajectory before the first frame (a bad line fails at once).
   FrameProcessor process;
   if (f.survey.enabled()) process = MakeSurveyFrameProcessor(f.survey, nullptr);
-  std::unique_ptr<CmlEngine> engine = MakeRunEngine(o);
+  std::string calibration_note;
+  std::unique_ptr<CmlEngine> engine = MakeRunEngine(o, &calibration_note);
   // Survey with static forgetting: the survey builds the map (active forgetting), which is
   // frozen after the last survey day ([G]'s static "old" map).
   SessionEndHook freeze;
@@ -136,7 +138,8 @@ RunExperimentResult RunExperiment(const RunExperimentOptions& o) {
   ro.run_dir = result.run_dir;
   ro.trajectory_path = o.trajectory_out;
   ro.title = "omnicml run";
-  ro.input_description = f.input.Describe() + (o.map_in.empty() ? "" : ", map " + o.map_in);
+  ro.input_description = f.input.Describe() + (o.map_in.empty() ? "" : ", map " + o.map_in) +
+                         (calibration_note.empty() ? "" : "; " + calibration_note);
   RunRecorder recorder(ro);
   // Simulated input: the map's health by area scored against the day events at the end
   // of each day (change_detection.h).

@@ -566,6 +566,22 @@ TEST(MixtureTracker, RecoversFromKidnapping) {
   EXPECT_LE(strongest.covariance.determinant(), p_x_y[0].covariance.determinant() * (1 + 1e-9));
 }
 
+// gate_confidence states the gate as the chi-square quantile (3 dof) of a probability;
+// 0 keeps gamma; a pair at squared distance 5 fuses under the 99 % gate, not under 3.
+TEST(TrackerOptions, GateConfidenceIsTheChiSquareQuantile) {
+  TrackerOptions o;
+  EXPECT_EQ(o.Gate(), o.gamma);
+  o.gate_confidence = 0.99;
+  EXPECT_NEAR(o.Gate(), 11.3449, 1e-3);
+  const Gaussian a{Pose2::Zero(), Eigen::Matrix3d::Identity(), 1.0};
+  const Gaussian b{MakePose(std::sqrt(5.0 * 2.0), 0.0, 0.0), Eigen::Matrix3d::Identity(), 1.0};
+  EXPECT_EQ(FuseOnce({a}, {b}, o).size(), 1u);  // fused into one component
+  o.gate_confidence = 0.0;
+  EXPECT_EQ(FuseOnce({a}, {b}, o).size(), 2u);  // gamma 3: both copied
+  o.gate_confidence = 1.0;
+  EXPECT_THROW(o.Validate(), Error);
+}
+
 // Laps of a rounded square (0.2 m steps, turns spread over corner steps) driven with
 // odometry noise `noise`: returns the odometry poses and the frame count per lap.
 std::vector<Pose2> NoisyLaps(const MotionNoise& noise, int laps, std::mt19937_64& rng,

@@ -83,6 +83,8 @@ struct OptionOverrides {
 
 // Defaults <- config file <- flags; validated. Throws omnicml::Error naming the flag or key.
 CmlEngineOptions ResolveEngineOptions(const OptionOverrides& overrides);
+// The same on top of `base` instead of the defaults.
+CmlEngineOptions ResolveEngineOptions(const OptionOverrides& overrides, const CmlEngineOptions& base);
 
 // Where the frames of a run come from: logs on disk (the sessions of every LOGDIR in
 // order) or a built-in simulated world rendered in-process.
@@ -110,6 +112,15 @@ struct RunInput {
   // One line for reports ("logs a, b" or "world home_store, days 1-3, 400 frames/day, seed 1").
   std::string Describe() const;
 };
+
+// The options of a run that starts a new map: ResolveEngineOptions, and when they say
+// motion_noise_source: identified, the motion noise and appearance_sigma_m identified
+// from the first session of `input` (engine/calibration.h ApplyMotionCalibration) under
+// the configuration file and the flags (explicit values win). *note (if not null) gets
+// one line on what was identified, or "" with configured motion noise. Reads the first
+// session once more (a second FrameSource). Throws omnicml::Error.
+CmlEngineOptions ResolveNewMapOptions(const OptionOverrides& overrides, const RunInput& input,
+                                      std::string* note);
 
 // Opens the input. For logs the constructor of LogReader validates every session.yaml
 // and frames.csv header; for worlds the simulator is built. Throws omnicml::Error.

@@ -36,13 +36,11 @@ enum class FusionRule {
 struct TrackerOptions {
   // Gate (2): a and b are fused iff their squared Mahalanobis distance under C_a + C_b
   // is below gamma. Dimensionless, on the engine's own covariances. For consistent
-  // covariances the 99 % chi-square quantile (3 DOF) is 11.34, [G]'s choice and ours
-  // until 2026-11-25. The engine's covariances are wider than its errors (covariance
-  // intersection, the conservative default motion noise): position NEES mean about 0.5
-  // on institute instead of 2, so 11.34 there is a gate at about 45 in consistent units,
-  // which let aliased views pull the estimate metres away in one step. 3.0 is the 99 %
-  // gate at that consistency (11.34 x 0.5 / 2), measured in docs/results.md "The
-  // fusion gate". Also the unimodality radius (below) and the prior gate of p(x|y).
+  // covariances the 99 % chi-square quantile (3 DOF) is 11.34, [G]'s choice. The default
+  // 3.0 is that gate for covariances about four times wider (in the squared distance)
+  // than the errors, as the default motion noise and covariance intersection give
+  // (docs/results.md "The fusion gate"). Also the unimodality radius (below) and the prior
+  // gate of p(x|y). Ignored when gate_confidence > 0.
   double gamma = 3.0;
   // Components with normalised weight below w_min are dropped. Dimensionless.
   double w_min = 1e-3;
@@ -58,8 +56,15 @@ struct TrackerOptions {
   double min_covariance_eigenvalue = 1e-10;
   // The fusion of a gated pair (FusionRule).
   FusionRule fusion = FusionRule::kCovarianceIntersection;
+  // The gate stated as a confidence: when > 0 (and < 1), gamma is the chi-square quantile
+  // of this probability with 3 degrees of freedom (0.99 -> 11.34), the textbook gate for
+  // a consistent covariance. 0: gamma as given.
+  double gate_confidence = 0.0;
   MotionNoise motion;
   void Validate() const;  // throws omnicml::Error naming the field
+  // The gate in use: ChiSquareQuantile(gate_confidence, 3) when gate_confidence > 0, else
+  // gamma.
+  double Gate() const;
 };
 
 // The options schema (common/options.h): YAML keys, dump, binary codec.
@@ -77,6 +82,7 @@ void VisitFields(V& v, TrackerOptions& o) {
     w.NamedEnum("fusion", o.fusion,
                 {{FusionRule::kCovarianceIntersection, "covariance_intersection"},
                  {FusionRule::kIndependent, "independent"}});
+    w("gate_confidence", o.gate_confidence);
   });
   v.Section("motion", o.motion);
 }

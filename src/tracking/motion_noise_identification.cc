@@ -180,7 +180,8 @@ std::array<Eigen::Matrix2d, 4> Bases(const Prefixes& prefix, const std::vector<P
 }
 
 // The xy covariance at pose t of a start error with covariance c0 at pose 0.
-Eigen::Matrix2d StartCovarianceAt(const std::vector<Pose2>& poses, int t, const Eigen::Matrix3d& c0) {
+Eigen::Matrix2d StartCovarianceAt(const std::vector<Pose2>& poses, int t,
+                                  const Eigen::Matrix3d& c0) {
   Eigen::Matrix<double, 2, 3> phi;
   const Eigen::Vector2d lever = Rotate90(poses[t]) - Rotate90(poses[0]);
   phi << 1.0, 0.0, lever.x(), 0.0, 1.0, lever.y();
@@ -272,10 +273,12 @@ MotionNoiseIdentification Identify(const std::vector<Term>& terms,
   result.pairs = static_cast<int>(terms.size());
   if (result.pairs < options.min_pairs) return result;
 
-  const std::array<double, 5> lo{options.min_parameter, options.min_parameter, options.min_parameter,
-                                 options.min_parameter, options.min_appearance_variance_m2};
-  const std::array<double, 5> hi{options.max_parameter, options.max_parameter, options.max_parameter,
-                                 options.max_parameter, options.max_appearance_variance_m2};
+  const std::array<double, 5> lo{options.min_parameter, options.min_parameter,
+                                 options.min_parameter, options.min_parameter,
+                                 options.min_appearance_variance_m2};
+  const std::array<double, 5> hi{options.max_parameter, options.max_parameter,
+                                 options.max_parameter, options.max_parameter,
+                                 options.max_appearance_variance_m2};
   // Start from the geometric middle of the bounds.
   std::array<double, 5> value;
   for (int j = 0; j < 5; ++j) value[j] = std::sqrt(lo[j] * hi[j]);
@@ -291,7 +294,8 @@ MotionNoiseIdentification Identify(const std::vector<Term>& terms,
       if (use[k]) nis_used.push_back(Nis(terms[k], value));
     }
     if (nis_used.empty()) break;
-    std::nth_element(nis_used.begin(), nis_used.begin() + static_cast<std::ptrdiff_t>(nis_used.size() / 2),
+    std::nth_element(nis_used.begin(),
+                     nis_used.begin() + static_cast<std::ptrdiff_t>(nis_used.size() / 2),
                      nis_used.end());
     const double median = nis_used[nis_used.size() / 2];
     const double scale = median > 0 ? kChiSquare2Median / median : 1.0;
@@ -316,7 +320,8 @@ MotionNoiseIdentification Identify(const std::vector<Term>& terms,
   double sum = 0.0;
   for (double x : nis) sum += x;
   result.mean_nis = sum / static_cast<double>(nis.size());
-  std::nth_element(nis.begin(), nis.begin() + static_cast<std::ptrdiff_t>(nis.size() / 2), nis.end());
+  std::nth_element(nis.begin(), nis.begin() + static_cast<std::ptrdiff_t>(nis.size() / 2),
+                   nis.end());
   result.median_nis = nis[nis.size() / 2];
   return result;
 }

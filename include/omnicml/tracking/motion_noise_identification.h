@@ -16,10 +16,11 @@
 // Several sessions (OdometrySession): a pair within one session is as above; a pair
 // across two sessions that both start at a known pose compares their dead-reckoned map
 // poses, whose errors are independent: S = F + sum_j a_j (B_j(0, s) + B_j(0, t)) + rho I_2
-// with F the two start covariances carried to s and t (Phi C_0 Phi^T, xy block). The estimate maximises sum_k -(ln det S_k + r_k^T S_k^-1 r_k) over ln a_j and
-// ln rho (cyclic golden-section search in bounds); pairs whose NIS r^T S^-1 r exceeds the
-// chi-square quantile of `outlier_confidence` (2 dof) at the current estimate are
-// perceptual aliases and are dropped, and the fit repeated until the set is stable.
+// with F the two start covariances carried to s and t (Phi C_0 Phi^T, xy block). The estimate
+// maximises sum_k -(ln det S_k + r_k^T S_k^-1 r_k) over ln a_j and ln rho (cyclic golden-section
+// search in bounds); pairs whose NIS r^T S^-1 r exceeds the chi-square quantile of
+// `outlier_confidence` (2 dof) at the current estimate are perceptual aliases and are dropped, and
+// the fit repeated until the set is stable.
 //
 // Pure function; thread-safe.
 #ifndef OMNICML_TRACKING_MOTION_NOISE_IDENTIFICATION_H_
@@ -67,8 +68,8 @@ struct MotionNoiseIdentification {
   double appearance_variance_m2 = 0.0;  // rho
   int pairs = 0;                        // pairs given
   int pairs_used = 0;                   // after alias rejection
-  double median_nis = 0.0;  // of the pairs used at the estimate (consistent: 1.39)
-  double mean_nis = 0.0;    // (consistent: about 2, less after the rejection)
+  double median_nis = 0.0;              // of the pairs used at the estimate (consistent: 1.39)
+  double mean_nis = 0.0;                // (consistent: about 2, less after the rejection)
 };
 
 // One session's dead reckoning in the map frame: poses[0] is the session's start pose,

@@ -1,8 +1,10 @@
 // `omnicml calibrate LOG [--config ENGINE.yaml] [--out CALIBRATION.yaml]`: measures how
 // fast appearance changes with travelled distance over the first session of a log and
-// derives the engine's spatial thresholds from it (engine/calibration.h). Prints the
-// measurements and the derived values; --out saves them as an engine configuration that
-// `omnicml run --config` loads (explicit values in a later --config still win).
+// derives the engine's spatial thresholds from it, and identifies the odometry noise
+// a1..a4 from the session's appearance loop pairs (engine/calibration.h; what a run with
+// motion_noise_source: identified does by itself). Prints the measurements and the derived
+// values; --out saves them as an engine configuration that `omnicml run --config` loads
+// (explicit values in a later --config still win).
 #include <iostream>
 #include <memory>
 #include <string>
@@ -28,11 +30,16 @@ struct CalibrateFlags {
 const CommandRegistration kRegistration{
     "calibrate", [](CLI::App& app) {
       CLI::App* cmd = app.add_subcommand(
-          "calibrate", "Derive the spatial thresholds from how appearance changes with travel");
+          "calibrate",
+          "Derive the spatial thresholds from how appearance changes with travel, and "
+          "identify the odometry noise from the first session's loops");
       auto f = std::make_shared<CalibrateFlags>();
       cmd->add_option("logs", f->input.log_dirs, "Log (its first session is used)");
       cmd->add_option("--world", f->input.world, "Built-in simulated world instead of a log");
       cmd->add_option("--frames-per-day", f->input.frames_per_day, "Simulated frames (with --world)");
+      cmd->add_option("--days", f->input.days,
+                      "Simulated days (with --world): later days add loop pairs for the motion noise")
+          ->capture_default_str();
       cmd->add_option("--seed", f->input.seed, "Simulator seed")->capture_default_str();
       cmd->add_option("--config", f->config_path, "Engine configuration (descriptor, e_max)");
       AddOutputFile(cmd, "--out", &f->out, "Write the derived values as engine YAML");
@@ -41,7 +48,6 @@ const CommandRegistration kRegistration{
       cmd->add_option("--max-lag", f->calibration.max_lag_frames, "Largest frame lag")
           ->capture_default_str();
       cmd->callback([f] {
-        f->input.days = 1;
         f->input.Validate();
         OptionOverrides overrides;
         overrides.config_path = f->config_path;

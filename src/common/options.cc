@@ -308,7 +308,7 @@ const OptionValue* TreeReader::Take(const char* key) {
   for (const auto& [k, v] : map_.members) {
     if (k == key) return &v;
   }
-  missing_.emplace_back(key);
+  if (!optional_) missing_.emplace_back(key);
   return nullptr;
 }
 
@@ -350,6 +350,23 @@ void TreeReader::Finish() const {
     throw Error(StrCat(src_.name, ": missing option '", JoinPath(prefix_, missing_.front().c_str()),
                        "'"));
   }
+}
+
+void OmitNewerDefaults(OptionValue* tree, const OptionValue& defaults, std::uint32_t format_version) {
+  if (tree->kind != OptionValue::Kind::kMap || defaults.kind != OptionValue::Kind::kMap) return;
+  auto default_of = [&defaults](const std::string& key) -> const OptionValue* {
+    for (const auto& [k, v] : defaults.members) {
+      if (k == key) return &v;
+    }
+    return nullptr;
+  };
+  std::erase_if(tree->members, [&](auto& member) {
+    const OptionValue* d = default_of(member.first);
+    if (d == nullptr) return false;
+    if (member.second.since_version > format_version) return member.second == *d;
+    OmitNewerDefaults(&member.second, *d, format_version);
+    return false;
+  });
 }
 
 }  // namespace options_internal

@@ -7,6 +7,7 @@
 
 #include "omnicml/common/common.h"
 #include "omnicml/descriptors/descriptor_factory.h"
+#include "omnicml/tracking/motion_noise_identification.h"
 #include "omnicml/unwrap/omni_unwrapper.h"
 
 namespace omnicml {
@@ -17,6 +18,66 @@ double Median(std::vector<double> v) {
   const std::size_t mid = v.size() / 2;
   std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(mid), v.end());
   return v[mid];
+}
+
+// The curve's median distance at odometry path `path_m` (linear between lags; 0 at 0 m).
+double DistanceAtPath(const std::vector<CalibrationPoint>& curve, double path_m) {
+  double previous_path = 0.0, previous_e = 0.0;
+  for (const CalibrationPoint& p : curve) {
+    if (p.median_path_m >= path_m) {
+      const double dp = p.median_path_m - previous_path;
+      const double f = dp > 0 ? (path_m - previous_path) / dp : 1.0;
+      return previous_e + f * (p.median_distance - previous_e);
+    }
+    previous_path = p.median_path_m;
+    previous_e = p.median_distance;
+  }
+  return previous_e;
+}
+
+// A frame read for the loop pairs.
+struct LoopFrame {
+  int session = 0;
+  int index = 0;        // in its session
+  double path_m = 0.0;  // odometry path from its session's start
+};
+
+// For every frame t, its nearest frame s in appearance among the earlier frames that may
+// pair with it (the same session at least min_path_m of odometry path earlier, or an
+// earlier session when both start at a known pose), when closer than e_loop; evenly
+// subsampled to max_pairs.
+std::vector<SessionLoopPair> FindLoopPairs(const DescriptorExtractor& extractor,
+                                           const std::vector<Descriptor>& y,
+                                           const std::vector<LoopFrame>& frames,
+                                           const std::vector<OdometrySession>& sessions,
+                                           double min_path_m, double e_loop, int max_pairs) {
+  std::vector<SessionLoopPair> pairs;
+  const int n = static_cast<int>(y.size());
+  for (int t = 1; t < n; ++t) {
+    const LoopFrame& ft = frames[t];
+    int best = -1;
+    double best_e = e_loop;
+    for (int s = 0; s < t; ++s) {
+      const LoopFrame& fs = frames[s];
+      if (fs.session == ft.session) {
+        if (ft.path_m - fs.path_m < min_path_m) continue;
+      } else if (!(sessions[fs.session].known_start && sessions[ft.session].known_start)) {
+        continue;
+      }
+      const double e = extractor.Distance(y[s], y[t]);
+      if (e < best_e) {
+        best_e = e;
+        best = s;
+      }
+    }
+    if (best >= 0) pairs.push_back(SessionLoopPair{frames[best].session, frames[best].index, ft.session, ft.index});
+  }
+  if (static_cast<int>(pairs.size()) <= max_pairs) return pairs;
+  std::vector<SessionLoopPair> kept;
+  for (int i = 0; i < max_pairs; ++i) {
+    kept.push_back(pairs[static_cast<std::size_t>(i) * pairs.size() / static_cast<std::size_t>(max_pairs)]);
+  }
+  return kept;
 }
 
 }  // namespace
@@ -33,25 +94,46 @@ void CalibrationOptions::Validate() const {
   if (!(min_scale > 0 && min_scale <= max_scale && std::isfinite(max_scale))) {
     throw Error("CalibrationOptions.min_scale/max_scale must satisfy 0 < min <= max");
   }
+  if (!(std::isfinite(loop_min_path_match_lengths) && loop_min_path_match_lengths > 0)) {
+    throw Error(StrCat("CalibrationOptions.loop_min_path_match_lengths must be > 0, got ",
+                       loop_min_path_match_lengths));
+  }
+  if (max_loop_pairs < 1) {
+    throw Error(StrCat("CalibrationOptions.max_loop_pairs must be >= 1, got ", max_loop_pairs));
+  }
+  identification.Validate();
 }
 
 Calibration Calibrate(FrameSource& source, const CmlEngineOptions& options,
                       const CalibrationOptions& calibration_options) {
   calibration_options.Validate();
   if (source.NumSessions() < 1) throw Error("calibrate: the log has no session");
-  const SessionInfo& session = source.Session(0);
   const std::unique_ptr<DescriptorExtractor> extractor = MakeDescriptorExtractor(options.descriptor);
-  std::unique_ptr<OmniUnwrapper> unwrapper;
-  if (session.camera.kind == ImageKind::kRawRing) {
-    unwrapper = std::make_unique<OmniUnwrapper>(session.camera.calibration, session.camera.image_width,
-                                                session.camera.image_height, session.camera.mask);
-  }
+  // Every frame read (sessions in order, up to max_frames): descriptor, session, index in
+  // its session, odometry path from its session's start; per session the dead reckoning.
   std::vector<Descriptor> y;
-  std::vector<double> path_m;  // odometry path length from the first frame
+  std::vector<LoopFrame> frames;
+  std::vector<OdometrySession> sessions;
+  std::unique_ptr<OmniUnwrapper> unwrapper;
   Frame frame;
-  Pose2 last = Pose2::Zero();
+  Pose2 last_odom = Pose2::Zero();
   while (static_cast<int>(y.size()) < calibration_options.max_frames && source.Next(&frame)) {
-    if (frame.session_index != 0) break;
+    if (frame.session_index != static_cast<int>(sessions.size()) - 1) {
+      const SessionInfo& info = source.Session(frame.session_index);
+      unwrapper.reset();
+      if (info.camera.kind == ImageKind::kRawRing) {
+        unwrapper = std::make_unique<OmniUnwrapper>(info.camera.calibration, info.camera.image_width,
+                                                    info.camera.image_height);
+      }
+      sessions.resize(static_cast<std::size_t>(frame.session_index) + 1);
+      OdometrySession& s = sessions.back();
+      s.known_start = info.start.mode == SessionStartMode::kKnownPose;
+      s.start_covariance = s.known_start ? info.start.covariance : Eigen::Matrix3d::Zero();
+      s.poses.push_back(s.known_start ? info.start.map_T_robot : Pose2::Zero());
+    } else {
+      OdometrySession& s = sessions.back();
+      s.poses.push_back(ApplyIncrement(s.poses.back(), ComputeIncrement(last_odom, frame.odom_T_robot)));
+    }
     const cv::Mat panorama =
         unwrapper ? PreparePanorama(unwrapper->Unwrap(frame.image), options.panorama_width,
                                     options.panorama_height)
@@ -59,14 +141,21 @@ Calibration Calibrate(FrameSource& source, const CmlEngineOptions& options,
     // Pixels outside a clipped ring or under the user mask do not count (descriptor.h).
     y.push_back(extractor->ComputeMasked(
         panorama, unwrapper ? unwrapper->MaskFor(panorama.cols, panorama.rows) : cv::Mat()));
-    const double step = path_m.empty() ? 0.0
-                                       : std::hypot(frame.odom_T_robot.x() - last.x(),
-                                                    frame.odom_T_robot.y() - last.y());
-    path_m.push_back(path_m.empty() ? 0.0 : path_m.back() + step);
-    last = frame.odom_T_robot;
+    const bool first_of_session = frames.empty() || frames.back().session != frame.session_index;
+    LoopFrame f;
+    f.session = frame.session_index;
+    f.index = static_cast<int>(sessions.back().poses.size()) - 1;
+    f.path_m = first_of_session ? 0.0
+                                : frames.back().path_m + std::hypot(frame.odom_T_robot.x() - last_odom.x(),
+                                                                    frame.odom_T_robot.y() - last_odom.y());
+    frames.push_back(f);
+    last_odom = frame.odom_T_robot;
   }
-  const int n = static_cast<int>(y.size());
+  if (sessions.empty()) throw Error("calibrate: the first session has fewer than two frames");
+  const int n = static_cast<int>(sessions[0].poses.size());  // the first session's frames
   if (n < 2) throw Error("calibrate: the first session has fewer than two frames");
+  std::vector<double> path_m;
+  for (int t = 0; t < n; ++t) path_m.push_back(frames[static_cast<std::size_t>(t)].path_m);
 
   Calibration c;
   c.frames_used = n;
@@ -108,6 +197,15 @@ Calibration Calibrate(FrameSource& source, const CmlEngineOptions& options,
   c.anchor_max_sigma_m = defaults.anchor_max_sigma_m * c.scale;
   c.d_for_m = defaults.model.forgetting.d_for_m * c.scale;
   c.spatial_cell_m = defaults.model.index.spatial_cell_m * c.scale;
+
+  c.loop_e_max = DistanceAtPath(c.curve, 0.5 * c.match_length_m);
+  const std::vector<SessionLoopPair> pairs =
+      FindLoopPairs(*extractor, y, frames, sessions,
+                    calibration_options.loop_min_path_match_lengths * c.match_length_m,
+                    c.loop_e_max, calibration_options.max_loop_pairs);
+  c.motion = IdentifyMotionNoise(sessions, pairs, calibration_options.identification);
+  c.loop_frames = static_cast<int>(y.size());
+  c.loop_sessions = static_cast<int>(sessions.size());
   return c;
 }
 
@@ -116,6 +214,14 @@ void ApplyCalibration(const Calibration& calibration, CmlEngineOptions* options)
   options->anchor_max_sigma_m = calibration.anchor_max_sigma_m;
   options->model.forgetting.d_for_m = calibration.d_for_m;
   options->model.index.spatial_cell_m = calibration.spatial_cell_m;
+}
+
+bool ApplyMotionCalibration(const Calibration& calibration, CmlEngineOptions* options) {
+  if (!calibration.motion.identified) return false;
+  options->tracker.motion = calibration.motion.noise;
+  options->reconstruction.motion = calibration.motion.noise;
+  options->appearance_sigma_m = std::sqrt(calibration.motion.appearance_variance_m2);
+  return true;
 }
 
 std::string Calibration::ToYaml() const {
@@ -132,8 +238,23 @@ std::string Calibration::ToYaml() const {
     s << "#   " << curve[i].lag_frames << ", " << curve[i].median_path_m << ", "
       << curve[i].median_distance << "\n";
   }
+  const MotionNoiseIdentification& m = motion;
+  s << "# loop pairs (E < " << loop_e_max << ") in " << loop_frames << " frames of " << loop_sessions
+    << " session(s): " << m.pairs << ", used " << m.pairs_used;
+  if (m.identified) {
+    s << "; motion noise identified: a1 " << m.noise.a1 << ", a2 " << m.noise.a2 << ", a3 "
+      << m.noise.a3 << ", a4 " << m.noise.a4 << ", appearance offset sigma "
+      << std::sqrt(m.appearance_variance_m2) << " m; NIS median " << m.median_nis
+      << " (consistent 1.39), mean " << m.mean_nis << "\n";
+  } else {
+    s << "; too few to identify the motion noise\n";
+  }
   s << "appearance_sigma_m: " << appearance_sigma_m << "\n";
   s << "anchor_max_sigma_m: " << anchor_max_sigma_m << "\n";
+  if (m.identified) {
+    s << "tracker:\n  motion: {a1: " << m.noise.a1 << ", a2: " << m.noise.a2 << ", a3: " << m.noise.a3
+      << ", a4: " << m.noise.a4 << "}\n";
+  }
   s << "model:\n";
   s << "  d_for_m: " << d_for_m << "\n";
   s << "  spatial_cell_m: " << spatial_cell_m << "\n";

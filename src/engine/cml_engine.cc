@@ -447,10 +447,11 @@ FrameResult CmlEngine::ProcessFrame(const Frame& frame) {
     // against a confident p(x|u); with the prior, evidence there grows multiplicatively.
     double total_u = 0.0;
     for (const Gaussian& a : p_x_u) total_u += a.weight;
+    const double gate = options_.tracker.Gate();
     for (Gaussian& b : p_x_y) {
       double prior = 0.0;
       for (const Gaussian& a : p_x_u) {
-        if (SquaredMahalanobis(a.mean, b.mean, a.covariance + b.covariance) < options_.tracker.gamma) {
+        if (SquaredMahalanobis(a.mean, b.mean, a.covariance + b.covariance) < gate) {
           prior += a.weight;
         }
       }

@@ -172,52 +172,28 @@ void ReadCamera(BinaryReader& in, CameraModel& camera) {
 
 }  // namespace
 
-// The tracker's fusion rule is stored only when it departs from [G]'s covariance
-// intersection, so files written before the rule became an option load unchanged and a
-// default engine's file keeps the bytes it always had.
-namespace {
-
-constexpr const char* kDefaultFusion = "covariance_intersection";
-
-void OmitDefaultFusion(OptionValue* tracker) {
-  auto& m = tracker->members;
-  std::erase_if(m, [](const auto& kv) {
-    return kv.first == "fusion" && kv.second.kind == OptionValue::Kind::kScalar &&
-           kv.second.scalar == kDefaultFusion;
-  });
-}
-
-void RestoreDefaultFusion(OptionValue* tracker) {
-  for (const auto& kv : tracker->members) {
-    if (kv.first == "fusion") return;
-  }
-  tracker->members.emplace_back("fusion", OptionValue::Scalar(kDefaultFusion));
-}
-
-}  // namespace
-
 // The options section is the schema's tree of every field (cml_engine.h VisitFields,
 // common/options.h EncodeOptionValue): names and values, so reading checks that every
 // field is present and none is unknown. The model's options are stored in the flat
 // layout the file has always had (environment_model_options.h FlatModelOptionsValue), so files keep
-// their bytes across the grouping of those options into sections.
+// their bytes across the grouping of those options into sections. Fields added after the
+// file's format version (Since in VisitFields, e.g. tracker.fusion) are written only when
+// they differ from their defaults and read as defaults when absent.
 void WriteEngineOptions(BinaryWriter& out, const CmlEngineOptions& o) {
-  OptionValue tree = OptionsToValue(o);
+  OptionValue tree = OptionsToFileValue(o, kEngineFormatVersion);
   for (auto& [key, value] : tree.members) {
     if (key == "model") value = FlatModelOptionsValue(value);
-    if (key == "tracker") OmitDefaultFusion(&value);
   }
   EncodeOptionValue(out, tree);
 }
 
-CmlEngineOptions ReadEngineOptions(BinaryReader& in) {
+CmlEngineOptions ReadEngineOptions(BinaryReader& in, std::uint32_t format_version) {
   OptionValue tree = DecodeOptionValue(in, "options");
   for (auto& [key, value] : tree.members) {
     if (key == "model") value = GroupedModelOptionsValue(value);
-    if (key == "tracker") RestoreDefaultFusion(&value);
   }
   CmlEngineOptions o;
-  OptionsFromValue(tree, OptionSource{"options", true, {}}, &o);
+  OptionsFromValue(tree, OptionSource{"options", true, {}, format_version}, &o);
   o.reconstruction.motion = o.tracker.motion;
   return o;
 }

@@ -358,6 +358,9 @@ CompareExperimentResult RunCompare(const CmlEngineOptions& options, const RunInp
       run.outputs.stage_run_dir = false;  // inside the staging directory
     }
     run.outputs.title = "omnicml run (" + result.mode + " forgetting)";
+    if (!settings.input_note.empty()) {
+      run.outputs.input_description = input.Describe() + "; " + settings.input_note;
+    }
     run.progress = settings.progress;
     run.progress.label = result.mode;
     if (jobs > 1) run.progress.progress_bar = false;
@@ -462,9 +465,10 @@ CompareExperimentResult RunCompareExperiment(const CompareExperimentOptions& opt
   const RunSettings& f = options.settings;
   CheckCompareSettings(f.input, options.steps, options.jobs, f.log_every_frames);
   // The modes set forgetting; --forgetting is not a flag of the command.
-  const CmlEngineOptions base = ResolveEngineOptions(WithDefaultThreads(f.overrides),
-                                                     f.base_options.value_or(CmlEngineOptions{}));
   CompareSettings s;
+  const CmlEngineOptions base =
+      ResolveNewMapOptions(WithDefaultThreads(f.overrides), f.input, &s.input_note,
+                           f.base_options.value_or(CmlEngineOptions{}));
   s.steps = options.steps;
   s.jobs = options.jobs;
   s.survey = f.survey;

@@ -27,8 +27,10 @@
 #include "omnicml/common/limits.h"
 #include "omnicml/common/options.h"
 #include "omnicml/common/yaml_io.h"
+#include "omnicml/engine/calibration.h"
 #include "omnicml/logs/log_format.h"
 #include "omnicml/report/report.h"
+#include "omnicml/run/frame_sources.h"
 #include "omnicml/sim/simulator.h"
 
 namespace omnicml {
@@ -101,6 +103,32 @@ std::string ReadRunForgetting(const std::filesystem::path& run_dir) {
     return "";
   };
   return find(root);
+}
+
+CmlEngineOptions ResolveNewMapOptions(const OptionOverrides& overrides, const RunInput& input,
+                                      std::string* note, const CmlEngineOptions& base) {
+  if (note != nullptr) note->clear();
+  const CmlEngineOptions resolved = ResolveEngineOptions(overrides, base);
+  if (resolved.motion_noise_source != MotionNoiseSource::kIdentified) return resolved;
+  const std::unique_ptr<FrameSource> source = OpenFrameSource(input);
+  const Calibration c = Calibrate(*source, resolved);
+  CmlEngineOptions calibrated = base;  // with the identified values
+  if (!ApplyMotionCalibration(c, &calibrated)) {
+    if (note != nullptr) {
+      *note = StrCat("motion noise not identified (", c.motion.pairs_used, " loop pairs in ",
+                     c.loop_frames, " frames): configured values kept");
+    }
+    return resolved;
+  }
+  if (note != nullptr) {
+    const MotionNoise& m = c.motion.noise;
+    *note = StrCat("motion noise identified from ", c.motion.pairs_used, " loop pairs in ",
+                   c.loop_frames, " frames of ", c.loop_sessions, " session(s): a1 ", m.a1,
+                   ", a2 ", m.a2, ", a3 ", m.a3, ", a4 ", m.a4, ", appearance_sigma_m ",
+                   calibrated.appearance_sigma_m, " (loop NIS median ", c.motion.median_nis, ")");
+  }
+  // Explicit values of the configuration file and the flags win over the identified ones.
+  return ResolveEngineOptions(overrides, calibrated);
 }
 
 }  // namespace omnicml

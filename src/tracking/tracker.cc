@@ -10,6 +10,7 @@
 #include <Eigen/LU>
 
 #include "omnicml/common/common.h"
+#include "omnicml/geometry/chi_square.h"
 
 namespace omnicml {
 namespace {
@@ -160,18 +161,14 @@ Mixture MergePass(const Mixture& m, double delta, double min_eigenvalue) {
 
 }  // namespace
 
-void MotionNoise::Validate() const {
-  CheckNonNegative("MotionNoise.", "a1", a1);
-  CheckNonNegative("MotionNoise.", "a2", a2);
-  CheckNonNegative("MotionNoise.", "a3", a3);
-  CheckNonNegative("MotionNoise.", "a4", a4);
-}
-
 void TrackerOptions::Validate() const {
   auto fail = [](const char* field, const std::string& rule, double value) {
     throw Error(StrCat("TrackerOptions.", field, " must be ", rule, ", got ", value));
   };
   if (!(std::isfinite(gamma) && gamma > 0)) fail("gamma", "finite and > 0", gamma);
+  if (!(gate_confidence >= 0 && gate_confidence < 1)) {
+    fail("gate_confidence", "in [0, 1) (0: gamma as given)", gate_confidence);
+  }
   if (!(w_min >= 0 && w_min < 1)) fail("w_min", "in [0, 1)", w_min);
   if (!(std::isfinite(delta) && delta >= 0)) fail("delta", "finite and >= 0", delta);
   if (max_components < 1) fail("max_components", ">= 1", max_components);
@@ -187,34 +184,8 @@ void TrackerOptions::Validate() const {
   CheckNonNegative("TrackerOptions.motion.", "a4", motion.a4);
 }
 
-// g(mu, u) = (x + t cos(phi + r1), y + t sin(phi + r1), phi + r1 + r2).
-Eigen::Matrix3d MotionJacobianState(const Pose2& mu, const OdometryIncrement& u) {
-  const double h = mu.z() + u.rot1_rad;
-  const double t = u.trans_m;
-  Eigen::Matrix3d g = Eigen::Matrix3d::Identity();
-  g(0, 2) = -t * std::sin(h);
-  g(1, 2) = t * std::cos(h);
-  return g;
-}
-
-Eigen::Matrix3d MotionJacobianControl(const Pose2& mu, const OdometryIncrement& u) {
-  const double h = mu.z() + u.rot1_rad;
-  const double t = u.trans_m;
-  const double c = std::cos(h), s = std::sin(h);
-  Eigen::Matrix3d v;
-  v << -t * s, c, 0.0,  //
-      t * c, s, 0.0,    //
-      1.0, 0.0, 1.0;
-  return v;
-}
-
-Eigen::Matrix3d MotionNoiseCovariance(const OdometryIncrement& u, const MotionNoise& noise) {
-  const double r1 = u.rot1_rad * u.rot1_rad;
-  const double t2 = u.trans_m * u.trans_m;
-  const double r2 = u.rot2_rad * u.rot2_rad;
-  return Eigen::Vector3d(noise.a1 * r1 + noise.a2 * t2, noise.a3 * t2 + noise.a4 * (r1 + r2),
-                         noise.a1 * r2 + noise.a2 * t2)
-      .asDiagonal();
+double TrackerOptions::Gate() const {
+  return gate_confidence > 0 ? ChiSquareQuantile(gate_confidence, 3) : gamma;
 }
 
 Mixture Propagate(const Mixture& prior, const OdometryIncrement& u, const MotionNoise& noise) {
@@ -268,6 +239,7 @@ Mixture FuseOnce(const Mixture& a_side, const Mixture& b_side, const TrackerOpti
   RepairAll(&a, options.min_covariance_eigenvalue, "FuseOnce: a_side");
   RepairAll(&b, options.min_covariance_eigenvalue, "FuseOnce: b_side");
   const std::size_t na = a.size(), nb = b.size();
+  const double gate = options.Gate();
 
   // (2): the gate D(a, b); (6), (7): hat_w_a = sum of the weights of a's counterparts in
   // b_side, hat_w_b = sum of the weights of b's counterparts in a_side.
@@ -276,7 +248,7 @@ Mixture FuseOnce(const Mixture& a_side, const Mixture& b_side, const TrackerOpti
   std::vector<char> b_matched(nb, 0);
   for (std::size_t i = 0; i < na; ++i) {
     for (std::size_t j = 0; j < nb; ++j) {
-      if (!Gated(a[i], b[j], options.gamma)) continue;
+      if (!Gated(a[i], b[j], gate)) continue;
       pairs.emplace_back(static_cast<int>(i), static_cast<int>(j));
       hat_w_a[i] += b[j].weight;
       hat_w_b[j] += a[i].weight;
@@ -375,14 +347,14 @@ Mixture Fuse(const Mixture& p_x_u, const std::vector<Mixture>& sources,
 
 bool IsUnimodal(const Mixture& m, const TrackerOptions& options) {
   if (m.empty()) return false;
+  const double gate = options.Gate();
   const double total = TotalWeight(m);
   const int s = StrongestComponent(m);
   for (int i = 0; i < static_cast<int>(m.size()); ++i) {
     if (i == s) continue;
     const double w = total > 0 ? m[i].weight / total : 1.0 / static_cast<double>(m.size());
     if (w < options.unimodal_min_weight) continue;
-    if (SquaredMahalanobis(m[i].mean, m[s].mean, m[i].covariance + m[s].covariance) >=
-        options.gamma)
+    if (SquaredMahalanobis(m[i].mean, m[s].mean, m[i].covariance + m[s].covariance) >= gate)
       return false;
   }
   return true;

@@ -23,6 +23,7 @@ std::string ToString(ToyMode m) { return m == ToyMode::kSlow ? "slow" : "fast"; 
 struct ToyInner {
   double gain = 0.5;
   std::uint32_t seed = 7;
+  double late_gain = 0.25;  // added in format 3
 };
 struct ToyOptions {
   int count = 3;
@@ -40,6 +41,7 @@ template <class V>
 void VisitFields(V& v, ToyInner& o) {
   v("gain", o.gain);
   v("seed", o.seed);
+  v.Since(3, [&](auto& w) { w("late_gain", o.late_gain); });
 }
 template <class V>
 void VisitFields(V& v, ToyOptions& o) {
@@ -153,6 +155,44 @@ TEST(Options, CompleteReadNamesMissingField) {
   const std::string e =
       ErrorOf([&] { OptionsFromValue(v, OptionSource{"engine.omap: options", true, {}}, &o); });
   EXPECT_NE(e.find("missing option 'rate_hz'"), std::string::npos) << e;
+}
+
+// Fields added in a later file format than the file's are left out while they keep their
+// defaults (so such a file keeps its bytes) and take their defaults when absent; a file of
+// their own format must have them.
+TEST(Options, NewerFieldsOmittedWhenDefaultAndFilledOnLoad) {
+  auto inner_keys = [](const OptionValue& tree) {
+    std::vector<std::string> keys;
+    for (const auto& [k, v] : tree.members) {
+      if (k != "inner") continue;
+      for (const auto& [ik, iv] : v.members) keys.push_back(ik);
+    }
+    return keys;
+  };
+  ToyOptions o;
+  o.count = 9;
+  const OptionValue old_file = OptionsToFileValue(o, 2);
+  EXPECT_EQ(inner_keys(old_file), (std::vector<std::string>{"gain", "seed"}));
+  EXPECT_EQ(inner_keys(OptionsToFileValue(o, 3)),
+            (std::vector<std::string>{"gain", "seed", "late_gain"}));
+  ToyOptions changed = o;
+  changed.inner.late_gain = 0.75;
+  EXPECT_EQ(inner_keys(OptionsToFileValue(changed, 2)),
+            (std::vector<std::string>{"gain", "seed", "late_gain"}));
+
+  ToyOptions loaded;
+  loaded.inner.late_gain = 0.25;
+  OptionSource v2{"old.omap: options", true, {}, 2};
+  OptionsFromValue(old_file, v2, &loaded);
+  EXPECT_EQ(loaded.count, 9);
+  EXPECT_EQ(loaded.inner.late_gain, 0.25);
+  OptionsFromValue(OptionsToFileValue(changed, 2), v2, &loaded);
+  EXPECT_EQ(loaded.inner.late_gain, 0.75);
+  const std::string e = ErrorOf([&] {
+    ToyOptions x;
+    OptionsFromValue(old_file, OptionSource{"new.omap: options", true, {}, 3}, &x);
+  });
+  EXPECT_NE(e.find("missing option 'inner.late_gain'"), std::string::npos) << e;
 }
 
 // Randomised round trips of every options struct of the project.

@@ -166,6 +166,38 @@ TEST(RunConfig, OverridesApplyOnTopOfTheFile) {
             std::string::npos);
 }
 
+// motion_noise_source: identified replaces the motion noise and appearance_sigma_m by
+// values identified from the log; values the configuration file gives explicitly win.
+TEST(RunConfig, IdentifiedMotionNoiseUnderExplicitValues) {
+  const std::filesystem::path path =
+      std::filesystem::temp_directory_path() /
+      ("omnicml_identified_test_" + std::to_string(::getpid()) + ".yaml");
+  {
+    std::ofstream os(path);
+    os << "motion_noise_source: identified\ntracker: {motion: {a1: 0.123}}\n";
+  }
+  OptionOverrides ov;
+  ov.config_path = path.string();
+  RunInput input;
+  input.world = "home_store";
+  input.days = 3;
+  input.frames_per_day = 120;
+  input.sim_image = ImageKind::kPanorama;
+  std::string note;
+  const CmlEngineOptions o = ResolveNewMapOptions(ov, input, &note);
+  std::filesystem::remove(path);
+  EXPECT_NE(note.find("motion noise identified from"), std::string::npos) << note;
+  EXPECT_EQ(o.tracker.motion.a1, 0.123);  // explicit
+  const MotionNoise defaults;
+  EXPECT_NE(o.tracker.motion.a3, defaults.a3);  // identified
+  EXPECT_NE(o.appearance_sigma_m, CmlEngineOptions{}.appearance_sigma_m);
+  // The configured source leaves the options as resolved.
+  OptionOverrides plain;
+  const CmlEngineOptions p = ResolveNewMapOptions(plain, input, &note);
+  EXPECT_TRUE(note.empty());
+  EXPECT_TRUE(SameEngineOptions(p, CmlEngineOptions{}));
+}
+
 TEST(RunInput, ValidatesTheInput) {
   // Exactly one input kind; missing log directories and unknown worlds are named.
   RunInput none;

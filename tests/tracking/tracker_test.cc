@@ -12,6 +12,7 @@
 #include <Eigen/QR>
 
 #include "omnicml/common/common.h"
+#include "omnicml/tracking/motion_noise_identification.h"
 
 namespace omnicml {
 namespace {
@@ -564,6 +565,153 @@ TEST(MixtureTracker, RecoversFromKidnapping) {
   const Gaussian& strongest = tracker.state()[StrongestComponent(tracker.state())];
   EXPECT_LE(strongest.covariance.determinant(), p_x_y[0].covariance.determinant() * (1 + 1e-9));
 }
+
+// gate_confidence states the gate as the chi-square quantile (3 dof) of a probability;
+// 0 keeps gamma; a pair at squared distance 5 fuses under the 99 % gate, not under 3.
+TEST(TrackerOptions, GateConfidenceIsTheChiSquareQuantile) {
+  TrackerOptions o;
+  EXPECT_EQ(o.Gate(), o.gamma);
+  o.gate_confidence = 0.99;
+  EXPECT_NEAR(o.Gate(), 11.3449, 1e-3);
+  const Gaussian a{Pose2::Zero(), Eigen::Matrix3d::Identity(), 1.0};
+  const Gaussian b{MakePose(std::sqrt(5.0 * 2.0), 0.0, 0.0), Eigen::Matrix3d::Identity(), 1.0};
+  EXPECT_EQ(FuseOnce({a}, {b}, o).size(), 1u);  // fused into one component
+  o.gate_confidence = 0.0;
+  EXPECT_EQ(FuseOnce({a}, {b}, o).size(), 2u);  // gamma 3: both copied
+  o.gate_confidence = 1.0;
+  EXPECT_THROW(o.Validate(), Error);
+}
+
+// Laps of a rounded square (0.2 m steps, turns spread over corner steps) driven with
+// odometry noise `noise`: returns the odometry poses and the frame count per lap.
+std::vector<Pose2> NoisyLaps(const MotionNoise& noise, int laps, std::mt19937_64& rng,
+                             int* steps_per_lap) {
+  std::vector<OdometryIncrement> lap;
+  for (int side = 0; side < 4; ++side) {
+    for (int i = 0; i < 10; ++i) lap.push_back(OdometryIncrement{0.0, 0.2, 0.0});
+    for (int i = 0; i < 3; ++i) lap.push_back(OdometryIncrement{kPi / 12, 0.1, kPi / 12});
+  }
+  *steps_per_lap = static_cast<int>(lap.size());
+  std::normal_distribution<double> n(0.0, 1.0);
+  std::vector<Pose2> odometry{Pose2::Zero()};
+  for (int k = 0; k < laps; ++k) {
+    for (const OdometryIncrement& u : lap) {
+      const Eigen::Matrix3d m = MotionNoiseCovariance(u, noise);
+      const OdometryIncrement noisy{u.rot1_rad + std::sqrt(m(0, 0)) * n(rng),
+                                    u.trans_m + std::sqrt(m(1, 1)) * n(rng),
+                                    u.rot2_rad + std::sqrt(m(2, 2)) * n(rng)};
+      odometry.push_back(ApplyIncrement(odometry.back(), noisy));
+    }
+  }
+  return odometry;
+}
+
+// The prefix-sum drift bases equal the covariance Propagate accumulates from a known
+// pose along the same odometry with unit noise in each parameter.
+TEST(MotionNoiseIdentification, DriftBasesEqualPropagation) {
+  std::mt19937_64 rng(3);
+  int per_lap = 0;
+  const std::vector<Pose2> odometry =
+      NoisyLaps(MotionNoise{0.01, 0.002, 0.005, 0.001}, 3, rng, &per_lap);
+  const std::vector<LoopPair> pairs{{0, 50}, {7, 7}, {20, 100}, {3, static_cast<int>(odometry.size()) - 1}};
+  const auto bases = LoopDriftBases(odometry, pairs);
+  for (std::size_t k = 0; k < pairs.size(); ++k) {
+    for (int j = 0; j < 4; ++j) {
+      MotionNoise unit{0, 0, 0, 0};
+      (j == 0 ? unit.a1 : j == 1 ? unit.a2 : j == 2 ? unit.a3 : unit.a4) = 1.0;
+      Mixture m{Gaussian{odometry[pairs[k].first], 1e-12 * Eigen::Matrix3d::Identity(), 1.0}};
+      for (int i = pairs[k].first + 1; i <= pairs[k].second; ++i) {
+        m = Propagate(m, ComputeIncrement(odometry[i - 1], odometry[i]), unit);
+      }
+      EXPECT_NEAR(m[0].mean.x(), odometry[pairs[k].second].x(), 1e-9);
+      const Eigen::Matrix2d expected = m[0].covariance.block<2, 2>(0, 0);
+      EXPECT_LT((bases[k][j] - expected).norm(), 1e-8 * (1.0 + expected.norm())) << k << " " << j;
+    }
+  }
+}
+
+// Loop innovations of a noisy multi-lap log identify a noise whose predicted loop
+// drift matches the true one, and whose NIS on held-out laps is consistent.
+TEST(MotionNoiseIdentification, RecoversTheDriftOfTheTrueNoise) {
+  const MotionNoise truth{0.01, 0.002, 0.005, 0.001};
+  std::mt19937_64 rng(11);
+  int per_lap = 0;
+  const std::vector<Pose2> odometry = NoisyLaps(truth, 80, rng, &per_lap);
+  std::vector<LoopPair> pairs;  // each frame against the same place one lap earlier
+  for (int t = per_lap; t < static_cast<int>(odometry.size()); t += 4) {
+    pairs.push_back(LoopPair{t - per_lap, t});
+  }
+  const MotionNoiseIdentification id = IdentifyMotionNoise(odometry, pairs);
+  ASSERT_TRUE(id.identified);
+  EXPECT_GT(id.pairs_used, static_cast<int>(0.95 * pairs.size()));
+  // The predicted drift variance over a lap (trace, summed over pairs) against the truth's.
+  const auto bases = LoopDriftBases(odometry, pairs);
+  double predicted = 0.0, expected = 0.0;
+  const std::array<double, 4> a_hat{id.noise.a1, id.noise.a2, id.noise.a3, id.noise.a4};
+  const std::array<double, 4> a_true{truth.a1, truth.a2, truth.a3, truth.a4};
+  for (const auto& b : bases) {
+    for (int j = 0; j < 4; ++j) {
+      predicted += a_hat[j] * b[j].trace();
+      expected += a_true[j] * b[j].trace();
+    }
+  }
+  EXPECT_GT(predicted / expected, 0.6);
+  EXPECT_LT(predicted / expected, 1.6);
+  EXPECT_LT(id.appearance_variance_m2, 0.01);  // the pairs are exact revisits
+  // Held out: a new log with the same noise; the NIS of its lap pairs under the estimate.
+  std::mt19937_64 rng2(12);
+  const std::vector<Pose2> fresh = NoisyLaps(truth, 40, rng2, &per_lap);
+  std::vector<LoopPair> fresh_pairs;
+  for (int t = per_lap; t < static_cast<int>(fresh.size()); t += per_lap) {
+    fresh_pairs.push_back(LoopPair{t - per_lap, t});
+  }
+  const auto fresh_bases = LoopDriftBases(fresh, fresh_pairs);
+  double nis_sum = 0.0;
+  for (std::size_t k = 0; k < fresh_pairs.size(); ++k) {
+    Eigen::Matrix2d s = id.appearance_variance_m2 * Eigen::Matrix2d::Identity();
+    for (int j = 0; j < 4; ++j) s += a_hat[j] * fresh_bases[k][j];
+    const Pose2& a = fresh[fresh_pairs[k].first];
+    const Pose2& b = fresh[fresh_pairs[k].second];
+    const Eigen::Vector2d r(b.x() - a.x(), b.y() - a.y());
+    nis_sum += r.dot(s.inverse() * r);
+  }
+  const double mean_nis = nis_sum / static_cast<double>(fresh_pairs.size());
+  EXPECT_GT(mean_nis, 1.0);  // consistent: 2 (40 independent laps)
+  EXPECT_LT(mean_nis, 3.2);
+}
+
+// Aliased pairs (two different places that look alike) are rejected, not fitted.
+TEST(MotionNoiseIdentification, RejectsAliasedPairs) {
+  std::mt19937_64 rng(5);
+  int per_lap = 0;
+  const std::vector<Pose2> odometry = NoisyLaps(MotionNoise{0.01, 0.002, 0.005, 0.001}, 60, rng, &per_lap);
+  std::vector<LoopPair> pairs;
+  for (int t = per_lap; t < static_cast<int>(odometry.size()); t += 4) pairs.push_back({t - per_lap, t});
+  const MotionNoiseIdentification clean = IdentifyMotionNoise(odometry, pairs);
+  const std::size_t good = pairs.size();
+  // 5 % aliases: a frame against the opposite side of the square of the previous lap.
+  for (std::size_t k = 0; k < good; k += 20) {
+    const int t = pairs[k].second;
+    if (t >= 2 * per_lap) pairs.push_back({t - per_lap / 2 - per_lap, t});
+  }
+  const MotionNoiseIdentification id = IdentifyMotionNoise(odometry, pairs);
+  ASSERT_TRUE(clean.identified && id.identified);
+  EXPECT_EQ(id.pairs_used, clean.pairs_used);
+  EXPECT_NEAR(id.noise.a3 + id.noise.a2, clean.noise.a3 + clean.noise.a2,
+              0.05 * (clean.noise.a3 + clean.noise.a2));
+}
+
+// Too few pairs leave the noise unidentified; bad pairs and options are errors.
+TEST(MotionNoiseIdentification, RefusesTooLittleDataAndBadInput) {
+  std::vector<Pose2> odometry(10, Pose2::Zero());
+  EXPECT_FALSE(IdentifyMotionNoise(odometry, {{0, 5}}).identified);
+  EXPECT_THROW(LoopDriftBases(odometry, {{5, 2}}), Error);
+  EXPECT_THROW(LoopDriftBases(odometry, {{0, 10}}), Error);
+  MotionNoiseIdentificationOptions bad;
+  bad.outlier_confidence = 1.0;
+  EXPECT_THROW(IdentifyMotionNoise(odometry, {}, bad), Error);
+}
+
 
 }  // namespace
 }  // namespace omnicml

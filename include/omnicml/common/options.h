@@ -11,6 +11,7 @@
 //     v.Section("motion", o.motion);                      // nested struct (its VisitFields)
 //     v.Renamed("e_max", "retrieval.e_max", o.retrieval.e_max);  // former key: read, not written
 //     v.template Converted<Rep>("kernels", o.kernels, to_rep, from_rep);  // other shapes
+//     v.Since(15, [&](auto& w) { w("gate_confidence", o.gate_confidence); });  // newer fields
 //   }
 //
 // The field name is the YAML key and the member name. Supported field types: bool,
@@ -31,7 +32,15 @@
 // reported by one warning line on stderr per section ("<source>:<line>: warning: ...");
 // such keys are never written, and a binary (complete) read does not require them.
 // A partial read (YAML) keeps the value of absent keys; a complete read (binary) requires
-// every field.
+// every field, except fields added in a later format version than the file's.
+//
+// Format versions of binary files: fields visited inside `Since(version, visit)` were
+// added in file format `version`. A complete read of a file of an earlier format version
+// (OptionSource::format_version) fills them with their defaults when absent;
+// OptionsToFileValue omits them when they equal their defaults, so a file of default
+// options keeps the bytes it had before those fields existed. A field added without a
+// format bump is declared Since(current format + 1): omitted when default, read when
+// present. YAML reads and writes are not affected.
 //
 // Pure functions and value types; thread-safe.
 #ifndef OMNICML_COMMON_OPTIONS_H_
@@ -61,6 +70,9 @@ struct OptionValue {
   std::vector<OptionValue> items;                            // kList
   std::vector<std::pair<std::string, OptionValue>> members;  // kMap
   int line = 0;  // 1-based line in the source text; 0 when unknown (binary, built)
+  // The format version a field was added in (TreeWriter under Since); 0 for fields of
+  // every version. Not encoded, not compared.
+  std::uint32_t since_version = 0;
 
   // Declared here, defaulted in options.cc: clang with libstdc++ cannot instantiate the
   // implicit ones while OptionValue is still incomplete (std::pair of it in `members`).
@@ -85,6 +97,9 @@ struct OptionSource {
   // Top-level keys that are accepted and skipped (not options, e.g. the inputs an app
   // writes into the same file).
   std::vector<std::string> ignored_keys;
+  // The file format version of a complete read: fields added in a later version (Since)
+  // may be absent and keep their defaults. The largest value: this build's format.
+  std::uint32_t format_version = std::numeric_limits<std::uint32_t>::max();
 };
 
 // YAML text -> tree. Throws omnicml::Error "<source>:<line>: ..." on a syntax error or a
@@ -243,6 +258,15 @@ class TreeWriter {
   template <class E>
   void RenamedEnum(const char* /*old_key*/, const char* /*new_path*/, E& /*field*/,
                    std::initializer_list<E> /*values*/) {}
+  // The fields `visit(*this)` writes are marked as added in format `version`.
+  template <class F>
+  void Since(std::uint32_t version, F&& visit) {
+    const std::size_t first = map_->members.size();
+    visit(*this);
+    for (std::size_t i = first; i < map_->members.size(); ++i) {
+      map_->members[i].second.since_version = version;
+    }
+  }
 
  private:
   void Add(const char* key, OptionValue v) { map_->members.emplace_back(key, std::move(v)); }
@@ -329,11 +353,21 @@ class TreeReader {
       EnumValue(n, JoinPath(prefix_, old_key), field, values);
     }
   }
+  // Fields added in format `version`: not required by a complete read of an earlier
+  // format (absent ones keep their values, the defaults).
+  template <class F>
+  void Since(std::uint32_t version, F&& visit) {
+    const bool saved = optional_;
+    if (src_.format_version < version) optional_ = true;
+    visit(*this);
+    optional_ = saved;
+  }
   // Throws for the first key no field claimed (and, for a complete read, was missing);
   // prints the deprecation warning for keys read under a former name.
   void Finish() const;
 
  private:
+  bool optional_ = false;  // inside a Since of a later format than the file's
   const OptionValue* Take(const char* key);
   // The scalar or list under a former key, claimed; nullptr when absent or a map.
   const OptionValue* TakeRenamed(const char* old_key, const char* new_path);
@@ -389,6 +423,10 @@ class Randomizer {
   template <class E>
   void RenamedEnum(const char* /*old_key*/, const char* /*new_path*/, E& /*field*/,
                    std::initializer_list<E> /*values*/) {}
+  template <class F>
+  void Since(std::uint32_t /*version*/, F&& visit) {
+    visit(*this);
+  }
 
  private:
   double Uniform(double lo, double hi) { return std::uniform_real_distribution<double>(lo, hi)(rng_); }
@@ -426,6 +464,10 @@ class Randomizer {
   std::mt19937& rng_;
 };
 
+// Removes from *tree (recursively) the members added after `format_version` (since_version
+// > format_version) that equal the same member of `defaults`.
+void OmitNewerDefaults(OptionValue* tree, const OptionValue& defaults, std::uint32_t format_version);
+
 }  // namespace options_internal
 
 // ---- the generic operations on any struct with a VisitFields -----------------------------
@@ -438,6 +480,15 @@ OptionValue OptionsToValue(const O& options) {
   options_internal::TreeWriter w(&map);
   VisitFields(w, copy);
   return map;
+}
+
+// Every field as a tree for a binary file of `format_version`: fields added in a later
+// version (Since) are left out when they equal their defaults (O{}).
+template <class O>
+OptionValue OptionsToFileValue(const O& options, std::uint32_t format_version) {
+  OptionValue tree = OptionsToValue(options);
+  options_internal::OmitNewerDefaults(&tree, OptionsToValue(O{}), format_version);
+  return tree;
 }
 
 // Reads a tree (a map) into *options; see OptionSource. Does not validate.

@@ -12,6 +12,14 @@
 // default times s = L / reference_match_length_m (clamped to [min_scale, max_scale]).
 // Descriptor thresholds (e_max) stay: they are in descriptor units, not the world's.
 //
+// Motion noise (tracking/motion_noise_identification.h): the log is read on (every
+// session, up to max_frames in all); a frame t and its nearest frame in appearance among
+// the earlier frames of its session more than loop_min_path_match_lengths * L of odometry
+// path back, or of an earlier session when both sessions start at a known pose, form a
+// loop pair when closer than E(L / 2) (the curve's median distance at half the match
+// length); a1..a4 and the appearance offset variance rho are their maximum-likelihood
+// values. Their innovations need no ground truth. The curve and L use the first session.
+//
 // Pure function of the log and the options; not thread-safe per FrameSource.
 #ifndef OMNICML_ENGINE_CALIBRATION_H_
 #define OMNICML_ENGINE_CALIBRATION_H_
@@ -21,11 +29,12 @@
 
 #include "omnicml/engine/cml_engine.h"
 #include "omnicml/sensor/frame.h"
+#include "omnicml/tracking/motion_noise_identification.h"
 
 namespace omnicml {
 
 struct CalibrationOptions {
-  // Frames of the first session used (from its start). > 1.
+  // Frames read (from the start; the first session's for the curve). > 1.
   int max_frames = 3000;
   // Largest frame lag measured. >= 1.
   int max_lag_frames = 400;
@@ -36,6 +45,12 @@ struct CalibrationOptions {
   // Clamp of the scale factor s.
   double min_scale = 0.02;
   double max_scale = 1.0;
+  // Loop pairs: the earlier frame lies at least this many match lengths L of odometry path
+  // back (so that odometry drift, not the appearance offset, dominates). > 0.
+  double loop_min_path_match_lengths = 20.0;
+  // Largest number of loop pairs used (evenly subsampled by the later frame). >= 1.
+  int max_loop_pairs = 2000;
+  MotionNoiseIdentificationOptions identification;
 
   // Throws omnicml::Error naming the first invalid field.
   void Validate() const;
@@ -62,6 +77,11 @@ struct Calibration {
   double anchor_max_sigma_m = 0.0;
   double d_for_m = 0.0;
   double spatial_cell_m = 0.0;
+  // Loop pairs and the motion noise identified from them.
+  double loop_e_max = 0.0;  // E(L / 2): the descriptor distance a loop pair is below
+  int loop_frames = 0;      // frames searched for loop pairs (every session read)
+  int loop_sessions = 0;
+  MotionNoiseIdentification motion;
 
   // The derived values as an engine configuration (YAML, loadable with --config), the
   // measurements as comments above them.
@@ -73,8 +93,13 @@ struct Calibration {
 Calibration Calibrate(FrameSource& source, const CmlEngineOptions& options,
                       const CalibrationOptions& calibration_options = {});
 
-// Writes the derived values into `options`.
+// Writes the derived spatial values into `options`.
 void ApplyCalibration(const Calibration& calibration, CmlEngineOptions* options);
+
+// Writes the identified motion noise into options->tracker.motion (and
+// reconstruction.motion), and rho as appearance_sigma_m = sqrt(rho), when identified;
+// returns whether it was.
+bool ApplyMotionCalibration(const Calibration& calibration, CmlEngineOptions* options);
 
 }  // namespace omnicml
 

@@ -103,6 +103,13 @@ void VisitFields(V& v, GatedMatchingOptions& o) {
   v("min_views", o.min_views);
 }
 
+// kConfigured: tracker.motion and appearance_sigma_m as configured. kIdentified: at the
+// start of a new map, the run first reads the log's first session and sets them to the
+// maximum-likelihood values of its appearance loop innovations (engine/calibration.h
+// Calibrate, tracking/motion_noise_identification.h); values given explicitly in the
+// configuration file still win. A run that loads a map keeps the map's values.
+enum class MotionNoiseSource { kConfigured, kIdentified };
+
 struct CmlEngineOptions {
   // Which descriptor and its parameters (descriptor_factory.h).
   DescriptorOptions descriptor;
@@ -184,6 +191,9 @@ struct CmlEngineOptions {
   PoseGraphOptions pose_graph;
   // Pose-gated matching while tracking (above). Off by default.
   GatedMatchingOptions gated_matching;
+  // Where tracker.motion (and appearance_sigma_m) come from when a run starts a new map
+  // (MotionNoiseSource); read by the run layer, which calibrates before the first frame.
+  MotionNoiseSource motion_noise_source = MotionNoiseSource::kConfigured;
 
   // Throws omnicml::Error naming the first invalid field (including nested options,
   // prefixed "descriptor.", "tracker.", "model.", "reconstruction.").
@@ -215,6 +225,12 @@ void VisitFields(V& v, CmlEngineOptions& o) {
   v.Section("reconstruction", o.reconstruction);
   v.Section("pose_graph", o.pose_graph);
   v.Section("gated_matching", o.gated_matching);
+  // After engine file format 14: stored only when not the default (common/options.h).
+  v.Since(15, [&](auto& w) {
+    w.NamedEnum("motion_noise_source", o.motion_noise_source,
+                {{MotionNoiseSource::kConfigured, "configured"},
+                 {MotionNoiseSource::kIdentified, "identified"}});
+  });
 }
 
 // Timing (microseconds, wall clock) and sizes of one ProcessFrame call.

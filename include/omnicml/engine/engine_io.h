@@ -62,6 +62,8 @@ namespace omnicml {
 // 13: option descriptor.ifh.normalize_columns.
 // 14: the session camera's model (ring, fisheye, equirectangular), its fields and the
 //    user mask after the ring calibration.
+// Options added since 14 without a format bump are declared Since(15) in their
+// VisitFields: stored only when not default (tracker.fusion).
 // The model's options keep these flat names in the file (model.e_max, model.forgetting,
 // ...) although YAML and C++ group them in sections (environment_model_options.h
 // FlatModelOptionsValue), so files of every version keep their bytes and load as before.
@@ -81,9 +83,12 @@ std::vector<std::uint8_t> EncodeEngine(const CmlEngine& engine);
 // Parses bytes produced by EncodeEngine; `source` names them in errors.
 std::unique_ptr<CmlEngine> DecodeEngine(const std::vector<std::uint8_t>& bytes, const std::string& source);
 
-// Option encoding, shared with anything else that stores an engine configuration.
+// Option encoding, shared with anything else that stores an engine configuration. Written
+// for the current format; fields added in a later format than `format_version` (the
+// file's) may be absent and take their defaults (common/options.h Since).
 void WriteEngineOptions(BinaryWriter& out, const CmlEngineOptions& options);
-CmlEngineOptions ReadEngineOptions(BinaryReader& in);
+CmlEngineOptions ReadEngineOptions(BinaryReader& in,
+                                   std::uint32_t format_version = kEngineFormatVersion);
 
 }  // namespace omnicml
 

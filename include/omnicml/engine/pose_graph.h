@@ -47,7 +47,7 @@
 #include "omnicml/common/binary_io.h"
 #include "omnicml/geometry/gaussian_mixture.h"
 #include "omnicml/geometry/pose.h"
-#include "omnicml/tracking/tracker.h"
+#include "omnicml/geometry/motion_model.h"
 
 namespace omnicml {
 

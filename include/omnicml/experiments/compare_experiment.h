@@ -96,6 +96,9 @@ struct CompareSettings {
   // Also return each mode's engine after Finish (CompareModeResult::engine).
   bool keep_engines = false;
   CompareOutputs outputs;  // nothing written by default
+  // Appended to the input line of each mode's report and config.yaml (what a new map's
+  // automatic calibration identified, run_config.h ResolveNewMapOptions); "" = nothing.
+  std::string input_note;
 };
 
 // One mode's run.

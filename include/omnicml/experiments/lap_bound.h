@@ -32,7 +32,7 @@
 #include <vector>
 
 #include "omnicml/geometry/pose.h"
-#include "omnicml/tracking/tracker.h"
+#include "omnicml/geometry/motion_model.h"
 
 namespace omnicml {
 

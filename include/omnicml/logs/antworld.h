@@ -48,7 +48,7 @@
 
 #include "omnicml/sensor/frame.h"
 #include "omnicml/geometry/pose.h"
-#include "omnicml/tracking/tracker.h"
+#include "omnicml/geometry/motion_model.h"
 
 namespace omnicml {
 

@@ -93,6 +93,18 @@ CmlEngineOptions ResolveEngineOptions(const OptionOverrides& overrides,
 // "" when config.yaml is missing, unreadable or names none. Never throws.
 std::string ReadRunForgetting(const std::filesystem::path& run_dir);
 
+struct RunInput;  // frame_sources.h
+
+// The options of a run that starts a new map: ResolveEngineOptions(overrides, base), and
+// when they say motion_noise_source: identified, the motion noise and appearance_sigma_m
+// identified from the first session of `input` (engine/calibration.h
+// ApplyMotionCalibration) under the configuration file and the flags (explicit values
+// win). *note (if not null) gets one line on what was identified, or "" with configured
+// motion noise. Reads the first session once more (a second FrameSource). Throws
+// omnicml::Error.
+CmlEngineOptions ResolveNewMapOptions(const OptionOverrides& overrides, const RunInput& input,
+                                      std::string* note, const CmlEngineOptions& base = {});
+
 }  // namespace omnicml
 
 #endif  // OMNICML_RUN_RUN_CONFIG_H_

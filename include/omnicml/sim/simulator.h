@@ -35,7 +35,7 @@
 #include "omnicml/geometry/pose.h"
 #include "omnicml/sim/raw_camera.h"
 #include "omnicml/sim/renderer.h"
-#include "omnicml/tracking/tracker.h"
+#include "omnicml/geometry/motion_model.h"
 #include "omnicml/sim/world.h"
 
 namespace omnicml {

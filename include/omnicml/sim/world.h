@@ -21,8 +21,8 @@
 
 #include <Eigen/Core>
 
+#include "omnicml/geometry/motion_model.h"
 #include "omnicml/geometry/pose.h"
-#include "omnicml/tracking/tracker.h"
 
 namespace omnicml {
 

@@ -15,19 +15,10 @@
 #include <Eigen/Core>
 
 #include "omnicml/geometry/gaussian_mixture.h"
+#include "omnicml/geometry/motion_model.h"
 #include "omnicml/geometry/pose.h"
 
 namespace omnicml {
-
-// Odometry error model a1..a4 (docs/design.md "Motion model", Thrun et al.):
-// M = diag(a1 rot1^2 + a2 trans^2, a3 trans^2 + a4 (rot1^2 + rot2^2), a1 rot2^2 + a2 trans^2).
-struct MotionNoise {
-  double a1 = 0.05;  // rad^2 of rotation noise per rad^2 of rotation
-  double a2 = 0.01;  // rad^2 of rotation noise per m^2 of translation
-  double a3 = 0.05;  // m^2 of translation noise per m^2 of translation
-  double a4 = 0.01;  // m^2 of translation noise per rad^2 of rotation
-  void Validate() const;  // throws omnicml::Error naming the field if negative/non-finite
-};
 
 // How a gated pair (a from p(x|u) or an earlier fusion, b from a source) becomes one
 // component (docs/design.md "Fusion of state hypotheses").
@@ -45,13 +36,11 @@ enum class FusionRule {
 struct TrackerOptions {
   // Gate (2): a and b are fused iff their squared Mahalanobis distance under C_a + C_b
   // is below gamma. Dimensionless, on the engine's own covariances. For consistent
-  // covariances the 99 % chi-square quantile (3 DOF) is 11.34, [G]'s choice and ours
-  // until 2026-11-25. The engine's covariances are wider than its errors (covariance
-  // intersection, the conservative default motion noise): position NEES mean about 0.5
-  // on institute instead of 2, so 11.34 there is a gate at about 45 in consistent units,
-  // which let aliased views pull the estimate metres away in one step. 3.0 is the 99 %
-  // gate at that consistency (11.34 x 0.5 / 2), measured in docs/results.md "The
-  // fusion gate". Also the unimodality radius (below) and the prior gate of p(x|y).
+  // covariances the 99 % chi-square quantile (3 DOF) is 11.34, [G]'s choice. The default
+  // 3.0 is that gate for covariances about four times wider (in the squared distance)
+  // than the errors, as the default motion noise and covariance intersection give
+  // (docs/results.md "The fusion gate"). Also the unimodality radius (below) and the prior
+  // gate of p(x|y). Ignored when gate_confidence > 0.
   double gamma = 3.0;
   // Components with normalised weight below w_min are dropped. Dimensionless.
   double w_min = 1e-3;
@@ -67,18 +56,18 @@ struct TrackerOptions {
   double min_covariance_eigenvalue = 1e-10;
   // The fusion of a gated pair (FusionRule).
   FusionRule fusion = FusionRule::kCovarianceIntersection;
+  // The gate stated as a confidence: when > 0 (and < 1), gamma is the chi-square quantile
+  // of this probability with 3 degrees of freedom (0.99 -> 11.34), the textbook gate for
+  // a consistent covariance. 0: gamma as given.
+  double gate_confidence = 0.0;
   MotionNoise motion;
   void Validate() const;  // throws omnicml::Error naming the field
+  // The gate in use: ChiSquareQuantile(gate_confidence, 3) when gate_confidence > 0, else
+  // gamma.
+  double Gate() const;
 };
 
 // The options schema (common/options.h): YAML keys, dump, binary codec.
-template <class V>
-void VisitFields(V& v, MotionNoise& o) {
-  v("a1", o.a1);
-  v("a2", o.a2);
-  v("a3", o.a3);
-  v("a4", o.a4);
-}
 template <class V>
 void VisitFields(V& v, TrackerOptions& o) {
   v("gamma", o.gamma);
@@ -87,19 +76,16 @@ void VisitFields(V& v, TrackerOptions& o) {
   v("max_components", o.max_components);
   v("unimodal_min_weight", o.unimodal_min_weight);
   v("min_covariance_eigenvalue", o.min_covariance_eigenvalue);
-  v.NamedEnum("fusion", o.fusion,
-              {{FusionRule::kCovarianceIntersection, "covariance_intersection"},
-               {FusionRule::kIndependent, "independent"}});
+  // Fields after engine file format 14 (engine_io.h): omitted from engine files while
+  // they keep their defaults, so default files keep their bytes and older files load.
+  v.Since(15, [&](auto& w) {
+    w.NamedEnum("fusion", o.fusion,
+                {{FusionRule::kCovarianceIntersection, "covariance_intersection"},
+                 {FusionRule::kIndependent, "independent"}});
+    w("gate_confidence", o.gate_confidence);
+  });
   v.Section("motion", o.motion);
 }
-
-// Jacobians of g(mu, u) = ApplyIncrement(mu, u): G = dg/dmu (3x3), V = dg/du (3x3, u =
-// (rot1, trans, rot2)).
-Eigen::Matrix3d MotionJacobianState(const Pose2& mu, const OdometryIncrement& u);
-Eigen::Matrix3d MotionJacobianControl(const Pose2& mu, const OdometryIncrement& u);
-
-// The control noise M of the model above for increment u.
-Eigen::Matrix3d MotionNoiseCovariance(const OdometryIncrement& u, const MotionNoise& noise);
 
 // p(x|u): mu' = g(mu, u); C' = G C G^T + V M V^T; weights unchanged.
 Mixture Propagate(const Mixture& prior, const OdometryIncrement& u, const MotionNoise& noise);

@@ -72,7 +72,7 @@
 #include "omnicml/sensor/frame.h"
 #include "omnicml/baselines/mcl/occupancy_grid.h"
 #include "omnicml/geometry/pose.h"
-#include "omnicml/tracking/tracker.h"
+#include "omnicml/geometry/motion_model.h"
 
 namespace omnicml {
 

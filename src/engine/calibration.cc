@@ -123,7 +123,7 @@ Calibration Calibrate(FrameSource& source, const CmlEngineOptions& options,
       unwrapper.reset();
       if (info.camera.kind == ImageKind::kRawRing) {
         unwrapper = std::make_unique<OmniUnwrapper>(info.camera.calibration, info.camera.image_width,
-                                                    info.camera.image_height);
+                                                    info.camera.image_height, info.camera.mask);
       }
       sessions.resize(static_cast<std::size_t>(frame.session_index) + 1);
       OdometrySession& s = sessions.back();

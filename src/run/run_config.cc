@@ -59,7 +59,10 @@ bool SameEngineOptions(const CmlEngineOptions& a, const CmlEngineOptions& b) {
 CmlEngineOptions ResolveEngineOptions(const OptionOverrides& overrides,
                                       const CmlEngineOptions& base) {
   CmlEngineOptions options =
-      overrides.config_path.empty() ? base : LoadEngineOptionsYaml(overrides.config_path);
+      overrides.config_path.empty()
+          ? base
+          : ParseEngineOptionsYaml(ReadOptionFile(overrides.config_path), overrides.config_path,
+                                   base);
   if (overrides.descriptor) {
     options.descriptor.kind = DescriptorKindFromString(*overrides.descriptor);
   }

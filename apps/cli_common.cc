@@ -23,10 +23,11 @@ void AddRunInputFlags(CLI::App* cmd, RunSettings* f, bool with_forgetting) {
   cmd->add_option("--first-day", f->input.first_day,
                   "First simulated day, 0-based (with --world; resume with --map-in)")
       ->capture_default_str();
-  cmd->add_option("--frames-per-day", f->input.frames_per_day,
-                  StrCat("Simulated frames per day (0 = the simulator default, 300; one lap is "
-                         "about 285 on home_store, 180 on institute, 1425 on store_large), at most ",
-                         kMaxFramesPerDay, "; days x frames at most ", kMaxSimulatedFrames))
+  cmd->add_option(
+         "--frames-per-day", f->input.frames_per_day,
+         StrCat("Simulated frames per day (0 = the simulator default, 300; one lap is "
+                "about 285 on home_store, 180 on institute, 1425 on store_large), at most ",
+                kMaxFramesPerDay, "; days x frames at most ", kMaxSimulatedFrames))
       ->capture_default_str();
   cmd->add_option("--seed", f->input.seed, "Simulator seed")->capture_default_str();
   cmd->add_option_function<std::string>(
@@ -78,8 +79,8 @@ void AddRunInputFlags(CLI::App* cmd, RunSettings* f, bool with_forgetting) {
                   "Trusted poses of the survey days as a TUM file (stamp x y z qx qy qz qw per "
                   "line), matched to frames by stamp; default: the input's ground truth");
   AddOutputDirectory(cmd, "--out", &f->out_dir,
-                  "Run directory (default runs/<command>-<date>-<time>); checked, with every "
-                  "other output, before the first frame");
+                     "Run directory (default runs/<command>-<date>-<time>); checked, with every "
+                     "other output, before the first frame");
   cmd->add_flag("--quiet", f->quiet, "No progress output");
   cmd->add_flag("--no-progress-bar", f->no_progress_bar, "Plain log lines even on a terminal");
   cmd->add_option("--log-every", f->log_every_frames, "Frames between plain progress lines")

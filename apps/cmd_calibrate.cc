@@ -36,9 +36,11 @@ const CommandRegistration kRegistration{
       auto f = std::make_shared<CalibrateFlags>();
       cmd->add_option("logs", f->input.log_dirs, "Log (its first session is used)");
       cmd->add_option("--world", f->input.world, "Built-in simulated world instead of a log");
-      cmd->add_option("--frames-per-day", f->input.frames_per_day, "Simulated frames (with --world)");
-      cmd->add_option("--days", f->input.days,
-                      "Simulated days (with --world): later days add loop pairs for the motion noise")
+      cmd->add_option("--frames-per-day", f->input.frames_per_day,
+                      "Simulated frames (with --world)");
+      cmd->add_option(
+             "--days", f->input.days,
+             "Simulated days (with --world): later days add loop pairs for the motion noise")
           ->capture_default_str();
       cmd->add_option("--seed", f->input.seed, "Simulator seed")->capture_default_str();
       cmd->add_option("--config", f->config_path, "Engine configuration (descriptor, e_max)");

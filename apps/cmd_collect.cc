@@ -22,8 +22,8 @@ const CommandRegistration kRegistration{
       cmd->callback([dir] {
         const std::vector<SweepRow> rows = CollectSweep(*dir);
         std::cout << SweepRowsToCsv(rows);
-        std::cout << "collected " << rows.size() << " run(s) into " << *dir
-                  << "/summary.csv and " << *dir << "/summary.html\n";
+        std::cout << "collected " << rows.size() << " run(s) into " << *dir << "/summary.csv and "
+                  << *dir << "/summary.html\n";
       });
     }};
 

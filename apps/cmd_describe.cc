@@ -28,8 +28,8 @@
 #include "command_registry.h"
 #include "omnicml/common/common.h"
 #include "omnicml/descriptors/descriptor_factory.h"
-#include "omnicml/unwrap/omni_unwrapper.h"
 #include "omnicml/run/run_config.h"
+#include "omnicml/unwrap/omni_unwrapper.h"
 
 namespace omnicml::app {
 namespace {
@@ -198,14 +198,17 @@ const CommandRegistration kRegistration{
           "Describe panoramas: sizes, pairwise descriptor distances and relative headings");
       cmd->add_option("images", args->images,
                       "Image files (panoramas, or raw ring images with --unwrap/--auto-calibrate)");
-      cmd->add_option("--descriptor", args->descriptor,
-                      "Descriptor: fourier, ifh or color (default: the --config kind, else fourier)")
+      cmd->add_option(
+             "--descriptor", args->descriptor,
+             "Descriptor: fourier, ifh or color (default: the --config kind, else fourier)")
           ->check(CLI::IsMember({"fourier", "ifh", "color"}));
-      cmd->add_option("--config", args->config,
-                      "Engine configuration YAML whose descriptor section sets the descriptor options")
+      cmd->add_option(
+             "--config", args->config,
+             "Engine configuration YAML whose descriptor section sets the descriptor options")
           ->check(CLI::ExistingFile);
-      auto* unwrap = cmd->add_option("--unwrap", args->calibration,
-                                     "Unwrap raw camera images (any camera model) with this calibration YAML");
+      auto* unwrap =
+          cmd->add_option("--unwrap", args->calibration,
+                          "Unwrap raw camera images (any camera model) with this calibration YAML");
       auto* autocal = cmd->add_flag("--auto-calibrate", args->auto_calibrate,
                                     "Unwrap raw ring images, estimating each ring's calibration");
       auto* pano =

@@ -17,9 +17,9 @@
 #include "omnicml/common/common.h"
 #include "omnicml/engine/engine_io.h"
 #include "omnicml/evaluation/evaluation.h"
-#include "omnicml/run/floor_plan.h"
 #include "omnicml/report/map_export.h"
 #include "omnicml/report/report.h"
+#include "omnicml/run/floor_plan.h"
 #include "omnicml/sim/world.h"
 
 namespace omnicml::app {
@@ -63,7 +63,8 @@ void Export(const ExportFlags& f) {
   int day = f.world_day;
   std::uint64_t seed = 1;
   if (!f.run.empty()) {
-    for (const FrameRecord& r : ReadFramesCsv(std::filesystem::path(f.run) / "frames.csv").records) {
+    for (const FrameRecord& r :
+         ReadFramesCsv(std::filesystem::path(f.run) / "frames.csv").records) {
       if (r.has_estimate) trajectory.push_back(r.estimate);
       if (r.has_truth) pic.ground_truth.push_back(r.truth);
     }

@@ -78,8 +78,9 @@ const CommandRegistration kImport{
         const VideoImportSummary s = ImportVideo(video_args->video, video_args->poses,
                                                  video_args->out_dir, video_args->options);
         std::cout << "wrote " << s.frames << " frames (" << s.frames_with_truth
-                  << " with ground truth" << (s.odometry_sampled ? ", odometry sampled from it" : "")
-                  << ") to " << video_args->out_dir << "\n";
+                  << " with ground truth"
+                  << (s.odometry_sampled ? ", odometry sampled from it" : "") << ") to "
+                  << video_args->out_dir << "\n";
       });
       antworld->callback([args] {
         AntWorldOptions options;

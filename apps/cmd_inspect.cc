@@ -13,7 +13,6 @@
 
 namespace omnicml::app {
 
-
 namespace {
 
 struct InspectFlags {
@@ -44,8 +43,8 @@ const CommandRegistration kRegistration{
         if (flags->stale_days < 1)
           throw Error(StrCat("--stale-days must be >= 1 (got ", flags->stale_days, ")"));
         if (flags->changed_neighbours < 0 || flags->changed_neighbours > 8)
-          throw Error(StrCat("--changed-neighbours must be in 0..8 (got ",
-                             flags->changed_neighbours, ")"));
+          throw Error(
+              StrCat("--changed-neighbours must be in 0..8 (got ", flags->changed_neighbours, ")"));
         const std::unique_ptr<CmlEngine> engine = LoadMapForReading(flags->map);
         MapHealthOptions options;
         options.cell_m = flags->cell_m;

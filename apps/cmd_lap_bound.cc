@@ -20,8 +20,8 @@
 #include "omnicml/common/common.h"
 #include "omnicml/common/file_io.h"
 #include "omnicml/experiments/lap_bound.h"
-#include "omnicml/run/run_config.h"
 #include "omnicml/logs/log_format.h"
+#include "omnicml/run/run_config.h"
 #include "omnicml/sim/world.h"
 
 namespace omnicml::app {
@@ -63,22 +63,31 @@ const CommandRegistration kRegistration{
       cmd->add_option("--world", f->world, "Built-in world or world file: its route is the lap");
       cmd->add_option("--step-m", f->step_m, "Distance between poses on the world's route, m")
           ->capture_default_str();
-      cmd->add_option("--noise", f->noise, "Odometry noise a1,a2,a3,a4 (default: the world's, else the engine's)")
+      cmd->add_option("--noise", f->noise,
+                      "Odometry noise a1,a2,a3,a4 (default: the world's, else the engine's)")
           ->delimiter(',')
           ->expected(4);
-      cmd->add_option("--config", f->config_path, "Engine configuration (its tracker.motion is the default noise for a log)");
-      cmd->add_option("--samples", f->options.samples, "Monte Carlo realisations (0: closed form only)")
+      cmd->add_option("--config", f->config_path,
+                      "Engine configuration (its tracker.motion is the default noise for a log)");
+      cmd->add_option("--samples", f->options.samples,
+                      "Monte Carlo realisations (0: closed form only)")
           ->capture_default_str();
       cmd->add_option("--seed", f->options.seed, "Seed of the realisations")->capture_default_str();
-      cmd->add_option("--closure-sigma-m", f->options.closure_sigma_m, "Closure position std, m (0: exact)")
+      cmd->add_option("--closure-sigma-m", f->options.closure_sigma_m,
+                      "Closure position std, m (0: exact)")
           ->capture_default_str();
-      cmd->add_option("--closure-sigma-rad", f->options.closure_sigma_rad, "Closure heading std, rad (0: exact)")
+      cmd->add_option("--closure-sigma-rad", f->options.closure_sigma_rad,
+                      "Closure heading std, rad (0: exact)")
           ->capture_default_str();
-      cmd->add_option("--max-iterations", f->options.max_iterations, "Pose-graph iterations per realisation")
+      cmd->add_option("--max-iterations", f->options.max_iterations,
+                      "Pose-graph iterations per realisation")
           ->capture_default_str();
-      AddOutputFile(cmd, "--csv", &f->csv, "Write the per-pose standard deviations (pose, x_m, y_m, odometry_std_m, closed_std_m)");
+      AddOutputFile(
+          cmd, "--csv", &f->csv,
+          "Write the per-pose standard deviations (pose, x_m, y_m, odometry_std_m, closed_std_m)");
       cmd->callback([f] {
-        if (f->world.empty() == f->log.empty()) throw Error("lap-bound: give exactly one of --world W or a LOG directory");
+        if (f->world.empty() == f->log.empty())
+          throw Error("lap-bound: give exactly one of --world W or a LOG directory");
         std::vector<Pose2> lap;
         std::string source;
         std::string noise_source;
@@ -91,8 +100,10 @@ const CommandRegistration kRegistration{
         } else {
           const std::vector<Pose2> truth = LogTruth(f->log);
           double step = 0;
-          for (std::size_t i = 1; i < truth.size(); ++i) step = std::max(step, (truth[i].head<2>() - truth[i - 1].head<2>()).norm());
-          lap = ExtractFirstLap(truth, std::max(2 * step, 1e-3), StrCat("lap-bound: ", f->log, " session 1"));
+          for (std::size_t i = 1; i < truth.size(); ++i)
+            step = std::max(step, (truth[i].head<2>() - truth[i - 1].head<2>()).norm());
+          lap = ExtractFirstLap(truth, std::max(2 * step, 1e-3),
+                                StrCat("lap-bound: ", f->log, " session 1"));
           OptionOverrides overrides;
           overrides.config_path = f->config_path;
           f->options.noise = ResolveEngineOptions(overrides).tracker.motion;
@@ -109,8 +120,8 @@ const CommandRegistration kRegistration{
           std::ostringstream out;
           out << "pose,x_m,y_m,odometry_std_m,closed_std_m\n";
           for (std::size_t i = 0; i < lap.size(); ++i) {
-            out << i << "," << lap[i].x() << "," << lap[i].y() << "," << r.profile.odometry_std_m[i] << ","
-                << r.profile.closed_std_m[i] << "\n";
+            out << i << "," << lap[i].x() << "," << lap[i].y() << "," << r.profile.odometry_std_m[i]
+                << "," << r.profile.closed_std_m[i] << "\n";
           }
           WriteFileAtomic(f->csv, out.str());
           std::cout << "written: " << f->csv << "\n";

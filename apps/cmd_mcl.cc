@@ -109,9 +109,10 @@ const CommandRegistration kRegistration{
           ->capture_default_str();
       cmd->add_option("--min-likelihood", a->min_likelihood, "Lower bound of a particle's weight")
           ->capture_default_str();
-      cmd->add_option("--visibility-radius", a->max_distance_from_reference_m,
-                      "Visibility areas kept within this distance of the reference, m (0 = derived: "
-                      "visibility_radius_spacings x the references' median spacing)")
+      cmd->add_option(
+             "--visibility-radius", a->max_distance_from_reference_m,
+             "Visibility areas kept within this distance of the reference, m (0 = derived: "
+             "visibility_radius_spacings x the references' median spacing)")
           ->capture_default_str();
       cmd->add_flag("--global", a->global, "Start with uniform particles (global localization)");
       cmd->add_option("--mcl-seed", a->mcl_seed, "Seed of the filter")->capture_default_str();

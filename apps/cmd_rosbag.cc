@@ -69,9 +69,9 @@ void AddImport(CLI::App& app) {
                   "Odometry from /tf: the robot's child frame, e.g. base_link");
   cmd->add_option("--truth-topic", o.truth_topic,
                   "Ground truth (Odometry or PoseStamped, map frame)");
-  cmd->add_option(
-      "--calibration", o.calibration_yaml,
-      "Camera calibration YAML of raw images, any camera model (default: automatic from the first frame)");
+  cmd->add_option("--calibration", o.calibration_yaml,
+                  "Camera calibration YAML of raw images, any camera model (default: automatic "
+                  "from the first frame)");
   cmd->add_option("--split-gap", o.split_gap_s,
                   "New session where image stamps jump by more, seconds")
       ->capture_default_str();

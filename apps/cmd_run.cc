@@ -1,6 +1,6 @@
 // `omnicml run`: CML over a multi-day log or a simulated world, the map carried from day
-// to day; writes a run directory (with replay.html, experiments/replay.h) and optionally the map and a TUM trajectory
-// (experiments/run_experiment.h). The input and option flags are shared with
+// to day; writes a run directory (with replay.html, experiments/replay.h) and optionally the map
+// and a TUM trajectory (experiments/run_experiment.h). The input and option flags are shared with
 // `omnicml compare` (cli_common.h).
 #include <iostream>
 #include <memory>
@@ -24,9 +24,9 @@ const CommandRegistration kRegistration{
       AddRunInputFlags(cmd, &options->settings, /*with_forgetting=*/true);
       cmd->add_option("--map-in", options->map_in, "Resume from a saved engine/map file");
       AddOutputFile(cmd, "--map-out", &options->map_out,
-                      "Save the engine/map at the end (resumable with --map-in)");
+                    "Save the engine/map at the end (resumable with --map-in)");
       AddOutputFile(cmd, "--trajectory-out", &options->trajectory_out,
-                      "Write the estimated trajectory in TUM format (stamp x y z qx qy qz qw)");
+                    "Write the estimated trajectory in TUM format (stamp x y z qx qy qz qw)");
       cmd->callback([options] {
         const RunExperimentResult result = RunExperiment(*options);
         std::cout << FormatRunExperimentResult(*options, result);

@@ -1,5 +1,6 @@
 // `omnicml simulate --world NAME|FILE --days N --frames-per-day M --seed S --out DIR
-//   [--panorama] [--camera KIND] [--preview PNG] [--start known|continue|global] [--step-m D] [--overwrite]
+//   [--panorama] [--camera KIND] [--preview PNG] [--start known|continue|global] [--step-m D]
+//   [--overwrite]
 //   [--config SIMULATION.yaml]`
 // `omnicml simulate --change-report --world W --days N --seed S [--layout-intensity X]`
 // prints how much of the panorama differs from day 1 along the route, per day.
@@ -26,10 +27,10 @@
 #include "omnicml/common/file_io.h"
 #include "omnicml/common/limits.h"
 #include "omnicml/logs/log_format.h"
-#include "omnicml/unwrap/omni_unwrapper.h"
 #include "omnicml/sim/renderer.h"
 #include "omnicml/sim/simulator.h"
 #include "omnicml/sim/world.h"
+#include "omnicml/unwrap/omni_unwrapper.h"
 
 namespace omnicml::app {
 namespace {
@@ -145,7 +146,8 @@ SimulatorOptions ResolveOptions(const SimulateArgs& args, const CLI::App& cmd) {
     options.frames_per_day = args.frames_per_day;
   }
   if (given("--seed")) options.seed = args.seed;
-  if (given("--panorama")) options.output = args.panorama ? ImageKind::kPanorama : ImageKind::kRawRing;
+  if (given("--panorama"))
+    options.output = args.panorama ? ImageKind::kPanorama : ImageKind::kRawRing;
   if (given("--camera")) options.camera = SimulatedCameraFromString(args.camera);
   if (given("--step-m")) options.step_m = args.step_m;
   if (given("--start")) options.later_days_start = SessionStartModeFromString(args.start);
@@ -205,8 +207,7 @@ void RunSimulate(const SimulateArgs& args, const CLI::App& cmd) {
   const World world = LoadWorld(options.world);
   // The world's text, saved next to the sessions (read now, so a bad file fails first).
   const std::vector<std::string> builtins = BuiltinWorldNames();
-  const bool builtin =
-      std::find(builtins.begin(), builtins.end(), options.world) != builtins.end();
+  const bool builtin = std::find(builtins.begin(), builtins.end(), options.world) != builtins.end();
   const std::string world_text = builtin ? BuiltinWorldText(options.world)
                                          : ReadTextFile(options.world, kMaxTextFileBytes, "world");
   SimulatedFrameSource source(options, world);
@@ -252,8 +253,7 @@ const CommandRegistration kRegistration{
                       "simulated log loads back); the flags given override it");
       cmd->add_option("--world", args->world, "Built-in world name or world YAML file")
           ->capture_default_str();
-      cmd->add_option("--days", args->days,
-                      StrCat("Number of days (sessions), at most ", kMaxDays))
+      cmd->add_option("--days", args->days, StrCat("Number of days (sessions), at most ", kMaxDays))
           ->capture_default_str();
       cmd->add_option("--frames-per-day", args->frames_per_day,
                       StrCat("Frames per day, at most ", kMaxFramesPerDay, " (and days x frames ",
@@ -268,7 +268,7 @@ const CommandRegistration kRegistration{
           ->check(CLI::IsMember({"ring", "clipped_ring", "bright_centre_ring", "fisheye"}))
           ->capture_default_str();
       AddOutputFile(cmd, "--preview", &args->preview,
-                      "Write a PNG with the floor plan, route and sample panoramas");
+                    "Write a PNG with the floor plan, route and sample panoramas");
       cmd->add_option("--start", args->start,
                       "How days after the first start: known|continue|global")
           ->capture_default_str();

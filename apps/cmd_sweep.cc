@@ -22,8 +22,8 @@
 #include <chrono>
 #include <cstdlib>
 #include <cstring>
-#include <iomanip>
 #include <filesystem>
+#include <iomanip>
 #include <iostream>
 #include <memory>
 #include <string>
@@ -71,7 +71,8 @@ int RunSupervised(const std::vector<std::string>& argv, int* signal_received) {
   std::vector<char*> args;
   for (const std::string& a : argv) args.push_back(const_cast<char*>(a.c_str()));
   args.push_back(nullptr);
-  struct sigaction forward {}, old_int {}, old_term {}, old_hup {};
+  struct sigaction forward {
+  }, old_int{}, old_term{}, old_hup{};
   forward.sa_handler = ForwardSignal;
   sigemptyset(&forward.sa_mask);
   g_signals = 0;
@@ -158,8 +159,9 @@ void Sweep(const SweepFlags& f) {
   int signal_received = 0;
   const int status = RunSupervised(argv, &signal_received);
   if (signal_received != 0) {
-    throw Error(StrCat("sweep interrupted: snakemake and its jobs were stopped; rerun the same "
-                       "command to resume (complete jobs are kept)"));
+    throw Error(
+        StrCat("sweep interrupted: snakemake and its jobs were stopped; rerun the same "
+               "command to resume (complete jobs are kept)"));
   }
   if (status != 0) {
     const std::string how = WIFEXITED(status)
@@ -173,15 +175,16 @@ void Sweep(const SweepFlags& f) {
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   const std::vector<SweepRow> rows = CollectSweep(f.out);
   std::cout << "sweep done in " << StrCat(std::fixed, std::setprecision(1), seconds) << " s; "
-            << rows.size() << " run(s) collected into " << f.out << "/summary.csv and "
-            << f.out << "/summary.html\n";
+            << rows.size() << " run(s) collected into " << f.out << "/summary.csv and " << f.out
+            << "/summary.html\n";
 }
 
 const CommandRegistration kRegistration{
     "sweep", [](CLI::App& app) {
-      CLI::App* cmd = app.add_subcommand(
-          "sweep", "Expand a sweep spec (worlds/logs x seeds x options) into a Snakemake "
-                   "workflow and run it");
+      CLI::App* cmd =
+          app.add_subcommand("sweep",
+                             "Expand a sweep spec (worlds/logs x seeds x options) into a Snakemake "
+                             "workflow and run it");
       auto flags = std::make_shared<SweepFlags>();
       cmd->add_option("spec", flags->spec, "Sweep spec YAML (README \"Sweeps\")")->required();
       AddOutputDirectory(cmd, "--out", &flags->out, "Sweep directory (created; reused on rerun)")

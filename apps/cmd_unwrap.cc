@@ -14,9 +14,9 @@
 
 #include <CLI/CLI.hpp>
 
+#include <opencv2/imgproc.hpp>
 #include "command_registry.h"
 #include "omnicml/common/common.h"
-#include <opencv2/imgproc.hpp>
 
 #include "omnicml/unwrap/omni_unwrapper.h"
 
@@ -50,8 +50,9 @@ void PrintAutoCalibration(const AutoCalibrationResult& r, bool ring) {
 
 void RunUnwrap(const UnwrapArgs& args) {
   if (args.calibration.empty() && !args.auto_calibrate) {
-    throw Error("unwrap: give --calibration CALIB.yaml, --auto-calibrate or both (the file then "
-                "gives the model and the fields auto-calibration does not estimate)");
+    throw Error(
+        "unwrap: give --calibration CALIB.yaml, --auto-calibrate or both (the file then "
+        "gives the model and the fields auto-calibration does not estimate)");
   }
   if ((args.width > 0) != (args.height > 0) || args.width < 0 || args.height < 0) {
     throw Error(StrCat("unwrap: --width and --height must both be positive (got ", args.width,
@@ -81,7 +82,8 @@ void RunUnwrap(const UnwrapArgs& args) {
         throw Error("an equirectangular image has no circle to calibrate; drop --auto-calibrate");
       }
     } catch (const Error& e) {
-      throw Error(StrCat(args.raw[0], frames.size() > 1 ? StrCat(" (and ", frames.size() - 1, " more)") : "",
+      throw Error(StrCat(args.raw[0],
+                         frames.size() > 1 ? StrCat(" (and ", frames.size() - 1, " more)") : "",
                          ": ", e.what()));
     }
     std::cout << "auto-calibration of " << args.raw[0] << " (" << raw.cols << "x" << raw.rows

@@ -8,8 +8,8 @@
 #include <iostream>
 #include <string>
 
-#include <CLI/CLI.hpp>
 #include <yaml-cpp/exceptions.h>
+#include <CLI/CLI.hpp>
 
 #include "command_registry.h"
 #include "omnicml/common/common.h"

@@ -18,8 +18,8 @@
 #include <vector>
 
 #include "omnicml/common/binary_io.h"
-#include "omnicml/engine/cml_engine.h"
 #include "omnicml/common/common.h"
+#include "omnicml/engine/cml_engine.h"
 
 namespace omnicml {
 namespace {
@@ -30,8 +30,9 @@ cv::Mat BenchPanorama(int width, int height) {
   for (int r = 0; r < height; ++r) {
     for (int c = 0; c < width; ++c) {
       const double a = kTwoPi * c / width;
-      pano.at<std::uint8_t>(r, c) = cv::saturate_cast<std::uint8_t>(
-          128 + 50 * std::sin(3 * a + 0.1 * r) + 30 * std::sin(7 * a) + 20 * std::cos(13 * a + 0.3 * r));
+      pano.at<std::uint8_t>(r, c) =
+          cv::saturate_cast<std::uint8_t>(128 + 50 * std::sin(3 * a + 0.1 * r) +
+                                          30 * std::sin(7 * a) + 20 * std::cos(13 * a + 0.3 * r));
     }
   }
   return pano;
@@ -40,8 +41,8 @@ cv::Mat BenchPanorama(int width, int height) {
 // Bytes of an EnvironmentModel::Serialize stream (format version 1, see
 // src/environment_model.cc) holding `num_views` views: random ones plus `near` views that
 // are small perturbations of `query`.
-std::vector<std::uint8_t> SyntheticModelBytes(std::size_t num_views, const Descriptor& query, int near,
-                                              std::uint32_t seed) {
+std::vector<std::uint8_t> SyntheticModelBytes(std::size_t num_views, const Descriptor& query,
+                                              int near, std::uint32_t seed) {
   std::mt19937 rng(seed);
   std::uniform_real_distribution<float> mag(0.0f, 0.35f);
   std::uniform_real_distribution<double> phase(-kPi, kPi);
@@ -65,7 +66,8 @@ std::vector<std::uint8_t> SyntheticModelBytes(std::size_t num_views, const Descr
     std::vector<std::complex<float>> coeffs(k);
     for (std::size_t j = 0; j < k; ++j) {
       f[j] = is_near ? std::max(0.0f, query.features[j] + jitter(rng)) : mag(rng);
-      coeffs[j] = is_near ? query.coefficients[j] : std::polar(f[j], static_cast<float>(phase(rng)));
+      coeffs[j] =
+          is_near ? query.coefficients[j] : std::polar(f[j], static_cast<float>(phase(rng)));
     }
     out.WriteVector(f);
     out.Write<std::uint64_t>(k);
@@ -129,7 +131,8 @@ void BM_ProcessFrame(benchmark::State& state) {
     match_us += r.stats.match_us;
     benchmark::DoNotOptimize(r.estimate);
   }
-  state.counters["match_us"] = match_us / static_cast<double>(std::max<std::int64_t>(1, state.iterations()));
+  state.counters["match_us"] =
+      match_us / static_cast<double>(std::max<std::int64_t>(1, state.iterations()));
   state.counters["views"] = static_cast<double>(engine.model().NumViews());
 }
 

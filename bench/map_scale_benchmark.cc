@@ -29,10 +29,10 @@
 // identical_lists (fraction of queries with the very same list); bytes_per_view
 // (EnvironmentModel::MemoryBytes / views, event log cleared, index included) and
 // index_bytes_per_view; estimated_bounded (the model's own estimate of `projected`, which
-// decides whether the default options keep the index); rss_bytes_per_view (resident-set growth while building, Linux);
-// index_build_s (the AddView that built the index). ProcessFrame-like: p50_us and p99_us
-// of FindMatches + Hypothesis + Update per frame. FindMatchesNear: the pose-gated search.
-// One fixture at a time is kept, so peak memory is one map's.
+// decides whether the default options keep the index); rss_bytes_per_view (resident-set growth
+// while building, Linux); index_build_s (the AddView that built the index). ProcessFrame-like:
+// p50_us and p99_us of FindMatches + Hypothesis + Update per frame. FindMatchesNear: the pose-gated
+// search. One fixture at a time is kept, so peak memory is one map's.
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -226,10 +226,9 @@ ScaleFixture& Fixture(const Key& key) {
   f.model->ClearEvents();
   f.index_build_s = build_s;
   f.bytes_per_view = static_cast<double>(f.model->MemoryBytes()) / static_cast<double>(n);
-  f.index_bytes_per_view =
-      static_cast<double>(f.model->view_index().MemoryBytes() +
-                          f.model->ann_index().MemoryBytes()) /
-      static_cast<double>(n);
+  f.index_bytes_per_view = static_cast<double>(f.model->view_index().MemoryBytes() +
+                                               f.model->ann_index().MemoryBytes()) /
+                           static_cast<double>(n);
   const std::size_t rss1 = ResidentBytes();
   f.rss_bytes_per_view =
       rss1 > rss0 ? static_cast<double>(rss1 - rss0) / static_cast<double>(n) : 0.0;

@@ -2,8 +2,8 @@
 // room with 100 references (descriptor computation excluded).
 #include <benchmark/benchmark.h>
 
-#include "omnicml/descriptors/descriptor_factory.h"
 #include "omnicml/baselines/mcl/mcl.h"
+#include "omnicml/descriptors/descriptor_factory.h"
 
 namespace omnicml {
 namespace {

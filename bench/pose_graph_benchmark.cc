@@ -83,7 +83,8 @@ struct Fixture {
     }
     std::vector<NodeCorrection> corrections;
     if (frame >= kFramesPerLap) {
-      graph->AddClosure(frame - kFramesPerLap, frame, truth, Eigen::Vector3d(0.04, 0.04, 0.01).asDiagonal());
+      graph->AddClosure(frame - kFramesPerLap, frame, truth,
+                        Eigen::Vector3d(0.04, 0.04, 0.01).asDiagonal());
       if (graph->ShouldOptimize(frame)) corrections = graph->Optimize(frame);
     }
     ++frame;
@@ -95,9 +96,11 @@ struct Fixture {
     if (corrections.empty()) return;
     for (std::size_t i = 0; i < model->NumViews(); ++i) {
       const std::int64_t f = model->views()[i].stats.created_frame;
-      const auto it = std::lower_bound(corrections.begin(), corrections.end(), f,
-                                       [](const NodeCorrection& c, std::int64_t x) { return c.frame < x; });
-      if (it != corrections.end() && it->frame == f) model->MoveViewRigidly(i, it->before, it->after);
+      const auto it =
+          std::lower_bound(corrections.begin(), corrections.end(), f,
+                           [](const NodeCorrection& c, std::int64_t x) { return c.frame < x; });
+      if (it != corrections.end() && it->frame == f)
+        model->MoveViewRigidly(i, it->before, it->after);
     }
   }
 };
@@ -130,10 +133,14 @@ void BM_PoseGraphPerFrame(benchmark::State& state) {
   for (auto _ : state) {
     const auto t0 = std::chrono::steady_clock::now();
     f->MoveViews(f->Step(false));
-    us.push_back(std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0).count());
+    us.push_back(
+        std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0).count());
   }
   std::sort(us.begin(), us.end());
-  auto q = [&](double p) { return us[std::min(us.size() - 1, static_cast<std::size_t>(p * static_cast<double>(us.size())))]; };
+  auto q = [&](double p) {
+    return us[std::min(us.size() - 1,
+                       static_cast<std::size_t>(p * static_cast<double>(us.size())))];
+  };
   state.counters["p50_us"] = q(0.50);
   state.counters["p99_us"] = q(0.99);
   state.counters["max_us"] = us.back();

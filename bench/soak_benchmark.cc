@@ -143,8 +143,7 @@ class SoakMeter {
     day_start_ = now;
     rows_.push_back(row);
     std::fprintf(stderr, "soak: day %d: %zu views, rss %.1f MiB, map %.2f MiB, run dir %.2f MiB\n",
-                 day + 1, row.views, row.rss_mb, row.map_bytes / (1024.0 * 1024.0),
-                 row.run_dir_mb);
+                 day + 1, row.views, row.rss_mb, row.map_bytes / (1024.0 * 1024.0), row.run_dir_mb);
   }
 
   const std::vector<DayRow>& rows() const { return rows_; }
@@ -159,20 +158,22 @@ class SoakMeter {
 
 std::string FormatRows(const std::vector<DayRow>& rows, char sep) {
   std::ostringstream os;
-  const char* names[] = {"day",       "views",      "components", "events_held", "events_logged",
-                         "map_mb",    "rss_mb",     "anon_mb",    "heap_mb",    "peak_mb",    "run_dir_mb",  "frames",
-                         "localized", "mean_err_m", "day_s"};
-  for (std::size_t i = 0; i < std::size(names); ++i) os << (i ? std::string(1, sep) : "") << names[i];
+  const char* names[] = {"day",        "views",  "components", "events_held", "events_logged",
+                         "map_mb",     "rss_mb", "anon_mb",    "heap_mb",     "peak_mb",
+                         "run_dir_mb", "frames", "localized",  "mean_err_m",  "day_s"};
+  for (std::size_t i = 0; i < std::size(names); ++i)
+    os << (i ? std::string(1, sep) : "") << names[i];
   os << "\n";
   char buf[512];
   for (const DayRow& r : rows) {
-    std::snprintf(buf, sizeof buf,
-                  "%d%c%zu%c%zu%c%zu%c%llu%c%.3f%c%.1f%c%.1f%c%.1f%c%.1f%c%.2f%c%lld%c%lld%c%.3f%c%.1f\n",
-                  r.day + 1, sep, r.views, sep, r.components, sep, r.events_held, sep,
-                  static_cast<unsigned long long>(r.events_logged), sep,
-                  r.map_bytes / (1024.0 * 1024.0), sep, r.rss_mb, sep, r.anon_mb, sep, r.heap_mb, sep, r.peak_mb, sep,
-                  r.run_dir_mb, sep, static_cast<long long>(r.frames), sep,
-                  static_cast<long long>(r.localized), sep, r.mean_err_m, sep, r.day_s);
+    std::snprintf(
+        buf, sizeof buf,
+        "%d%c%zu%c%zu%c%zu%c%llu%c%.3f%c%.1f%c%.1f%c%.1f%c%.1f%c%.2f%c%lld%c%lld%c%.3f%c%.1f\n",
+        r.day + 1, sep, r.views, sep, r.components, sep, r.events_held, sep,
+        static_cast<unsigned long long>(r.events_logged), sep, r.map_bytes / (1024.0 * 1024.0), sep,
+        r.rss_mb, sep, r.anon_mb, sep, r.heap_mb, sep, r.peak_mb, sep, r.run_dir_mb, sep,
+        static_cast<long long>(r.frames), sep, static_cast<long long>(r.localized), sep,
+        r.mean_err_m, sep, r.day_s);
     os << buf;
   }
   return os.str();
@@ -200,9 +201,9 @@ int Main(int argc, char** argv) {
   CLI11_PARSE(app, argc, argv);
 
   if (out_dir.empty()) {
-    out_dir = (std::filesystem::temp_directory_path() /
-               ("omnicml-soak-" + std::to_string(::getpid())))
-                  .string();
+    out_dir =
+        (std::filesystem::temp_directory_path() / ("omnicml-soak-" + std::to_string(::getpid())))
+            .string();
   }
   settings.overrides.forgetting = forgetting;
   settings.overrides.threads = threads;
@@ -219,9 +220,9 @@ int Main(int argc, char** argv) {
   progress.quiet = true;
   progress.total_frames = CountFrames(settings.input, *source);  // as `omnicml run`: one Reserve
   const auto start = std::chrono::steady_clock::now();
-  const RunSummary summary = RunEngineOverSource(
-      engine, *source, &recorder, progress,
-      [&meter](CmlEngine& e, int session) { meter.EndOfDay(e, session); });
+  const RunSummary summary =
+      RunEngineOverSource(engine, *source, &recorder, progress,
+                          [&meter](CmlEngine& e, int session) { meter.EndOfDay(e, session); });
   meter.EndOfDay(engine, summary.sessions - 1);
   engine.Finish();
   recorder.Commit(engine);

@@ -27,6 +27,5 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   } else {
     bytes.assign(data + 1, data + size);
   }
-  return omnicml::fuzz::ExpectOnlyErrors(
-      [&] { (void)omnicml::DecodeEngine(bytes, "fuzz.omap"); });
+  return omnicml::fuzz::ExpectOnlyErrors([&] { (void)omnicml::DecodeEngine(bytes, "fuzz.omap"); });
 }

@@ -3,6 +3,8 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/setup.sh
+# Every C++ file tracked by git matches .clang-format (Debian's clang-format); fails on a diff.
+scripts/check_format.sh
 build_dir="${OMNICML_BUILD_DIR:-build}"
 cd "$build_dir"
 ctest --output-on-failure -j "${OMNICML_JOBS:-$(nproc)}" "$@"

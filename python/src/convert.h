@@ -12,10 +12,10 @@
 
 #include <string>
 
-#include <Eigen/Core>
-#include <opencv2/core.hpp>
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
+#include <Eigen/Core>
+#include <opencv2/core.hpp>
 
 #include "omnicml/geometry/gaussian_mixture.h"
 #include "omnicml/geometry/pose.h"

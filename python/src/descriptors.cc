@@ -45,12 +45,14 @@ void BindDescriptors(py::module_& m) {
                        const py::object& coefficients, int panorama_width) {
              Descriptor d;
              d.kind = DescriptorKindFromString(kind);
-             auto f = py::array_t<float, py::array::c_style | py::array::forcecast>::ensure(features);
+             auto f =
+                 py::array_t<float, py::array::c_style | py::array::forcecast>::ensure(features);
              if (!f || f.ndim() != 1) throw Error("Descriptor: features must be a 1-D float array");
              d.features.assign(f.data(), f.data() + f.size());
              if (!coefficients.is_none()) {
-               auto c = py::array_t<std::complex<float>, py::array::c_style | py::array::forcecast>::ensure(
-                   coefficients);
+               auto c =
+                   py::array_t<std::complex<float>,
+                               py::array::c_style | py::array::forcecast>::ensure(coefficients);
                if (!c || c.ndim() != 1)
                  throw Error("Descriptor: coefficients must be a 1-D complex array");
                d.coefficients.assign(c.data(), c.data() + c.size());
@@ -61,35 +63,39 @@ void BindDescriptors(py::module_& m) {
            py::arg("kind"), py::arg("features"), py::arg("coefficients") = py::none(),
            py::arg("panorama_width") = 0,
            "Builds a descriptor from its parts (kind 'fourier', 'ifh' or 'color').")
-      .def_property_readonly("kind", [](const Descriptor& d) { return ToString(d.kind); },
-                             "'fourier', 'ifh' or 'color'.")
-      .def_property_readonly("features", [](const Descriptor& d) { return FloatArray(d.features); },
-                             "Feature vector (float32 copy): Fourier magnitudes or histogram bins.")
+      .def_property_readonly(
+          "kind", [](const Descriptor& d) { return ToString(d.kind); },
+          "'fourier', 'ifh' or 'color'.")
+      .def_property_readonly(
+          "features", [](const Descriptor& d) { return FloatArray(d.features); },
+          "Feature vector (float32 copy): Fourier magnitudes or histogram bins.")
       .def_property_readonly(
           "coefficients", [](const Descriptor& d) { return ComplexArray(d.coefficients); },
           "Fourier only: the stored complex coefficients, band-major (bands x K), complex64 "
           "copy; empty for histograms.")
       .def_readonly("panorama_width", &Descriptor::panorama_width,
                     "Width in columns of the panorama it was computed from.")
-      .def("to_bytes",
-           [](const Descriptor& d) {
-             const std::vector<std::uint8_t> b = Serialize(d);
-             return py::bytes(reinterpret_cast<const char*>(b.data()), b.size());
-           },
-           "Versioned little-endian byte encoding with checksum (descriptor.h).")
-      .def_static("from_bytes",
-                  [](const py::bytes& b) {
-                    const std::string s = b;
-                    return Deserialize(std::span<const std::uint8_t>(
-                        reinterpret_cast<const std::uint8_t*>(s.data()), s.size()));
-                  },
-                  py::arg("data"),
-                  "Parses bytes from to_bytes(); raises omnicml.Error on a malformed buffer.")
+      .def(
+          "to_bytes",
+          [](const Descriptor& d) {
+            const std::vector<std::uint8_t> b = Serialize(d);
+            return py::bytes(reinterpret_cast<const char*>(b.data()), b.size());
+          },
+          "Versioned little-endian byte encoding with checksum (descriptor.h).")
+      .def_static(
+          "from_bytes",
+          [](const py::bytes& b) {
+            const std::string s = b;
+            return Deserialize(std::span<const std::uint8_t>(
+                reinterpret_cast<const std::uint8_t*>(s.data()), s.size()));
+          },
+          py::arg("data"),
+          "Parses bytes from to_bytes(); raises omnicml.Error on a malformed buffer.")
       .def("__eq__", [](const Descriptor& a, const Descriptor& b) { return a == b; })
       .def("__repr__", [](const Descriptor& d) {
-        return StrCat("<omnicml.Descriptor kind=", ToString(d.kind), " features=", d.features.size(),
-                      " coefficients=", d.coefficients.size(), " panorama_width=", d.panorama_width,
-                      ">");
+        return StrCat("<omnicml.Descriptor kind=", ToString(d.kind),
+                      " features=", d.features.size(), " coefficients=", d.coefficients.size(),
+                      " panorama_width=", d.panorama_width, ">");
       });
 
   py::class_<DescriptorExtractor, std::shared_ptr<DescriptorExtractor>>(
@@ -97,27 +103,30 @@ void BindDescriptors(py::module_& m) {
       "Computes descriptors of panoramas and compares them. Immutable and thread-safe. "
       "Panoramas: numpy uint8 (H, W) grey or (H, W, 3) BGR; column c looks along robot "
       "azimuth 2 pi c / W counter-clockwise, row 0 the highest elevation.")
-      .def_property_readonly("kind", [](const DescriptorExtractor& e) { return ToString(e.kind()); },
-                             "'fourier', 'ifh' or 'color'.")
+      .def_property_readonly(
+          "kind", [](const DescriptorExtractor& e) { return ToString(e.kind()); },
+          "'fourier', 'ifh' or 'color'.")
       .def("compute", &ComputeDescriptor, py::arg("image"),
            "Descriptor of a panorama (numpy uint8 (H, W) or (H, W, 3)). Raises omnicml.Error on "
            "an empty, too small or wrongly typed image.")
-      .def("distance",
-           [](const DescriptorExtractor& e, const Descriptor& a, const Descriptor& b) {
-             return e.Distance(a, b);
-           },
-           py::arg("a"), py::arg("b"),
-           "Distance E >= 0 between two descriptors of this extractor (0 for equal inputs). "
-           "Raises omnicml.Error when kinds or lengths differ.")
-      .def("relative_heading",
-           [](const DescriptorExtractor& e, const Descriptor& a, const Descriptor& b) {
-             return e.RelativeHeading(a, b);
-           },
-           py::arg("a"), py::arg("b"),
-           "Robot heading at a minus heading at b, radians in (-pi, pi], from the circular "
-           "cross-correlation over azimuth; None when the descriptor carries no rotation "
-           "(histograms) or the correlation is flat. If a is b's panorama rolled by k columns "
-           "(a[:, c] = b[:, (c + k) % W]) the result is 2 pi k / W.")
+      .def(
+          "distance",
+          [](const DescriptorExtractor& e, const Descriptor& a, const Descriptor& b) {
+            return e.Distance(a, b);
+          },
+          py::arg("a"), py::arg("b"),
+          "Distance E >= 0 between two descriptors of this extractor (0 for equal inputs). "
+          "Raises omnicml.Error when kinds or lengths differ.")
+      .def(
+          "relative_heading",
+          [](const DescriptorExtractor& e, const Descriptor& a, const Descriptor& b) {
+            return e.RelativeHeading(a, b);
+          },
+          py::arg("a"), py::arg("b"),
+          "Robot heading at a minus heading at b, radians in (-pi, pi], from the circular "
+          "cross-correlation over azimuth; None when the descriptor carries no rotation "
+          "(histograms) or the correlation is flat. If a is b's panorama rolled by k columns "
+          "(a[:, c] = b[:, (c + k) % W]) the result is 2 pi k / W.")
       .def_property_readonly("provides_heading", &DescriptorExtractor::ProvidesHeading,
                              "Whether relative_heading can give a rotation.")
       .def_property_readonly("feature_size", &DescriptorExtractor::FeatureSize,
@@ -146,27 +155,32 @@ void BindDescriptors(py::module_& m) {
            "distance: 'l2' or 'l1'; normalize_bands: zero mean, unit variance per band; "
            "normalize_columns: divide by each column's mean brightness. Raises omnicml.Error "
            "naming the field when a value is out of range.")
-      .def("relative_shift_columns",
-           [](const FourierSignature& e, const Descriptor& a, const Descriptor& b) {
-             return e.RelativeShiftColumns(a, b);
-           },
-           py::arg("a"), py::arg("b"),
-           "Sub-column arg max of the cross-correlation in columns, in [0, W).")
-      .def("band_signals",
-           [](const FourierSignature& e, const py::object& image) {
-             return ArrayFromImage(e.BandSignals(ImageFromArray(image, "image")));
-           },
-           py::arg("image"), "The band signals (bands x W, float32) the FFT is taken of.")
-      .def_property_readonly("options", [](const FourierSignature& e) {
-        const FourierOptions& o = e.options();
-        py::dict d;
-        d["bands"] = o.bands;
-        d["coefficients"] = o.coefficients;
-        d["distance"] = ToString(o.distance);
-        d["normalize_bands"] = o.normalize_bands;
-        d["normalize_columns"] = o.normalize_columns;
-        return d;
-      }, "The options as a dict.");
+      .def(
+          "relative_shift_columns",
+          [](const FourierSignature& e, const Descriptor& a, const Descriptor& b) {
+            return e.RelativeShiftColumns(a, b);
+          },
+          py::arg("a"), py::arg("b"),
+          "Sub-column arg max of the cross-correlation in columns, in [0, W).")
+      .def(
+          "band_signals",
+          [](const FourierSignature& e, const py::object& image) {
+            return ArrayFromImage(e.BandSignals(ImageFromArray(image, "image")));
+          },
+          py::arg("image"), "The band signals (bands x W, float32) the FFT is taken of.")
+      .def_property_readonly(
+          "options",
+          [](const FourierSignature& e) {
+            const FourierOptions& o = e.options();
+            py::dict d;
+            d["bands"] = o.bands;
+            d["coefficients"] = o.coefficients;
+            d["distance"] = ToString(o.distance);
+            d["normalize_bands"] = o.normalize_bands;
+            d["normalize_columns"] = o.normalize_columns;
+            return d;
+          },
+          "The options as a dict.");
 
   py::class_<InvariantFeatureHistogram, DescriptorExtractor,
              std::shared_ptr<InvariantFeatureHistogram>>(
@@ -212,14 +226,15 @@ void BindDescriptors(py::module_& m) {
       m, "ColorHistogram",
       "Six-band colour histogram [UN] (H, L, S and R, G, B or normalised rgb), low-pass "
       "filtered; no heading.")
-      .def(py::init([](int bins, int filter_width, bool normalized_rgb, const std::string& distance) {
-             ColorHistogramOptions o;
-             o.bins = bins;
-             o.filter_width = filter_width;
-             o.normalized_rgb = normalized_rgb;
-             o.distance = HistogramDistanceFromString(distance);
-             return std::make_shared<ColorHistogram>(o);
-           }),
+      .def(py::init(
+               [](int bins, int filter_width, bool normalized_rgb, const std::string& distance) {
+                 ColorHistogramOptions o;
+                 o.bins = bins;
+                 o.filter_width = filter_width;
+                 o.normalized_rgb = normalized_rgb;
+                 o.distance = HistogramDistanceFromString(distance);
+                 return std::make_shared<ColorHistogram>(o);
+               }),
            py::arg("bins") = ColorHistogramOptions{}.bins,
            py::arg("filter_width") = ColorHistogramOptions{}.filter_width,
            py::arg("normalized_rgb") = ColorHistogramOptions{}.normalized_rgb,
@@ -228,18 +243,20 @@ void BindDescriptors(py::module_& m) {
 
   m.def("similarity", &DescriptorExtractor::Similarity, py::arg("distance"), py::arg("e_max"),
         "S = max(0, 1 - E / e_max) in [0, 1]; raises omnicml.Error unless e_max > 0.");
-  m.def("roll_columns",
-        [](const py::object& image, int k) {
-          return ArrayFromImage(RollColumns(ImageFromArray(image, "image"), k));
-        },
-        py::arg("image"), py::arg("k"),
-        "out[:, c] = in[:, (c + k) % W]: the view after a counter-clockwise turn by 2 pi k / W.");
-  m.def("synthetic_panorama",
-        [](int width, int height, std::uint32_t seed) {
-          return ArrayFromImage(MakeSyntheticPanorama(width, height, seed));
-        },
-        py::arg("width") = 360, py::arg("height") = 60, py::arg("seed") = 1,
-        "A procedural, seeded colour panorama (H, W, 3) uint8 BGR; same seed, same pixels.");
+  m.def(
+      "roll_columns",
+      [](const py::object& image, int k) {
+        return ArrayFromImage(RollColumns(ImageFromArray(image, "image"), k));
+      },
+      py::arg("image"), py::arg("k"),
+      "out[:, c] = in[:, (c + k) % W]: the view after a counter-clockwise turn by 2 pi k / W.");
+  m.def(
+      "synthetic_panorama",
+      [](int width, int height, std::uint32_t seed) {
+        return ArrayFromImage(MakeSyntheticPanorama(width, height, seed));
+      },
+      py::arg("width") = 360, py::arg("height") = 60, py::arg("seed") = 1,
+      "A procedural, seeded colour panorama (H, W, 3) uint8 BGR; same seed, same pixels.");
 }
 
 }  // namespace omnicml::python

@@ -15,9 +15,9 @@
 #include "omnicml/common/common.h"
 #include "omnicml/engine/cml_engine.h"
 #include "omnicml/engine/engine_io.h"
+#include "omnicml/report/map_export.h"
 #include "omnicml/run/run_config.h"
 #include "omnicml/run/run_recorder.h"
-#include "omnicml/report/map_export.h"
 
 namespace omnicml::python {
 namespace {
@@ -103,8 +103,9 @@ CmlEngineOptions OptionsFromObject(const py::object& obj) {
   if (py::isinstance<py::str>(obj) || py::hasattr(obj, "__fspath__")) {
     return LoadEngineOptionsYaml(py::str(obj));
   }
-  throw Error(StrCat("options: expected None, a dict, a YAML file path or omnicml.EngineOptions, got ",
-                     std::string(py::str(py::type::of(obj).attr("__name__")))));
+  throw Error(
+      StrCat("options: expected None, a dict, a YAML file path or omnicml.EngineOptions, got ",
+             std::string(py::str(py::type::of(obj).attr("__name__")))));
 }
 
 namespace {
@@ -152,8 +153,8 @@ MapSnapshot Snapshot(const EnvironmentModel& model) {
     view_components[i] = static_cast<std::int32_t>(v.components.size());
     total_weight[i] = v.TotalWeight();
     if (f && v.descriptor.features.size() == f) {
-      std::memcpy(features.mutable_data(static_cast<py::ssize_t>(i), 0), v.descriptor.features.data(),
-                  f * sizeof(float));
+      std::memcpy(features.mutable_data(static_cast<py::ssize_t>(i), 0),
+                  v.descriptor.features.data(), f * sizeof(float));
     }
     for (const ViewComponent& c : v.components) {
       c_view_index.push_back(static_cast<std::int64_t>(i));
@@ -205,7 +206,8 @@ MapSnapshot Snapshot(const EnvironmentModel& model) {
   s.events["session"] = Vec(e_session);
   s.events["view_id"] = Vec(e_view);
   s.events["component_id"] = Vec(e_comp);
-  s.events["position"] = Vec(e_pos).reshape({static_cast<py::ssize_t>(events.size()), py::ssize_t{3}});
+  s.events["position"] =
+      Vec(e_pos).reshape({static_cast<py::ssize_t>(events.size()), py::ssize_t{3}});
   s.events["weight"] = Vec(e_weight);
   s.events["reason"] = reason;
   s.num_views = model.NumViews();
@@ -288,46 +290,51 @@ void BindEngine(py::module_& m) {
       .def(py::init([](const py::object& options) { return OptionsFromObject(options); }),
            py::arg("options") = py::none(),
            "options: None (defaults), a dict, or the path of a YAML file.")
-      .def_static("from_yaml_text",
-                  [](const std::string& text, const std::string& source) {
-                    return ParseEngineOptionsYaml(text, source);
-                  },
-                  py::arg("text"), py::arg("source") = "yaml text",
-                  "Parses YAML text on top of the defaults; `source` names it in errors.")
+      .def_static(
+          "from_yaml_text",
+          [](const std::string& text, const std::string& source) {
+            return ParseEngineOptionsYaml(text, source);
+          },
+          py::arg("text"), py::arg("source") = "yaml text",
+          "Parses YAML text on top of the defaults; `source` names it in errors.")
       .def_static("from_yaml", &LoadEngineOptionsYaml, py::arg("path"),
                   "Reads a YAML file on top of the defaults.")
       .def("to_yaml", &EngineOptionsToYaml, "Every option as YAML (loadable again).")
       .def("to_dict", &DictFromOptions, "Every option as a nested dict.")
-      .def("updated",
-           [](const CmlEngineOptions& o, const py::dict& changes) {
-             return ParseEngineOptionsYaml(YamlFromDict(changes), "options dict", o);
-           },
-           py::arg("changes"),
-           "A copy with the keys of `changes` (a nested dict) applied and validated.")
+      .def(
+          "updated",
+          [](const CmlEngineOptions& o, const py::dict& changes) {
+            return ParseEngineOptionsYaml(YamlFromDict(changes), "options dict", o);
+          },
+          py::arg("changes"),
+          "A copy with the keys of `changes` (a nested dict) applied and validated.")
       .def("validate", &CmlEngineOptions::Validate,
            "Raises omnicml.Error naming the first invalid field.")
-      .def("__eq__", [](const CmlEngineOptions& a, const CmlEngineOptions& b) {
-        return SameEngineOptions(a, b);
-      })
-      .def("__repr__", [](const CmlEngineOptions& o) { return "<omnicml.EngineOptions>\n" + EngineOptionsToYaml(o); });
+      .def("__eq__", [](const CmlEngineOptions& a,
+                        const CmlEngineOptions& b) { return SameEngineOptions(a, b); })
+      .def("__repr__", [](const CmlEngineOptions& o) {
+        return "<omnicml.EngineOptions>\n" + EngineOptionsToYaml(o);
+      });
 
   py::class_<Estimate>(m, "Estimate",
                        "Summary of p(x_t): the strongest component (pose, covariance, weight) "
                        "and the moment-matched mean of the whole mixture.")
-      .def_property_readonly("pose", [](const Estimate& e) { return ArrayFromPose(e.strongest.mean); },
-                             "Mean of the strongest component, (x_m, y_m, phi_rad), map frame.")
-      .def_property_readonly("covariance",
-                             [](const Estimate& e) { return ArrayFromMatrix3(e.strongest.covariance); })
+      .def_property_readonly(
+          "pose", [](const Estimate& e) { return ArrayFromPose(e.strongest.mean); },
+          "Mean of the strongest component, (x_m, y_m, phi_rad), map frame.")
+      .def_property_readonly(
+          "covariance", [](const Estimate& e) { return ArrayFromMatrix3(e.strongest.covariance); })
       .def_property_readonly("weight", [](const Estimate& e) { return e.strongest.weight; })
-      .def_property_readonly("mean_pose", [](const Estimate& e) { return ArrayFromPose(e.mean.mean); },
-                             "Moment-matched mean of the mixture (mu_t).")
+      .def_property_readonly(
+          "mean_pose", [](const Estimate& e) { return ArrayFromPose(e.mean.mean); },
+          "Moment-matched mean of the mixture (mu_t).")
       .def_property_readonly("mean_covariance",
                              [](const Estimate& e) { return ArrayFromMatrix3(e.mean.covariance); })
       .def_readonly("unimodal", &Estimate::unimodal)
       .def_readonly("num_components", &Estimate::num_components)
       .def("__repr__", [](const Estimate& e) {
-        return StrCat("<omnicml.Estimate pose=(", e.strongest.mean[0], ", ", e.strongest.mean[1], ", ",
-                      e.strongest.mean[2], ") unimodal=", e.unimodal ? "True" : "False",
+        return StrCat("<omnicml.Estimate pose=(", e.strongest.mean[0], ", ", e.strongest.mean[1],
+                      ", ", e.strongest.mean[2], ") unimodal=", e.unimodal ? "True" : "False",
                       " components=", e.num_components, ">");
       });
 
@@ -343,16 +350,19 @@ void BindEngine(py::module_& m) {
             return ArrayFromPose(r.estimate->strongest.mean);
           },
           "Shortcut: estimate.pose or None.")
-      .def_property_readonly("stats", [](const FrameResult& r) { return StatsDict(r.stats); },
-                             "Timings (us) and sizes of the call, as a dict.")
+      .def_property_readonly(
+          "stats", [](const FrameResult& r) { return StatsDict(r.stats); },
+          "Timings (us) and sizes of the call, as a dict.")
       .def_property_readonly(
           "reconstructed",
           [](const FrameResult& r) {
             py::list l;
-            for (const auto& [frame, g] : r.reconstructed) l.append(py::make_tuple(frame, DictFromGaussian(g)));
+            for (const auto& [frame, g] : r.reconstructed)
+              l.append(py::make_tuple(frame, DictFromGaussian(g)));
             return l;
           },
-          "States of earlier frames reconstructed at this frame: [(frame, {mean, covariance, weight})].")
+          "States of earlier frames reconstructed at this frame: [(frame, {mean, covariance, "
+          "weight})].")
       .def_property_readonly(
           "map_state",
           [](const FrameResult& r) -> py::object {
@@ -381,10 +391,12 @@ void BindEngine(py::module_& m) {
       .def_readonly("memory_bytes", &MapSnapshot::memory_bytes)
       .def_readonly("next_view_id", &MapSnapshot::next_view_id)
       .def_readonly("next_component_id", &MapSnapshot::next_component_id)
-      .def_property_readonly("weights", [](const MapSnapshot& s) { return s.components["weight"]; },
-                             "Component weights w_ij, (M,).")
-      .def_property_readonly("eta", [](const MapSnapshot& s) { return s.components["eta"]; },
-                             "Component eta_ij, (M,).")
+      .def_property_readonly(
+          "weights", [](const MapSnapshot& s) { return s.components["weight"]; },
+          "Component weights w_ij, (M,).")
+      .def_property_readonly(
+          "eta", [](const MapSnapshot& s) { return s.components["eta"]; },
+          "Component eta_ij, (M,).")
       .def("__repr__", [](const MapSnapshot& s) {
         return StrCat("<omnicml.Map views=", s.num_views, " components=", s.num_components, ">");
       });
@@ -405,97 +417,109 @@ void BindEngine(py::module_& m) {
       .def_static("load", &LoadEngine, py::arg("path"),
                   "Loads an engine saved with save(); bit-identical state. Raises omnicml.Error "
                   "naming the path and the problem.")
-      .def_static("from_bytes",
-                  [](const py::bytes& b, const std::string& source) {
-                    const std::string s = b;
-                    return DecodeEngine(std::vector<std::uint8_t>(s.begin(), s.end()), source);
-                  },
-                  py::arg("data"), py::arg("source") = "bytes",
-                  "Decodes the bytes of to_bytes().")
+      .def_static(
+          "from_bytes",
+          [](const py::bytes& b, const std::string& source) {
+            const std::string s = b;
+            return DecodeEngine(std::vector<std::uint8_t>(s.begin(), s.end()), source);
+          },
+          py::arg("data"), py::arg("source") = "bytes", "Decodes the bytes of to_bytes().")
       .def("save", &SaveEngine, py::arg("path"),
            "Writes the whole engine state (options, map, tracker, queues) atomically.")
-      .def("to_bytes", [](const CmlEngine& e) { return Bytes(EncodeEngine(e)); },
-           "The bytes save() writes.")
-      .def("begin_session",
-           [](CmlEngine& e, const std::optional<SessionInfo>& session) {
-             SessionInfo info;
-             if (session) {
-               info = *session;
-             } else {
-               info.name = "python";
-               info.camera.kind = ImageKind::kPanorama;
-             }
-             e.BeginSession(info);
-           },
-           py::arg("session") = py::none(),
-           "Starts a session (day): a SessionInfo (e.g. from Simulator.session(i)), or None for "
-           "a panoramic camera with known start pose 0. Raises omnicml.Error on a bad camera.")
-      .def("process_frame",
-           [](CmlEngine& e, const py::object& image, const py::object& odom_pose,
-              std::optional<double> stamp, const py::object& truth) {
-             Frame f;
-             f.image = ImageFromArray(image, "image");
-             f.odom_T_robot = PoseFromObject(odom_pose, "odom_pose");
-             f.stamp_s = stamp.value_or(static_cast<double>(e.next_frame()));
-             if (!truth.is_none()) f.map_T_robot_truth = PoseFromObject(truth, "truth");
-             return ProcessFrame(e, f);
-           },
-           py::arg("image"), py::arg("odom_pose"), py::arg("stamp") = py::none(),
-           py::arg("truth") = py::none(),
-           "Processes one frame: image (numpy uint8 raw ring of the session camera's size, or "
-           "a panorama), odometry pose (x_m, y_m, phi_rad), stamp in seconds. Returns a "
-           "FrameResult (estimate and stats). Raises omnicml.Error on a bad image or "
-           "odometry.")
-      .def("process",
-           [](CmlEngine& e, Frame frame) { return ProcessFrame(e, frame); }, py::arg("frame"),
-           "Processes a Frame (from a LogReader or Simulator).")
+      .def(
+          "to_bytes", [](const CmlEngine& e) { return Bytes(EncodeEngine(e)); },
+          "The bytes save() writes.")
+      .def(
+          "begin_session",
+          [](CmlEngine& e, const std::optional<SessionInfo>& session) {
+            SessionInfo info;
+            if (session) {
+              info = *session;
+            } else {
+              info.name = "python";
+              info.camera.kind = ImageKind::kPanorama;
+            }
+            e.BeginSession(info);
+          },
+          py::arg("session") = py::none(),
+          "Starts a session (day): a SessionInfo (e.g. from Simulator.session(i)), or None for "
+          "a panoramic camera with known start pose 0. Raises omnicml.Error on a bad camera.")
+      .def(
+          "process_frame",
+          [](CmlEngine& e, const py::object& image, const py::object& odom_pose,
+             std::optional<double> stamp, const py::object& truth) {
+            Frame f;
+            f.image = ImageFromArray(image, "image");
+            f.odom_T_robot = PoseFromObject(odom_pose, "odom_pose");
+            f.stamp_s = stamp.value_or(static_cast<double>(e.next_frame()));
+            if (!truth.is_none()) f.map_T_robot_truth = PoseFromObject(truth, "truth");
+            return ProcessFrame(e, f);
+          },
+          py::arg("image"), py::arg("odom_pose"), py::arg("stamp") = py::none(),
+          py::arg("truth") = py::none(),
+          "Processes one frame: image (numpy uint8 raw ring of the session camera's size, or "
+          "a panorama), odometry pose (x_m, y_m, phi_rad), stamp in seconds. Returns a "
+          "FrameResult (estimate and stats). Raises omnicml.Error on a bad image or "
+          "odometry.")
+      .def(
+          "process", [](CmlEngine& e, Frame frame) { return ProcessFrame(e, frame); },
+          py::arg("frame"), "Processes a Frame (from a LogReader or Simulator).")
       .def("finish", &CmlEngine::Finish,
            "End of the run: queues the pending unimodal frames and applies every queued map "
            "update. Returns the number applied. Processing may continue afterwards.")
       .def_property_readonly("options", &CmlEngine::options, "The EngineOptions (a copy).")
-      .def_property_readonly("counters", [](const CmlEngine& e) { return CountersDict(e.counters()); },
-                             "Counters over the engine's life, as a dict.")
-      .def_property_readonly("map", [](const CmlEngine& e) { return Snapshot(e.model()); },
-                             "A snapshot of the map (omnicml.Map).")
+      .def_property_readonly(
+          "counters", [](const CmlEngine& e) { return CountersDict(e.counters()); },
+          "Counters over the engine's life, as a dict.")
+      .def_property_readonly(
+          "map", [](const CmlEngine& e) { return Snapshot(e.model()); },
+          "A snapshot of the map (omnicml.Map).")
       .def_property_readonly("num_views", [](const CmlEngine& e) { return e.model().NumViews(); })
       .def_property_readonly("num_components",
                              [](const CmlEngine& e) { return e.model().NumComponents(); })
       .def_property_readonly("next_frame", &CmlEngine::next_frame,
                              "The engine index the next frame will get.")
-      .def_property_readonly("session", [](const CmlEngine& e) { return e.session_state().session; },
-                             "Index of the current session, -1 before the first.")
-      .def_property_readonly("extractor",
-                             [](const CmlEngine& e) {
-                               return std::const_pointer_cast<DescriptorExtractor>(e.extractor_ptr());
-                             },
-                             "The engine's DescriptorExtractor.")
-      .def("find_matches",
-           [](const CmlEngine& e, const Descriptor& y) {
-             py::list out;
-             for (const ViewMatch& v : e.model().FindMatches(y)) {
-               py::dict d;
-               d["view_index"] = v.view_index;
-               d["view_id"] = v.view_id;
-               d["distance"] = v.distance;
-               d["similarity"] = v.similarity;
-               d["relative_heading_rad"] = v.relative_heading_rad;
-               out.append(d);
-             }
-             return out;
-           },
-           py::arg("descriptor"),
-           "Views matching a descriptor (E < e_max), best first: dicts with view_index, "
-           "view_id, distance, similarity, relative_heading_rad.")
+      .def_property_readonly(
+          "session", [](const CmlEngine& e) { return e.session_state().session; },
+          "Index of the current session, -1 before the first.")
+      .def_property_readonly(
+          "extractor",
+          [](const CmlEngine& e) {
+            return std::const_pointer_cast<DescriptorExtractor>(e.extractor_ptr());
+          },
+          "The engine's DescriptorExtractor.")
+      .def(
+          "find_matches",
+          [](const CmlEngine& e, const Descriptor& y) {
+            py::list out;
+            for (const ViewMatch& v : e.model().FindMatches(y)) {
+              py::dict d;
+              d["view_index"] = v.view_index;
+              d["view_id"] = v.view_id;
+              d["distance"] = v.distance;
+              d["similarity"] = v.similarity;
+              d["relative_heading_rad"] = v.relative_heading_rad;
+              out.append(d);
+            }
+            return out;
+          },
+          py::arg("descriptor"),
+          "Views matching a descriptor (E < e_max), best first: dicts with view_index, "
+          "view_id, distance, similarity, relative_heading_rad.")
       .def("set_threads", &CmlEngine::SetThreads, py::arg("threads"),
            "Changes options.threads between frames (1: no worker; >= 2: background map "
            "updates); results do not depend on it. Raises omnicml.Error unless threads >= 1.")
-      .def("set_forgetting_mode",
-           [](CmlEngine& e, const std::string& mode) { e.SetForgettingMode(ForgettingModeFromString(mode)); },
-           py::arg("mode"),
-           "Changes options.model.forgetting.mode between frames: 'active', 'passive' or 'static' "
-           "(e.g. learn day 1, then freeze the map); queued updates apply under the new mode.")
-      .def("map_json", [](const CmlEngine& e) { return MapToJson(e).dump(); },
-           "The map as JSON text (datasets/map_schema.md).");
+      .def(
+          "set_forgetting_mode",
+          [](CmlEngine& e, const std::string& mode) {
+            e.SetForgettingMode(ForgettingModeFromString(mode));
+          },
+          py::arg("mode"),
+          "Changes options.model.forgetting.mode between frames: 'active', 'passive' or 'static' "
+          "(e.g. learn day 1, then freeze the map); queued updates apply under the new mode.")
+      .def(
+          "map_json", [](const CmlEngine& e) { return MapToJson(e).dump(); },
+          "The map as JSON text (datasets/map_schema.md).");
 }
 
 }  // namespace omnicml::python

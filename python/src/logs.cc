@@ -10,9 +10,9 @@
 #include "convert.h"
 #include "omnicml/common/common.h"
 #include "omnicml/logs/log_format.h"
+#include "omnicml/sensor/frame.h"
 #include "omnicml/sim/simulator.h"
 #include "omnicml/sim/world.h"
-#include "omnicml/sensor/frame.h"
 
 namespace omnicml::python {
 namespace {
@@ -56,7 +56,8 @@ void BindLogs(py::module_& m) {
              s.camera.image_height = image_height;
              if (calibration) s.camera.calibration = *calibration;
              s.start.mode = SessionStartModeFromString(start_mode);
-             if (!start_pose.is_none()) s.start.map_T_robot = PoseFromObject(start_pose, "start_pose");
+             if (!start_pose.is_none())
+               s.start.map_T_robot = PoseFromObject(start_pose, "start_pose");
              if (!start_covariance.is_none())
                s.start.covariance = Matrix3FromObject(start_covariance, "start_covariance");
              return s;
@@ -86,19 +87,24 @@ void BindLogs(py::module_& m) {
           [](SessionInfo& s, const OmniCalibration& c) { s.camera.calibration = c; })
       .def_property(
           "start_mode", [](const SessionInfo& s) { return omnicml::ToString(s.start.mode); },
-          [](SessionInfo& s, const std::string& v) { s.start.mode = SessionStartModeFromString(v); })
+          [](SessionInfo& s, const std::string& v) {
+            s.start.mode = SessionStartModeFromString(v);
+          })
       .def_property(
           "start_pose", [](const SessionInfo& s) { return ArrayFromPose(s.start.map_T_robot); },
-          [](SessionInfo& s, const py::object& p) { s.start.map_T_robot = PoseFromObject(p, "start_pose"); })
+          [](SessionInfo& s, const py::object& p) {
+            s.start.map_T_robot = PoseFromObject(p, "start_pose");
+          })
       .def_property(
-          "start_covariance", [](const SessionInfo& s) { return ArrayFromMatrix3(s.start.covariance); },
+          "start_covariance",
+          [](const SessionInfo& s) { return ArrayFromMatrix3(s.start.covariance); },
           [](SessionInfo& s, const py::object& c) {
             s.start.covariance = Matrix3FromObject(c, "start_covariance");
           })
       .def("__repr__", [](const SessionInfo& s) {
         return StrCat("<omnicml.SessionInfo '", s.name, "' ", ToString(s.camera.kind), " ",
-                      s.camera.image_width, "x", s.camera.image_height, " start=",
-                      omnicml::ToString(s.start.mode), ">");
+                      s.camera.image_width, "x", s.camera.image_height,
+                      " start=", omnicml::ToString(s.start.mode), ">");
       });
 
   py::class_<Frame>(m, "Frame",
@@ -117,9 +123,9 @@ void BindLogs(py::module_& m) {
              f.global_index = global_index;
              return f;
            }),
-           py::arg("image"), py::arg("odom_pose"), py::arg("stamp_s"), py::arg("truth") = py::none(),
-           py::arg("session_index") = 0, py::arg("index_in_session") = 0,
-           py::arg("global_index") = 0)
+           py::arg("image"), py::arg("odom_pose"), py::arg("stamp_s"),
+           py::arg("truth") = py::none(), py::arg("session_index") = 0,
+           py::arg("index_in_session") = 0, py::arg("global_index") = 0)
       .def_readwrite("session_index", &Frame::session_index, "0-based session (day) index.")
       .def_readwrite("index_in_session", &Frame::index_in_session)
       .def_readwrite("global_index", &Frame::global_index, "0-based over all sessions.")
@@ -159,7 +165,8 @@ void BindLogs(py::module_& m) {
       .def_property_readonly("sessions",
                              [](const FrameSource& s) {
                                std::vector<SessionInfo> out;
-                               for (int i = 0; i < s.NumSessions(); ++i) out.push_back(s.Session(i));
+                               for (int i = 0; i < s.NumSessions(); ++i)
+                                 out.push_back(s.Session(i));
                                return out;
                              })
       .def("__iter__", [](py::object self) { return self; })
@@ -190,7 +197,8 @@ void BindLogs(py::module_& m) {
            "file and line of the first problem. Images named outside the log directory "
            "(absolute, '..', links leading out) are refused unless allow_images_outside_log.")
       .def("session_directory", &LogReader::SessionDirectory, py::arg("index"))
-      .def_property_readonly("num_skipped_frames", static_cast<std::int64_t (LogReader::*)() const>(&LogReader::NumSkippedFrames));
+      .def_property_readonly("num_skipped_frames", static_cast<std::int64_t (LogReader::*)() const>(
+                                                       &LogReader::NumSkippedFrames));
 
   const SimulatorOptions sd;
   py::class_<SimulatedFrameSource, FrameSource, std::shared_ptr<SimulatedFrameSource>>(
@@ -222,18 +230,20 @@ void BindLogs(py::module_& m) {
            "world: 'home_store', 'institute', 'store_large' (world_names()) or a YAML path; "
            "panorama: deliver panoramas instead of raw ring images; step_m: distance between "
            "frames. Raises omnicml.Error naming the field.")
-      .def_property_readonly("world_name", [](const SimulatedFrameSource& s) { return s.options().world; })
-      .def("route",
-           [](const SimulatedFrameSource& s, double step_m) {
-             const auto pts = s.route().Sample(step_m);
-             py::array_t<double> out({static_cast<py::ssize_t>(pts.size()), py::ssize_t{2}});
-             for (std::size_t i = 0; i < pts.size(); ++i) {
-               out.mutable_at(i, 0) = pts[i].x();
-               out.mutable_at(i, 1) = pts[i].y();
-             }
-             return out;
-           },
-           py::arg("step_m") = 0.5, "Points of the closed route every step_m, (N, 2) metres.")
+      .def_property_readonly("world_name",
+                             [](const SimulatedFrameSource& s) { return s.options().world; })
+      .def(
+          "route",
+          [](const SimulatedFrameSource& s, double step_m) {
+            const auto pts = s.route().Sample(step_m);
+            py::array_t<double> out({static_cast<py::ssize_t>(pts.size()), py::ssize_t{2}});
+            for (std::size_t i = 0; i < pts.size(); ++i) {
+              out.mutable_at(i, 0) = pts[i].x();
+              out.mutable_at(i, 1) = pts[i].y();
+            }
+            return out;
+          },
+          py::arg("step_m") = 0.5, "Points of the closed route every step_m, (N, 2) metres.")
       .def_property_readonly("route_length_m",
                              [](const SimulatedFrameSource& s) { return s.route().length_m(); });
   m.def("world_names", &BuiltinWorldNames, "Names of the built-in simulated worlds.");
@@ -246,34 +256,36 @@ void BindLogs(py::module_& m) {
       .def("write", &LogWriter::Write, py::arg("frame"))
       .def("finish", &LogWriter::Finish)
       .def("__enter__", [](py::object self) { return self; })
-      .def("__exit__", [](LogWriter& w, const py::object& type, const py::object&, const py::object&) {
-        if (type.is_none()) w.Finish();
-        return false;
-      });
+      .def("__exit__",
+           [](LogWriter& w, const py::object& type, const py::object&, const py::object&) {
+             if (type.is_none()) w.Finish();
+             return false;
+           });
 
-  m.def("validate_log",
-        [](const std::string& log_dir) {
-          const LogSummary s = ValidateLog(log_dir);
-          py::list sessions;
-          for (const auto& x : s.sessions) {
-            py::dict d;
-            d["name"] = x.name;
-            d["directory"] = x.directory;
-            d["day_label"] = x.day_label;
-            d["frames"] = x.frames;
-            d["frames_with_truth"] = x.frames_with_truth;
-            d["first_stamp_s"] = x.first_stamp_s;
-            d["last_stamp_s"] = x.last_stamp_s;
-            sessions.append(d);
-          }
-          py::dict out;
-          out["sessions"] = sessions;
-          out["total_frames"] = s.total_frames;
-          return out;
-        },
-        py::arg("log_dir"),
-        "Checks every row and image of a log; returns a summary dict, raises omnicml.Error on "
-        "the first problem (file and line).");
+  m.def(
+      "validate_log",
+      [](const std::string& log_dir) {
+        const LogSummary s = ValidateLog(log_dir);
+        py::list sessions;
+        for (const auto& x : s.sessions) {
+          py::dict d;
+          d["name"] = x.name;
+          d["directory"] = x.directory;
+          d["day_label"] = x.day_label;
+          d["frames"] = x.frames;
+          d["frames_with_truth"] = x.frames_with_truth;
+          d["first_stamp_s"] = x.first_stamp_s;
+          d["last_stamp_s"] = x.last_stamp_s;
+          sessions.append(d);
+        }
+        py::dict out;
+        out["sessions"] = sessions;
+        out["total_frames"] = s.total_frames;
+        return out;
+      },
+      py::arg("log_dir"),
+      "Checks every row and image of a log; returns a summary dict, raises omnicml.Error on "
+      "the first problem (file and line).");
 }
 
 }  // namespace omnicml::python

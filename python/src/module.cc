@@ -30,8 +30,7 @@ cv::Mat ImageFromArray(const py::handle& obj, const char* what) {
   const int cols = static_cast<int>(array.shape(1));
   const int type = channels == 3 ? CV_8UC3 : CV_8UC1;
   if (rows == 0 || cols == 0) return cv::Mat(rows, cols, type);
-  const bool contiguous =
-      (array.flags() & py::array::c_style) != 0 && array.strides(ndim - 1) == 1;
+  const bool contiguous = (array.flags() & py::array::c_style) != 0 && array.strides(ndim - 1) == 1;
   if (contiguous) {
     return cv::Mat(rows, cols, type, const_cast<void*>(array.data()));
   }

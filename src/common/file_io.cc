@@ -1,8 +1,8 @@
 #include "omnicml/common/file_io.h"
 
 #include <fcntl.h>
-#include <stdio.h>
 #include <openssl/evp.h>
+#include <stdio.h>
 #include <sys/file.h>
 #include <sys/stat.h>
 #include <unistd.h>
@@ -79,7 +79,8 @@ bool RemoveIfUnlocked(const fs::path& path) {
   const int fd = ::open(path.c_str(), O_RDONLY | O_NOFOLLOW | O_NONBLOCK | O_CLOEXEC | O_NOCTTY);
   if (fd < 0) return false;
   bool removed = false;
-  struct stat opened {}, named {};
+  struct stat opened {
+  }, named{};
   if (::flock(fd, LOCK_EX | LOCK_NB) == 0 && ::fstat(fd, &opened) == 0 &&
       ::lstat(path.c_str(), &named) == 0 && S_ISREG(opened.st_mode) &&
       opened.st_ino == named.st_ino && opened.st_dev == named.st_dev) {
@@ -115,7 +116,6 @@ const char* NodeTypeName(mode_t mode) {
   return "is not a regular file";
 }
 
-
 std::atomic<bool> follow_output_symlinks{false};
 
 }  // namespace
@@ -144,9 +144,9 @@ std::string OutputNodeProblem(const fs::path& path, bool directory) {
     // Written through: the link must lead to a regular file.
     struct stat target {};
     if (::stat(path.c_str(), &target) != 0) {
-      return errno == ENOENT ? std::string("is a dangling symbolic link")
-                             : StrCat("is a symbolic link that cannot be followed: ",
-                                      ErrnoText(errno));
+      return errno == ENOENT
+                 ? std::string("is a dangling symbolic link")
+                 : StrCat("is a symbolic link that cannot be followed: ", ErrnoText(errno));
     }
     if (S_ISREG(target.st_mode)) return {};
     return StrCat("is a symbolic link to ", FileTypeName(target.st_mode), " (not a regular file)");
@@ -314,7 +314,8 @@ OutputLock::OutputLock(const fs::path& target, std::string_view flag) {
     }
     // The previous holder may have removed the file between our open and our lock: then
     // we hold a lock on a file nobody else can find; start again.
-    struct stat opened {}, named {};
+    struct stat opened {
+    }, named{};
     if (::fstat(fd, &opened) != 0 || ::lstat(lock_path.c_str(), &named) != 0 ||
         opened.st_ino != named.st_ino || opened.st_dev != named.st_dev) {
       ::close(fd);
@@ -322,7 +323,8 @@ OutputLock::OutputLock(const fs::path& target, std::string_view flag) {
     }
     char host[256] = {};
     ::gethostname(host, sizeof host - 1);
-    const std::string holder = StrCat("pid ", static_cast<long>(::getpid()), " on host ", host, "\n");
+    const std::string holder =
+        StrCat("pid ", static_cast<long>(::getpid()), " on host ", host, "\n");
     if (::ftruncate(fd, 0) == 0) {
       [[maybe_unused]] const ssize_t n = ::pwrite(fd, holder.data(), holder.size(), 0);
     }
@@ -385,7 +387,8 @@ StagedDirectory::StagedDirectory(fs::path target, std::string_view flag,
   std::error_code ec;
   fs::create_directories(DirectoryOf(target_), ec);
   if (ec) {
-    throw Error(StrCat(flag, " '", target_.string(), "': cannot create its parent: ", ec.message()));
+    throw Error(
+        StrCat(flag, " '", target_.string(), "': cannot create its parent: ", ec.message()));
   }
   fs::remove_all(staging_, ec);
   if (!fs::create_directory(staging_, ec) || ec) {
@@ -601,8 +604,8 @@ void StagedDirectory::Commit(std::span<AtomicFile* const> companions) {
       e.target = fs::absolute(file->target()).lexically_normal();
       struct stat st {};
       if (::lstat(file->temp_path().c_str(), &st) != 0) {
-        Fail("cannot commit", file->target(), StrCat("its temporary file vanished: ",
-                                                       ErrnoText(errno)));
+        Fail("cannot commit", file->target(),
+             StrCat("its temporary file vanished: ", ErrnoText(errno)));
       }
       e.dev = st.st_dev;
       e.ino = st.st_ino;
@@ -638,8 +641,7 @@ void StagedDirectory::SwapIntoPlace() {
     if (!problem.empty()) throw Error(StrCat(flag_, " '", target_.string(), "': ", problem));
     // Swap the new directory in atomically, then delete the old one (now under the
     // staging name).
-    if (::renameat2(AT_FDCWD, staging_.c_str(), AT_FDCWD, target_.c_str(), RENAME_EXCHANGE) ==
-        0) {
+    if (::renameat2(AT_FDCWD, staging_.c_str(), AT_FDCWD, target_.c_str(), RENAME_EXCHANGE) == 0) {
       done_ = true;
       SyncDirectory(parent);
       fs::remove_all(staging_, ec);
@@ -650,8 +652,8 @@ void StagedDirectory::SwapIntoPlace() {
     fs::remove_all(old, ec);
     fs::rename(target_, old, ec);
     if (ec) {
-      throw Error(StrCat(flag_, " '", target_.string(), "': cannot move the old directory aside: ",
-                         ec.message()));
+      throw Error(StrCat(flag_, " '", target_.string(),
+                         "': cannot move the old directory aside: ", ec.message()));
     }
     fs::rename(staging_, target_, ec);
     if (ec) {
@@ -869,8 +871,8 @@ void WriteFileAtomic(const fs::path& path, std::string_view content, FileSync sy
 }
 
 void WriteFileAtomic(const fs::path& path, std::span<const std::uint8_t> bytes, FileSync sync) {
-  WriteFileAtomic(
-      path, std::string_view(reinterpret_cast<const char*>(bytes.data()), bytes.size()), sync);
+  WriteFileAtomic(path, std::string_view(reinterpret_cast<const char*>(bytes.data()), bytes.size()),
+                  sync);
 }
 
 // ---------------------------------------------------------------------------------------
@@ -973,8 +975,7 @@ std::string Excerpt(std::string_view text, std::size_t max_chars) {
       continue;
     }
     const std::size_t length = u >= 0xF0 ? 4 : u >= 0xE0 ? 3 : u >= 0xC2 ? 2 : 0;
-    if (length > 0 && i + length <= cut.size() &&
-        FirstNonUtf8Line(cut.substr(i, length)) == 0) {
+    if (length > 0 && i + length <= cut.size() && FirstNonUtf8Line(cut.substr(i, length)) == 0) {
       out.append(cut.substr(i, length));
       i += length;
     } else {
@@ -1092,8 +1093,7 @@ void CheckOutputNode(const fs::path& path, std::string_view flag, bool directory
   if (!problem.empty()) throw Error(StrCat(flag, " '", path.string(), "': ", problem));
 }
 
-void CheckOutputFile(const fs::path& path, std::string_view flag,
-                     const fs::path& will_create_dir) {
+void CheckOutputFile(const fs::path& path, std::string_view flag, const fs::path& will_create_dir) {
   if (path.empty()) return;
   CheckOutputNode(path, flag);
   const fs::file_status st = StatusOrThrow(path, flag);
@@ -1113,8 +1113,8 @@ void CheckOutputFile(const fs::path& path, std::string_view flag,
   }
   const fs::file_status dst = StatusOrThrow(dir, flag);
   if (!fs::exists(dst)) {
-    throw Error(StrCat(flag, " '", path.string(), "': directory '", dir.string(),
-                       "' does not exist"));
+    throw Error(
+        StrCat(flag, " '", path.string(), "': directory '", dir.string(), "' does not exist"));
   }
   if (!fs::is_directory(dst)) {
     throw Error(StrCat(flag, " '", path.string(), "': '", dir.string(), "' is not a directory"));
@@ -1139,8 +1139,8 @@ void CheckOutputDirectory(const fs::path& path, std::string_view flag) {
     const fs::file_status ast = StatusOrThrow(ancestor, flag);
     if (fs::exists(ast)) {
       if (!fs::is_directory(ast)) {
-        throw Error(StrCat(flag, " '", path.string(), "': '", ancestor.string(),
-                           "' is not a directory"));
+        throw Error(
+            StrCat(flag, " '", path.string(), "': '", ancestor.string(), "' is not a directory"));
       }
       CheckWritableDirectory(ancestor, path, flag);
       return;

@@ -1,10 +1,10 @@
 #include "omnicml/common/options.h"
 
 #include <algorithm>
-#include <iostream>
 #include <charconv>
 #include <cmath>
 #include <filesystem>
+#include <iostream>
 #include <sstream>
 
 #include <yaml-cpp/yaml.h>
@@ -57,8 +57,8 @@ OptionValue FromYaml(const YAML::Node& n, const std::string& source) {
         const std::string key = it->first.Scalar();
         for (const auto& [k, unused] : v.members) {
           if (k == key) {
-            throw Error(StrCat(source, ":", it->first.Mark().line + 1, ": duplicate key '", key,
-                               "'"));
+            throw Error(
+                StrCat(source, ":", it->first.Mark().line + 1, ": duplicate key '", key, "'"));
           }
         }
         OptionValue child = FromYaml(it->second, source);
@@ -252,7 +252,8 @@ std::int64_t ParseInt(const OptionValue& v, const OptionSource& src, const std::
     // Integral doubles ("3.0", "1e3") are accepted.
     const double d = ParseDouble(v, src, path);
     if (d != std::floor(d) || d < static_cast<double>(lo) || d > static_cast<double>(hi)) {
-      Fail(src, &v, path, StrCat("must be an integer in range [", lo, ", ", hi, "] (got '", s, "')"));
+      Fail(src, &v, path,
+           StrCat("must be an integer in range [", lo, ", ", hi, "] (got '", s, "')"));
     }
     return static_cast<std::int64_t>(d);
   }
@@ -332,13 +333,14 @@ void TreeReader::Finish() const {
       list += StrCat(list.empty() ? "" : ", ", JoinPath(prefix_, old_key.c_str()), " -> ",
                      JoinPath(prefix_, new_path.c_str()));
     }
-    std::cerr << where << ": warning: deprecated option keys, write them in their sections: "
-              << list << "\n";
+    std::cerr << where
+              << ": warning: deprecated option keys, write them in their sections: " << list
+              << "\n";
   }
   for (const auto& [k, v] : map_.members) {
     if (std::find(claimed_.begin(), claimed_.end(), k) != claimed_.end()) continue;
-    if (prefix_.empty() &&
-        std::find(src_.ignored_keys.begin(), src_.ignored_keys.end(), k) != src_.ignored_keys.end()) {
+    if (prefix_.empty() && std::find(src_.ignored_keys.begin(), src_.ignored_keys.end(), k) !=
+                               src_.ignored_keys.end()) {
       continue;
     }
     std::string where = src_.name;
@@ -347,12 +349,13 @@ void TreeReader::Finish() const {
     throw Error(StrCat(where, ": unknown key '", JoinPath(prefix_, k.c_str()), "'"));
   }
   if (src_.complete && !missing_.empty()) {
-    throw Error(StrCat(src_.name, ": missing option '", JoinPath(prefix_, missing_.front().c_str()),
-                       "'"));
+    throw Error(
+        StrCat(src_.name, ": missing option '", JoinPath(prefix_, missing_.front().c_str()), "'"));
   }
 }
 
-void OmitNewerDefaults(OptionValue* tree, const OptionValue& defaults, std::uint32_t format_version) {
+void OmitNewerDefaults(OptionValue* tree, const OptionValue& defaults,
+                       std::uint32_t format_version) {
   if (tree->kind != OptionValue::Kind::kMap || defaults.kind != OptionValue::Kind::kMap) return;
   auto default_of = [&defaults](const std::string& key) -> const OptionValue* {
     for (const auto& [k, v] : defaults.members) {

@@ -102,10 +102,8 @@ void PadCyclic(const cv::Mat& image, int channel, int margin, std::vector<float>
 // T[f](M) for one image row: out[x] = M(0,0)^c * 1/P sum_p prod_j M(x + q_pj) ([W] eq. 2).
 // Element-wise loops over x that the compiler vectorises; an AVX2 clone is picked at
 // run time where available (no FMA, so the results are bit-identical either way).
-OMNICML_AVX2_CLONES void KernelRow(const float* centre,
-                                                                 const KernelTaps& kt, int width,
-                                                                 float* __restrict out,
-                                                                 float* __restrict tmp) {
+OMNICML_AVX2_CLONES void KernelRow(const float* centre, const KernelTaps& kt, int width,
+                                   float* __restrict out, float* __restrict tmp) {
   for (int x = 0; x < width; ++x) out[x] = 0.0f;
   for (const auto& angle : kt.angles) {
     for (int x = 0; x < width; ++x) tmp[x] = 1.0f;

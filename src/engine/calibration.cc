@@ -70,12 +70,15 @@ std::vector<SessionLoopPair> FindLoopPairs(const DescriptorExtractor& extractor,
         best = s;
       }
     }
-    if (best >= 0) pairs.push_back(SessionLoopPair{frames[best].session, frames[best].index, ft.session, ft.index});
+    if (best >= 0)
+      pairs.push_back(
+          SessionLoopPair{frames[best].session, frames[best].index, ft.session, ft.index});
   }
   if (static_cast<int>(pairs.size()) <= max_pairs) return pairs;
   std::vector<SessionLoopPair> kept;
   for (int i = 0; i < max_pairs; ++i) {
-    kept.push_back(pairs[static_cast<std::size_t>(i) * pairs.size() / static_cast<std::size_t>(max_pairs)]);
+    kept.push_back(
+        pairs[static_cast<std::size_t>(i) * pairs.size() / static_cast<std::size_t>(max_pairs)]);
   }
   return kept;
 }
@@ -83,7 +86,8 @@ std::vector<SessionLoopPair> FindLoopPairs(const DescriptorExtractor& extractor,
 }  // namespace
 
 void CalibrationOptions::Validate() const {
-  if (max_frames < 2) throw Error(StrCat("CalibrationOptions.max_frames must be > 1, got ", max_frames));
+  if (max_frames < 2)
+    throw Error(StrCat("CalibrationOptions.max_frames must be > 1, got ", max_frames));
   if (max_lag_frames < 1) {
     throw Error(StrCat("CalibrationOptions.max_lag_frames must be >= 1, got ", max_lag_frames));
   }
@@ -108,7 +112,8 @@ Calibration Calibrate(FrameSource& source, const CmlEngineOptions& options,
                       const CalibrationOptions& calibration_options) {
   calibration_options.Validate();
   if (source.NumSessions() < 1) throw Error("calibrate: the log has no session");
-  const std::unique_ptr<DescriptorExtractor> extractor = MakeDescriptorExtractor(options.descriptor);
+  const std::unique_ptr<DescriptorExtractor> extractor =
+      MakeDescriptorExtractor(options.descriptor);
   // Every frame read (sessions in order, up to max_frames): descriptor, session, index in
   // its session, odometry path from its session's start; per session the dead reckoning.
   std::vector<Descriptor> y;
@@ -122,8 +127,9 @@ Calibration Calibrate(FrameSource& source, const CmlEngineOptions& options,
       const SessionInfo& info = source.Session(frame.session_index);
       unwrapper.reset();
       if (info.camera.kind == ImageKind::kRawRing) {
-        unwrapper = std::make_unique<OmniUnwrapper>(info.camera.calibration, info.camera.image_width,
-                                                    info.camera.image_height, info.camera.mask);
+        unwrapper =
+            std::make_unique<OmniUnwrapper>(info.camera.calibration, info.camera.image_width,
+                                            info.camera.image_height, info.camera.mask);
       }
       sessions.resize(static_cast<std::size_t>(frame.session_index) + 1);
       OdometrySession& s = sessions.back();
@@ -132,7 +138,8 @@ Calibration Calibrate(FrameSource& source, const CmlEngineOptions& options,
       s.poses.push_back(s.known_start ? info.start.map_T_robot : Pose2::Zero());
     } else {
       OdometrySession& s = sessions.back();
-      s.poses.push_back(ApplyIncrement(s.poses.back(), ComputeIncrement(last_odom, frame.odom_T_robot)));
+      s.poses.push_back(
+          ApplyIncrement(s.poses.back(), ComputeIncrement(last_odom, frame.odom_T_robot)));
     }
     const cv::Mat panorama =
         unwrapper ? PreparePanorama(unwrapper->Unwrap(frame.image), options.panorama_width,
@@ -145,9 +152,10 @@ Calibration Calibrate(FrameSource& source, const CmlEngineOptions& options,
     LoopFrame f;
     f.session = frame.session_index;
     f.index = static_cast<int>(sessions.back().poses.size()) - 1;
-    f.path_m = first_of_session ? 0.0
-                                : frames.back().path_m + std::hypot(frame.odom_T_robot.x() - last_odom.x(),
-                                                                    frame.odom_T_robot.y() - last_odom.y());
+    f.path_m = first_of_session
+                   ? 0.0
+                   : frames.back().path_m + std::hypot(frame.odom_T_robot.x() - last_odom.x(),
+                                                       frame.odom_T_robot.y() - last_odom.y());
     frames.push_back(f);
     last_odom = frame.odom_T_robot;
   }
@@ -230,8 +238,8 @@ std::string Calibration::ToYaml() const {
   s << "# omnicml calibrate: " << frames_used << " frames of the first session, median step "
     << median_step_m << " m\n";
   s << "# descriptor distance E reaches e_max " << e_max << " after " << match_length_m
-    << " m of travel" << (saturated ? " (not reached: largest lag measured)" : "")
-    << "; scale " << scale << "\n";
+    << " m of travel" << (saturated ? " (not reached: largest lag measured)" : "") << "; scale "
+    << scale << "\n";
   s << "# lag_frames, median path m, median E\n";
   for (std::size_t i = 0; i < curve.size(); ++i) {
     if (i >= 20 && (i + 1) % 20 != 0 && i + 1 != curve.size()) continue;
@@ -239,8 +247,8 @@ std::string Calibration::ToYaml() const {
       << curve[i].median_distance << "\n";
   }
   const MotionNoiseIdentification& m = motion;
-  s << "# loop pairs (E < " << loop_e_max << ") in " << loop_frames << " frames of " << loop_sessions
-    << " session(s): " << m.pairs << ", used " << m.pairs_used;
+  s << "# loop pairs (E < " << loop_e_max << ") in " << loop_frames << " frames of "
+    << loop_sessions << " session(s): " << m.pairs << ", used " << m.pairs_used;
   if (m.identified) {
     s << "; motion noise identified: a1 " << m.noise.a1 << ", a2 " << m.noise.a2 << ", a3 "
       << m.noise.a3 << ", a4 " << m.noise.a4 << ", appearance offset sigma "
@@ -252,8 +260,8 @@ std::string Calibration::ToYaml() const {
   s << "appearance_sigma_m: " << appearance_sigma_m << "\n";
   s << "anchor_max_sigma_m: " << anchor_max_sigma_m << "\n";
   if (m.identified) {
-    s << "tracker:\n  motion: {a1: " << m.noise.a1 << ", a2: " << m.noise.a2 << ", a3: " << m.noise.a3
-      << ", a4: " << m.noise.a4 << "}\n";
+    s << "tracker:\n  motion: {a1: " << m.noise.a1 << ", a2: " << m.noise.a2
+      << ", a3: " << m.noise.a3 << ", a4: " << m.noise.a4 << "}\n";
   }
   s << "model:\n";
   s << "  d_for_m: " << d_for_m << "\n";

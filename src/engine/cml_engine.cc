@@ -49,10 +49,12 @@ void CmlEngineOptions::Validate() const {
   nested("pose_graph", [&] { pose_graph.Validate(); });
   nested("gated_matching", [&] { gated_matching.Validate(); });
   if (update_delay_frames < 1) {
-    throw Error(StrCat("CmlEngineOptions.update_delay_frames must be >= 1, got ", update_delay_frames));
+    throw Error(
+        StrCat("CmlEngineOptions.update_delay_frames must be >= 1, got ", update_delay_frames));
   }
   if (threads < 1 || threads > kMaxThreads) {
-    throw Error(StrCat("CmlEngineOptions.threads must lie in [1, ", kMaxThreads, "], got ", threads));
+    throw Error(
+        StrCat("CmlEngineOptions.threads must lie in [1, ", kMaxThreads, "], got ", threads));
   }
   if (max_pending_multimodal_frames < 1) {
     throw Error(StrCat("CmlEngineOptions.max_pending_multimodal_frames must be >= 1, got ",
@@ -62,9 +64,11 @@ void CmlEngineOptions::Validate() const {
     throw Error(StrCat("CmlEngineOptions.anchor_max_sigma_m must be finite and >= 0, got ",
                        anchor_max_sigma_m));
   }
-  if (panorama_width < 0 || panorama_height < 0 || ((panorama_width > 0) != (panorama_height > 0))) {
-    throw Error(StrCat("CmlEngineOptions.panorama_width/panorama_height must both be 0 or both > 0, got ",
-                       panorama_width, " x ", panorama_height));
+  if (panorama_width < 0 || panorama_height < 0 ||
+      ((panorama_width > 0) != (panorama_height > 0))) {
+    throw Error(
+        StrCat("CmlEngineOptions.panorama_width/panorama_height must both be 0 or both > 0, got ",
+               panorama_width, " x ", panorama_height));
   }
   if (panorama_width > kMaxPanoramaSidePx || panorama_height > kMaxPanoramaSidePx) {
     throw Error(StrCat("CmlEngineOptions.panorama_width/panorama_height must be at most ",
@@ -84,10 +88,12 @@ void CmlEngineOptions::Validate() const {
                        hypothesis_min_similarity));
   }
   if (!(hypothesis_weight_scale > 0.0 && hypothesis_weight_scale <= 1.0)) {
-    throw Error(StrCat("CmlEngineOptions.hypothesis_weight_scale must be in (0, 1], got ", hypothesis_weight_scale));
+    throw Error(StrCat("CmlEngineOptions.hypothesis_weight_scale must be in (0, 1], got ",
+                       hypothesis_weight_scale));
   }
   if (!(appearance_sigma_m >= 0.0) || !std::isfinite(appearance_sigma_m)) {
-    throw Error(StrCat("CmlEngineOptions.appearance_sigma_m must be finite and >= 0, got ", appearance_sigma_m));
+    throw Error(StrCat("CmlEngineOptions.appearance_sigma_m must be finite and >= 0, got ",
+                       appearance_sigma_m));
   }
   if (!(global_seed_min_similarity >= 0.0 && global_seed_min_similarity <= 1.0)) {
     throw Error(StrCat("CmlEngineOptions.global_seed_min_similarity must be in [0, 1], got ",
@@ -95,14 +101,16 @@ void CmlEngineOptions::Validate() const {
   }
 }
 
-CmlEngine::CmlEngine(const CmlEngineOptions& options) : options_(options), tracker_(options.tracker) {
+CmlEngine::CmlEngine(const CmlEngineOptions& options)
+    : options_(options), tracker_(options.tracker) {
   options_.Validate();
   options_.reconstruction.motion = options_.tracker.motion;
   extractor_ = MakeDescriptorExtractor(options_.descriptor);
   model_ = std::make_unique<EnvironmentModel>(options_.model, extractor_);
   updater_ = MakeUpdater(options_.threads);
   pose_graph_ = std::make_unique<PoseGraph>(
-      options_.pose_graph, options_.tracker.motion, options_.reconstruction.min_translation_variance_m2,
+      options_.pose_graph, options_.tracker.motion,
+      options_.reconstruction.min_translation_variance_m2,
       options_.reconstruction.min_rotation_variance_rad2,
       static_cast<std::size_t>(options_.max_pending_multimodal_frames) + 1);
 }
@@ -121,7 +129,8 @@ std::unique_ptr<MapUpdater> CmlEngine::MakeUpdater(int threads) {
 
 void CmlEngine::SetThreads(int threads) {
   if (threads < 1 || threads > kMaxThreads) {
-    throw Error(StrCat("CmlEngineOptions.threads must lie in [1, ", kMaxThreads, "], got ", threads));
+    throw Error(
+        StrCat("CmlEngineOptions.threads must lie in [1, ", kMaxThreads, "], got ", threads));
   }
   if (threads == options_.threads) return;
   // Between calls the worker holds no batch (every call ends at a barrier or a flush), so
@@ -141,8 +150,9 @@ void CmlEngine::SetForgettingMode(ForgettingMode mode) {
 void CmlEngine::MakeUnwrapper() {
   unwrapper_.reset();
   if (session_.camera.kind == ImageKind::kRawRing) {
-    unwrapper_ = std::make_unique<OmniUnwrapper>(session_.camera.calibration, session_.camera.image_width,
-                                                 session_.camera.image_height, session_.camera.mask);
+    unwrapper_ =
+        std::make_unique<OmniUnwrapper>(session_.camera.calibration, session_.camera.image_width,
+                                        session_.camera.image_height, session_.camera.mask);
   }
 }
 
@@ -157,7 +167,8 @@ void CmlEngine::PushUpdate(std::int64_t t, std::int64_t frame, int session, cons
   updater_->Push(std::move(u), t);
   if (options_.pose_graph.enabled) {  // global pose graph: one node per map update
     const bool survey = survey_prior_ && survey_prior_->first == frame;
-    pose_graph_->AddNode(frame, g.mean, survey ? std::optional<Gaussian>(survey_prior_->second) : std::nullopt);
+    pose_graph_->AddNode(frame, g.mean,
+                         survey ? std::optional<Gaussian>(survey_prior_->second) : std::nullopt);
   }
   if (stats != nullptr) stats->updates_queued += 1;
   counters_.updates_queued += 1;
@@ -215,7 +226,8 @@ void CmlEngine::BeginSession(const SessionInfo& info) {
   switch (info.start.mode) {
     case SessionStartMode::kKnownPose: {
       Gaussian g;
-      g.mean = MakePose(info.start.map_T_robot[0], info.start.map_T_robot[1], info.start.map_T_robot[2]);
+      g.mean =
+          MakePose(info.start.map_T_robot[0], info.start.map_T_robot[1], info.start.map_T_robot[2]);
       g.covariance = start_cov;
       g.weight = 1.0;
       tracker_.Reset(g);
@@ -266,26 +278,28 @@ void CmlEngine::BeginSession(const SessionInfo& info) {
     // is a prior on the session's first node.
     std::optional<Gaussian> known;
     if (info.start.mode == SessionStartMode::kKnownPose) known = tracker_.state().front();
-    pose_graph_->BeginSession(info.start.mode == SessionStartMode::kContinue && !first, next_frame_, known);
+    pose_graph_->BeginSession(info.start.mode == SessionStartMode::kContinue && !first, next_frame_,
+                              known);
   }
 }
 
 cv::Mat CmlEngine::PreparePanoramaOf(const Frame& frame) const {
   if (session_.camera.kind == ImageKind::kRawRing) {
     OMNICML_CHECK(unwrapper_ != nullptr) << "raw ring session without unwrapper";
-    return PreparePanorama(unwrapper_->Unwrap(frame.image), options_.panorama_width, options_.panorama_height);
+    return PreparePanorama(unwrapper_->Unwrap(frame.image), options_.panorama_width,
+                           options_.panorama_height);
   }
   return PreparePanorama(frame.image, options_.panorama_width, options_.panorama_height);
 }
 
-void CmlEngine::QueueUnimodal(std::int64_t t, const Descriptor& y, const Estimate& estimate, FrameResult* result) {
+void CmlEngine::QueueUnimodal(std::int64_t t, const Descriptor& y, const Estimate& estimate,
+                              FrameResult* result) {
   // (mu_t, C_t): the moment-matched merge of the unimodal p(x_t).
   Gaussian state = estimate.mean;
   state.weight = 1.0;
   result->map_state = state;
-  const auto push = [&](std::int64_t frame, int session, const Descriptor& d, const Gaussian& g, bool rec) {
-    PushUpdate(t, frame, session, d, g, rec, &result->stats);
-  };
+  const auto push = [&](std::int64_t frame, int session, const Descriptor& d, const Gaussian& g,
+                        bool rec) { PushUpdate(t, frame, session, d, g, rec, &result->stats); };
 
   // Reconstruction of the multimodal stretch since the previous unimodal anchor
   // ([G 2.1, PK]; docs/design.md "Unimodality, reconstruction, delayed update").
@@ -299,7 +313,8 @@ void CmlEngine::QueueUnimodal(std::int64_t t, const Descriptor& y, const Estimat
       start = anchor_->second;
       first_increment = 0;
     }
-    for (std::size_t i = first_increment; i < pending_.size(); ++i) increments.push_back(pending_[i].increment);
+    for (std::size_t i = first_increment; i < pending_.size(); ++i)
+      increments.push_back(pending_[i].increment);
     // The current frame's increment is the one the tracker just used.
     increments.push_back(current_increment_);
     const ReconstructionResult rec =
@@ -332,7 +347,8 @@ void CmlEngine::ShapeHypothesis(double best_similarity, Mixture* p_x_y) const {
   }
 }
 
-void CmlEngine::NoteInnovation(const Mixture& p_x_u, const Mixture& p_x_y, FrameResult* result) const {
+void CmlEngine::NoteInnovation(const Mixture& p_x_u, const Mixture& p_x_y,
+                               FrameResult* result) const {
   if (p_x_u.empty()) return;
   const Gaussian& prior = p_x_u[StrongestComponent(p_x_u)];
   result->prior = prior;
@@ -347,8 +363,7 @@ void CmlEngine::NoteInnovation(const Mixture& p_x_u, const Mixture& p_x_y, Frame
   if (result->appearance_fix) result->stats.nis = best;
 }
 
-Descriptor CmlEngine::DescribeBehindBarrier(const Frame& frame, std::int64_t t,
-                                            FrameStats* stats) {
+Descriptor CmlEngine::DescribeBehindBarrier(const Frame& frame, std::int64_t t, FrameStats* stats) {
   // 2. Hand the updates due at t to the worker; it runs while we unwrap and describe.
   updater_->Schedule(t);
   Descriptor y;
@@ -361,8 +376,8 @@ Descriptor CmlEngine::DescribeBehindBarrier(const Frame& frame, std::int64_t t,
     t0 = Clock::now();
     // Pixels outside a clipped ring or under the user mask do not count (descriptor.h).
     y = unwrapper_ != nullptr && unwrapper_->valid_fraction() < 1.0
-            ? extractor_->ComputeMasked(panorama, PrepareMask(unwrapper_->valid_mask(), panorama.cols,
-                                                              panorama.rows))
+            ? extractor_->ComputeMasked(
+                  panorama, PrepareMask(unwrapper_->valid_mask(), panorama.cols, panorama.rows))
             : extractor_->Compute(panorama);
     stats->describe_us = MicrosSince(t0);
   } catch (...) {
@@ -394,11 +409,12 @@ FrameResult CmlEngine::ProcessFrame(const Frame& frame) {
 
   // 1. Odometry increment (zero on a session's first frame, see BeginSession), and the
   // prior p(x|u) = Propagate(p(x_{t-1}), u_t) (empty without a state).
-  current_increment_ = session_.has_prev_odom ? ComputeIncrement(session_.prev_odom, frame.odom_T_robot)
-                                              : OdometryIncrement{};
-  const Mixture p_x_u = tracker_.HasState()
-                            ? Propagate(tracker_.state(), current_increment_, options_.tracker.motion)
-                            : Mixture{};
+  current_increment_ = session_.has_prev_odom
+                           ? ComputeIncrement(session_.prev_odom, frame.odom_T_robot)
+                           : OdometryIncrement{};
+  const Mixture p_x_u =
+      tracker_.HasState() ? Propagate(tracker_.state(), current_increment_, options_.tracker.motion)
+                          : Mixture{};
 
   // 6a. p(x|y) from the map (distributed coding), gated while tracking confidently.
   auto t0 = Clock::now();
@@ -420,7 +436,8 @@ FrameResult CmlEngine::ProcessFrame(const Frame& frame) {
   }
   Mixture p_x_y = model_->Hypothesis(matches);
   result.stats.num_matches = static_cast<int>(matches.size());
-  for (const ViewMatch& m : matches) result.stats.best_similarity = std::max(result.stats.best_similarity, m.similarity);
+  for (const ViewMatch& m : matches)
+    result.stats.best_similarity = std::max(result.stats.best_similarity, m.similarity);
   result.stats.hypothesis_components = static_cast<int>(p_x_y.size());
   ShapeHypothesis(result.stats.best_similarity, &p_x_y);
   result.stats.match_us = MicrosSince(t0);
@@ -525,7 +542,9 @@ void CmlEngine::EndFrame(const Frame& frame, Clock::time_point t_start, FrameRes
 
 void CmlEngine::ReplaceModel(EnvironmentModel model) {
   if (model.extractor_ptr() != extractor_) {
-    throw Error("CmlEngine::ReplaceModel: the model must be built with the engine's extractor (extractor_ptr())");
+    throw Error(
+        "CmlEngine::ReplaceModel: the model must be built with the engine's extractor "
+        "(extractor_ptr())");
   }
   model_ = std::make_unique<EnvironmentModel>(std::move(model));
 }

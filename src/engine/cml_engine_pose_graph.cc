@@ -25,7 +25,8 @@ Gaussian MoveRigidly(const Gaussian& g, const Pose2& before, const Pose2& after)
   j(0, 1) = -s;
   j(1, 0) = s;
   j(1, 1) = c;
-  const Eigen::Vector2d xy = after.head<2>() + j.topLeftCorner<2, 2>() * (g.mean.head<2>() - before.head<2>());
+  const Eigen::Vector2d xy =
+      after.head<2>() + j.topLeftCorner<2, 2>() * (g.mean.head<2>() - before.head<2>());
   Gaussian out = g;
   out.mean = MakePose(xy.x(), xy.y(), g.mean.z() + dphi);
   const Eigen::Matrix3d cov = j * g.covariance * j.transpose();
@@ -35,7 +36,8 @@ Gaussian MoveRigidly(const Gaussian& g, const Pose2& before, const Pose2& after)
 
 }  // namespace
 
-void CmlEngine::UpdatePoseGraph(std::int64_t t, const std::vector<ViewMatch>& matches, FrameStats* stats) {
+void CmlEngine::UpdatePoseGraph(std::int64_t t, const std::vector<ViewMatch>& matches,
+                                FrameStats* stats) {
   if (matches.empty()) return;
   const auto t0 = std::chrono::steady_clock::now();
   // The best match (matches are sorted by distance, ties by view id): the pose it says the
@@ -52,15 +54,18 @@ void CmlEngine::UpdatePoseGraph(std::int64_t t, const std::vector<ViewMatch>& ma
     pose_graph_->AddClosure(view.stats.created_frame, t, m, strongest->covariance);
   }
   if (pose_graph_->ShouldOptimize(t)) ApplyPoseGraphCorrections(pose_graph_->Optimize(t), stats);
-  stats->pose_graph_us += std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0).count();
+  stats->pose_graph_us +=
+      std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0).count();
 }
 
-void CmlEngine::ApplyPoseGraphCorrections(std::vector<NodeCorrection> corrections, FrameStats* stats) {
+void CmlEngine::ApplyPoseGraphCorrections(std::vector<NodeCorrection> corrections,
+                                          FrameStats* stats) {
   if (corrections.empty()) return;
   // Sorted by frame (Optimize returns them in node order).
   const auto find = [&](std::int64_t frame) -> const NodeCorrection* {
-    const auto it = std::lower_bound(corrections.begin(), corrections.end(), frame,
-                                     [](const NodeCorrection& c, std::int64_t f) { return c.frame < f; });
+    const auto it =
+        std::lower_bound(corrections.begin(), corrections.end(), frame,
+                         [](const NodeCorrection& c, std::int64_t f) { return c.frame < f; });
     return it != corrections.end() && it->frame == frame ? &*it : nullptr;
   };
   // Views move with the node of the update that created them: later components were
@@ -74,7 +79,8 @@ void CmlEngine::ApplyPoseGraphCorrections(std::vector<NodeCorrection> correction
   }
   // Updates queued but not yet applied carry their node's old pose.
   for (MapUpdate& u : updater_->mutable_queued()) {
-    if (const NodeCorrection* c = find(u.frame)) u.state = MoveRigidly(u.state, c->before, c->after);
+    if (const NodeCorrection* c = find(u.frame))
+      u.state = MoveRigidly(u.state, c->before, c->after);
   }
   // The tracker and the anchor follow the newest node (the current anchor).
   const NodeCorrection& newest = corrections.back();

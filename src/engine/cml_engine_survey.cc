@@ -17,11 +17,13 @@ FrameResult CmlEngine::ProcessSurveyFrame(const Frame& frame, const Gaussian& tr
                   frame.index_in_session, ")");
   };
   if (!frame.odom_T_robot.allFinite()) throw Error(StrCat(where(), ": odometry is not finite"));
-  if (!trusted.mean.allFinite()) throw Error(StrCat(where(), ": trusted survey pose is not finite"));
+  if (!trusted.mean.allFinite())
+    throw Error(StrCat(where(), ": trusted survey pose is not finite"));
   Gaussian state;
   state.mean = MakePose(trusted.mean.x(), trusted.mean.y(), trusted.mean.z());
-  state.covariance = RepairCovariance(trusted.covariance, options_.tracker.min_covariance_eigenvalue,
-                                      StrCat(where(), ": trusted survey covariance"));
+  state.covariance =
+      RepairCovariance(trusted.covariance, options_.tracker.min_covariance_eigenvalue,
+                       StrCat(where(), ": trusted survey covariance"));
   state.weight = 1.0;
 
   const std::int64_t t = next_frame_;
@@ -33,8 +35,9 @@ FrameResult CmlEngine::ProcessSurveyFrame(const Frame& frame, const Gaussian& tr
   result.stats.num_views = model_->NumViews();
   result.stats.num_map_components = model_->NumComponents();
 
-  current_increment_ = session_.has_prev_odom ? ComputeIncrement(session_.prev_odom, frame.odom_T_robot)
-                                              : OdometryIncrement{};
+  current_increment_ = session_.has_prev_odom
+                           ? ComputeIncrement(session_.prev_odom, frame.odom_T_robot)
+                           : OdometryIncrement{};
   if (options_.pose_graph.enabled) pose_graph_->AddFrameOdometry(t, current_increment_);
   // p(x_t) := N(trusted): the trusted pose replaces whatever the tracker believed.
   tracker_.Reset(state);

@@ -63,7 +63,8 @@ OdometryIncrement ReadIncrement(BinaryReader& in, const char* what) {
 }
 // Descriptors of pending frames and queued updates use the descriptor record encoding
 // (descriptor.h), as the map's views do; they must fit the engine's extractor.
-Descriptor ReadDescriptor(BinaryReader& in, const char* what, const DescriptorExtractor& extractor) {
+Descriptor ReadDescriptor(BinaryReader& in, const char* what,
+                          const DescriptorExtractor& extractor) {
   Descriptor d = ReadDescriptorRecord(in);
   if (d.kind != extractor.kind() || d.features.size() != extractor.FeatureSize()) {
     in.Fail(what, StrCat("a ", ToString(d.kind), " descriptor with ", d.features.size(),
@@ -124,7 +125,8 @@ void WriteCamera(BinaryWriter& out, const CameraModel& camera) {
   out.Write<std::int32_t>(f.panorama_width);
   out.Write<std::int32_t>(f.panorama_height);
   const EquirectangularCalibration& q = c.equirectangular;
-  for (const double v : {q.min_elevation_deg, q.max_elevation_deg, q.azimuth0_rad}) out.Write<double>(v);
+  for (const double v : {q.min_elevation_deg, q.max_elevation_deg, q.azimuth0_rad})
+    out.Write<double>(v);
   out.Write<std::int32_t>(static_cast<std::int32_t>(q.direction));
   out.Write<std::int32_t>(q.panorama_width);
   out.Write<std::int32_t>(q.panorama_height);
@@ -159,8 +161,8 @@ void ReadCamera(BinaryReader& in, CameraModel& camera) {
   if (rows < 0 || cols < 0 || rows > 65536 || cols > 65536) in.Fail("camera.mask", "invalid size");
   camera.mask = cv::Mat();
   if (rows > 0 && cols > 0) {
-    const std::vector<std::uint8_t> bytes =
-        in.ReadBytes(static_cast<std::size_t>(rows) * static_cast<std::size_t>(cols), "camera.mask");
+    const std::vector<std::uint8_t> bytes = in.ReadBytes(
+        static_cast<std::size_t>(rows) * static_cast<std::size_t>(cols), "camera.mask");
     camera.mask = cv::Mat(rows, cols, CV_8UC1);
     std::copy(bytes.begin(), bytes.end(), camera.mask.data);
   }
@@ -202,9 +204,9 @@ void EngineStateAccess::Write(BinaryWriter& out, const CmlEngine& e) {
   WriteEngineOptions(out, e.options_);
   // Counters.
   const EngineCounters& c = e.counters_;
-  for (std::int64_t v : {c.frames, c.unimodal_frames, c.multimodal_frames, c.unknown_frames,
-                         c.reconstructed_frames, c.dropped_pending_frames, c.updates_queued, c.global_seeds,
-                         c.global_fallbacks}) {
+  for (std::int64_t v :
+       {c.frames, c.unimodal_frames, c.multimodal_frames, c.unknown_frames, c.reconstructed_frames,
+        c.dropped_pending_frames, c.updates_queued, c.global_seeds, c.global_fallbacks}) {
     out.Write<std::int64_t>(v);
   }
   // Session state.
@@ -266,8 +268,8 @@ std::unique_ptr<CmlEngine> EngineStateAccess::Read(BinaryReader& in) {
   }
   EngineCounters& c = e->counters_;
   for (std::int64_t* v : {&c.frames, &c.unimodal_frames, &c.multimodal_frames, &c.unknown_frames,
-                          &c.reconstructed_frames, &c.dropped_pending_frames, &c.updates_queued, &c.global_seeds,
-                          &c.global_fallbacks}) {
+                          &c.reconstructed_frames, &c.dropped_pending_frames, &c.updates_queued,
+                          &c.global_seeds, &c.global_fallbacks}) {
     *v = in.Read<std::int64_t>("counters");
   }
   EngineSessionState& s = e->session_;
@@ -341,14 +343,16 @@ std::vector<std::uint8_t> EncodeEngine(const CmlEngine& engine) {
   return file.Release();
 }
 
-std::unique_ptr<CmlEngine> DecodeEngine(const std::vector<std::uint8_t>& bytes, const std::string& source) {
+std::unique_ptr<CmlEngine> DecodeEngine(const std::vector<std::uint8_t>& bytes,
+                                        const std::string& source) {
   if (bytes.size() < 8 || std::memcmp(bytes.data(), kEngineMagic, 8) != 0) {
     FailFile(source, bytes.size() < 8 ? "not an omnicml engine file (shorter than the magic bytes)"
                                       : "not an omnicml engine file (bad magic bytes)");
   }
   BinaryReader header(std::span<const std::uint8_t>(bytes.data(), bytes.size()), source);
   header.ReadBytes(8, "magic");
-  if (bytes.size() < kHeaderBytes) FailFile(source, StrCat("truncated header (", bytes.size(), " bytes)"));
+  if (bytes.size() < kHeaderBytes)
+    FailFile(source, StrCat("truncated header (", bytes.size(), " bytes)"));
   const auto version = header.Read<std::uint32_t>("format version");
   if (version != kEngineFormatVersion) {
     FailFile(source, StrCat("unsupported engine format version ", version, " (this build reads ",
@@ -357,18 +361,22 @@ std::unique_ptr<CmlEngine> DecodeEngine(const std::vector<std::uint8_t>& bytes, 
   const auto length = header.Read<std::uint64_t>("payload length");
   const std::uint64_t available = bytes.size() - kHeaderBytes;
   if (available < kTrailerBytes || length > available - kTrailerBytes) {
-    FailFile(source, StrCat("truncated: header announces ", length, " payload bytes + 4 checksum bytes, ",
-                            available, " bytes follow the header"));
+    FailFile(source,
+             StrCat("truncated: header announces ", length, " payload bytes + 4 checksum bytes, ",
+                    available, " bytes follow the header"));
   }
   if (length + kTrailerBytes != available) {
-    FailFile(source, StrCat("corrupted: ", available - length - kTrailerBytes, " unexpected bytes after the checksum"));
+    FailFile(source, StrCat("corrupted: ", available - length - kTrailerBytes,
+                            " unexpected bytes after the checksum"));
   }
   const std::span<const std::uint8_t> payload(bytes.data() + kHeaderBytes, length);
-  BinaryReader trailer(std::span<const std::uint8_t>(bytes.data() + kHeaderBytes + length, kTrailerBytes), source);
+  BinaryReader trailer(
+      std::span<const std::uint8_t>(bytes.data() + kHeaderBytes + length, kTrailerBytes), source);
   const auto stored = trailer.Read<std::uint32_t>("checksum");
   const std::uint32_t actual = Crc32(payload);
   if (stored != actual) {
-    FailFile(source, StrCat("corrupted: checksum mismatch (stored 0x", std::hex, stored, ", computed 0x", actual, ")"));
+    FailFile(source, StrCat("corrupted: checksum mismatch (stored 0x", std::hex, stored,
+                            ", computed 0x", actual, ")"));
   }
   BinaryReader in(payload, source);
   return EngineStateAccess::Read(in);

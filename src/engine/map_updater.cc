@@ -26,7 +26,8 @@ void DelayedUpdateQueue::Push(MapUpdate update, std::int64_t produced_at_frame) 
 
 void DelayedUpdateQueue::PushRaw(MapUpdate update) {
   OMNICML_CHECK(items_.empty() || items_.back().due_frame <= update.due_frame)
-      << "due frames must not decrease: " << update.due_frame << " after " << items_.back().due_frame;
+      << "due frames must not decrease: " << update.due_frame << " after "
+      << items_.back().due_frame;
   last_produced_ = std::max(last_produced_, update.due_frame - delay_);
   items_.push_back(std::move(update));
 }
@@ -41,7 +42,8 @@ std::vector<MapUpdate> DelayedUpdateQueue::PopDue(std::int64_t frame) {
 }
 
 std::vector<MapUpdate> DelayedUpdateQueue::PopAll() {
-  std::vector<MapUpdate> out(std::make_move_iterator(items_.begin()), std::make_move_iterator(items_.end()));
+  std::vector<MapUpdate> out(std::make_move_iterator(items_.begin()),
+                             std::make_move_iterator(items_.end()));
   items_.clear();
   return out;
 }
@@ -75,7 +77,8 @@ void MapUpdater::ApplyBatch(std::vector<MapUpdate>& batch) {
   for (const MapUpdate& u : batch) {
     const auto t0 = std::chrono::steady_clock::now();
     apply_(u);
-    const double us = std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0).count();
+    const double us =
+        std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0).count();
     std::lock_guard<std::mutex> lock(mutex_);
     ++applied_;
     ++applied_since_barrier_;

@@ -2,18 +2,18 @@
 
 #include <algorithm>
 #include <array>
-#include <map>
 #include <cmath>
+#include <map>
 #include <memory>
 #include <optional>
 
+#include <ceres/ceres.h>
 #include <Eigen/Cholesky>
 #include <Eigen/LU>
-#include <ceres/ceres.h>
 
+#include "engine/internal/pose_factors.h"
 #include "omnicml/common/common.h"
 #include "omnicml/engine/trajectory_reconstruction.h"
-#include "engine/internal/pose_factors.h"
 #include "omnicml/geometry/pose_io.h"
 
 namespace omnicml {
@@ -38,10 +38,12 @@ void PoseGraphOptions::Validate() const {
   if (closure_every_frames < 1) fail("closure_every_frames", ">= 1", closure_every_frames);
   if (optimize_every_frames < 1) fail("optimize_every_frames", ">= 1", optimize_every_frames);
   if (window_nodes < 2) fail("window_nodes", ">= 2", window_nodes);
-  if (!(closure_sigma_m > 0) || !std::isfinite(closure_sigma_m)) fail("closure_sigma_m", "finite and > 0", closure_sigma_m);
+  if (!(closure_sigma_m > 0) || !std::isfinite(closure_sigma_m))
+    fail("closure_sigma_m", "finite and > 0", closure_sigma_m);
   if (!(closure_sigma_rad > 0) || !std::isfinite(closure_sigma_rad))
     fail("closure_sigma_rad", "finite and > 0", closure_sigma_rad);
-  if (!(loss_scale > 0) || !std::isfinite(loss_scale)) fail("loss_scale", "finite and > 0", loss_scale);
+  if (!(loss_scale > 0) || !std::isfinite(loss_scale))
+    fail("loss_scale", "finite and > 0", loss_scale);
   if (max_iterations < 1) fail("max_iterations", ">= 1", max_iterations);
   if (!(reject_chi2 > 0)) fail("reject_chi2", "> 0", reject_chi2);
 }
@@ -82,7 +84,8 @@ void PoseGraph::AddFrameOdometry(std::int64_t frame, const OdometryIncrement& u)
   while (recent_.size() > max_recent_frames_) recent_.pop_front();
 }
 
-void PoseGraph::AddNode(std::int64_t frame, const Pose2& pose, const std::optional<Gaussian>& prior) {
+void PoseGraph::AddNode(std::int64_t frame, const Pose2& pose,
+                        const std::optional<Gaussian>& prior) {
   if (!nodes_.empty() && frame <= nodes_.back().frame) return;
   PoseGraphNode n;
   n.frame = frame;
@@ -100,8 +103,9 @@ void PoseGraph::AddNode(std::int64_t frame, const Pose2& pose, const std::option
 }
 
 std::size_t PoseGraph::IndexOf(std::int64_t frame) const {
-  const auto it = std::lower_bound(nodes_.begin(), nodes_.end(), frame,
-                                   [](const PoseGraphNode& n, std::int64_t f) { return n.frame < f; });
+  const auto it =
+      std::lower_bound(nodes_.begin(), nodes_.end(), frame,
+                       [](const PoseGraphNode& n, std::int64_t f) { return n.frame < f; });
   if (it == nodes_.end() || it->frame != frame) return nodes_.size();
   return static_cast<std::size_t>(it - nodes_.begin());
 }
@@ -130,8 +134,8 @@ bool PoseGraph::AddClosure(std::int64_t view_created_frame, std::int64_t frame, 
   c.to_frame = frame;
   c.z = Between(from->pose, m);
   const double s2 = options_.closure_sigma_m * options_.closure_sigma_m + std::max(largest, 0.0);
-  const double sphi2 =
-      options_.closure_sigma_rad * options_.closure_sigma_rad + std::max(component_covariance(2, 2), 0.0);
+  const double sphi2 = options_.closure_sigma_rad * options_.closure_sigma_rad +
+                       std::max(component_covariance(2, 2), 0.0);
   c.covariance = Eigen::Vector3d(s2, s2, sphi2).asDiagonal();
   closures_.push_back(c);
   last_closure_frame_ = frame;
@@ -148,10 +152,9 @@ std::vector<NodeCorrection> PoseGraph::Optimize(std::int64_t frame) {
   last_optimized_frame_ = frame;
   std::vector<NodeCorrection> out;
   if (nodes_.size() < 2) return out;
-  const std::size_t first =
-      nodes_.size() > static_cast<std::size_t>(options_.window_nodes)
-          ? nodes_.size() - static_cast<std::size_t>(options_.window_nodes)
-          : 0;
+  const std::size_t first = nodes_.size() > static_cast<std::size_t>(options_.window_nodes)
+                                ? nodes_.size() - static_cast<std::size_t>(options_.window_nodes)
+                                : 0;
   // Parameter blocks: the window's poses, plus copies of older nodes a factor touches
   // (held constant).
   std::vector<std::array<double, 3>> x(nodes_.size() - first);
@@ -162,75 +165,79 @@ std::vector<NodeCorrection> PoseGraph::Optimize(std::int64_t frame) {
   // Where each solve starts: the nodes' poses, or the graduated start's last solution.
   std::vector<std::array<double, 3>> staged;
   const auto solve = [&]() -> bool {
-  if (!staged.empty()) {
-    x = staged;
-  } else {
-    for (std::size_t i = first; i < nodes_.size(); ++i) {
-      for (int k = 0; k < 3; ++k) x[i - first][static_cast<std::size_t>(k)] = nodes_[i].pose[k];
+    if (!staged.empty()) {
+      x = staged;
+    } else {
+      for (std::size_t i = first; i < nodes_.size(); ++i) {
+        for (int k = 0; k < 3; ++k) x[i - first][static_cast<std::size_t>(k)] = nodes_[i].pose[k];
+      }
     }
-  }
-  constants.clear();
-  auto block = [&](std::size_t i) -> double* {
-    if (i >= first) return x[i - first].data();
-    auto [it, inserted] = constants.try_emplace(i);
-    if (inserted) it->second = {nodes_[i].pose[0], nodes_[i].pose[1], nodes_[i].pose[2]};
-    return it->second.data();
-  };
+    constants.clear();
+    auto block = [&](std::size_t i) -> double* {
+      if (i >= first) return x[i - first].data();
+      auto [it, inserted] = constants.try_emplace(i);
+      if (inserted) it->second = {nodes_[i].pose[0], nodes_[i].pose[1], nodes_[i].pose[2]};
+      return it->second.data();
+    };
 
-  ceres::Problem::Options problem_options;
-  ceres::Problem problem(problem_options);
-  bool gauge = false;
-  // Odometry factors between consecutive nodes of one segment (the first links the
-  // window to its constant predecessor).
-  for (std::size_t i = std::max<std::size_t>(first, 1); i < nodes_.size(); ++i) {
-    const PoseGraphNode& a = nodes_[i - 1];
-    const PoseGraphNode& b = nodes_[i];
-    if (a.segment < 0 || a.segment != b.segment) continue;
-    Eigen::Matrix3d sigma = b.odom_cov - a.odom_cov;
-    sigma = 0.5 * (sigma + sigma.transpose());
-    sigma(0, 0) += min_translation_variance_m2_;
-    sigma(1, 1) += min_translation_variance_m2_;
-    sigma(2, 2) += min_rotation_variance_rad2_;
-    const Pose2 z = Between(a.odom, b.odom);
-    problem.AddResidualBlock(new ceres::AutoDiffCostFunction<BetweenFactor, 3, 3, 3>(
-                                 new BetweenFactor(z, SqrtInformation(sigma))),
-                             nullptr, block(i - 1), block(i));
-    if (i - 1 < first) gauge = true;
-  }
-  for (std::size_t i = first; i < nodes_.size(); ++i) {
-    if (!nodes_[i].prior) continue;
-    problem.AddResidualBlock(new ceres::AutoDiffCostFunction<PriorFactor, 3, 3>(new PriorFactor(
-                                 nodes_[i].prior->mean, SqrtInformation(nodes_[i].prior->covariance))),
-                             nullptr, block(i));
-    gauge = true;
-  }
-  for (const PoseGraphClosure& c : closures_) {
-    const std::size_t a = IndexOf(c.from_frame);
-    const std::size_t b = IndexOf(c.to_frame);
-    if (a >= nodes_.size() || b >= nodes_.size() || (a < first && b < first)) continue;
-    problem.AddResidualBlock(new ceres::AutoDiffCostFunction<BetweenFactor, 3, 3, 3>(
-                                 new BetweenFactor(c.z, SqrtInformation(closure_inflation * c.covariance))),
-                             new ceres::CauchyLoss(options_.loss_scale), block(a), block(b));
-    if (a < first || b < first) gauge = true;
-  }
-  for (auto& c : constants) problem.SetParameterBlockConstant(c.second.data());
-  if (!gauge && problem.HasParameterBlock(x[0].data())) problem.SetParameterBlockConstant(x[0].data());
+    ceres::Problem::Options problem_options;
+    ceres::Problem problem(problem_options);
+    bool gauge = false;
+    // Odometry factors between consecutive nodes of one segment (the first links the
+    // window to its constant predecessor).
+    for (std::size_t i = std::max<std::size_t>(first, 1); i < nodes_.size(); ++i) {
+      const PoseGraphNode& a = nodes_[i - 1];
+      const PoseGraphNode& b = nodes_[i];
+      if (a.segment < 0 || a.segment != b.segment) continue;
+      Eigen::Matrix3d sigma = b.odom_cov - a.odom_cov;
+      sigma = 0.5 * (sigma + sigma.transpose());
+      sigma(0, 0) += min_translation_variance_m2_;
+      sigma(1, 1) += min_translation_variance_m2_;
+      sigma(2, 2) += min_rotation_variance_rad2_;
+      const Pose2 z = Between(a.odom, b.odom);
+      problem.AddResidualBlock(new ceres::AutoDiffCostFunction<BetweenFactor, 3, 3, 3>(
+                                   new BetweenFactor(z, SqrtInformation(sigma))),
+                               nullptr, block(i - 1), block(i));
+      if (i - 1 < first) gauge = true;
+    }
+    for (std::size_t i = first; i < nodes_.size(); ++i) {
+      if (!nodes_[i].prior) continue;
+      problem.AddResidualBlock(
+          new ceres::AutoDiffCostFunction<PriorFactor, 3, 3>(
+              new PriorFactor(nodes_[i].prior->mean, SqrtInformation(nodes_[i].prior->covariance))),
+          nullptr, block(i));
+      gauge = true;
+    }
+    for (const PoseGraphClosure& c : closures_) {
+      const std::size_t a = IndexOf(c.from_frame);
+      const std::size_t b = IndexOf(c.to_frame);
+      if (a >= nodes_.size() || b >= nodes_.size() || (a < first && b < first)) continue;
+      problem.AddResidualBlock(
+          new ceres::AutoDiffCostFunction<BetweenFactor, 3, 3, 3>(
+              new BetweenFactor(c.z, SqrtInformation(closure_inflation * c.covariance))),
+          new ceres::CauchyLoss(options_.loss_scale), block(a), block(b));
+      if (a < first || b < first) gauge = true;
+    }
+    for (auto& c : constants) problem.SetParameterBlockConstant(c.second.data());
+    if (!gauge && problem.HasParameterBlock(x[0].data()))
+      problem.SetParameterBlockConstant(x[0].data());
 
-  ceres::Solver::Options so;
-  so.linear_solver_type = x.size() <= 32 ? ceres::DENSE_QR : ceres::SPARSE_NORMAL_CHOLESKY;
-  so.num_threads = 1;
-  so.max_num_iterations = options_.max_iterations;
-  so.function_tolerance = 1e-10;
-  so.logging_type = ceres::SILENT;
-  so.minimizer_progress_to_stdout = false;
-  ceres::Solver::Summary summary;
-  ceres::Solve(so, &problem, &summary);
-  return summary.IsSolutionUsable();
+    ceres::Solver::Options so;
+    so.linear_solver_type = x.size() <= 32 ? ceres::DENSE_QR : ceres::SPARSE_NORMAL_CHOLESKY;
+    so.num_threads = 1;
+    so.max_num_iterations = options_.max_iterations;
+    so.function_tolerance = 1e-10;
+    so.logging_type = ceres::SILENT;
+    so.minimizer_progress_to_stdout = false;
+    ceres::Solver::Summary summary;
+    ceres::Solve(so, &problem, &summary);
+    return summary.IsSolutionUsable();
   };
   optimizations_ += 1;
   // Squared whitened residual of closure c with its end poses given by pose_of(node
   // index); nullopt when c is outside the window (both ends constant).
-  const auto closure_chi2 = [&](const PoseGraphClosure& c, const auto& pose_of) -> std::optional<double> {
+  const auto closure_chi2 = [&](const PoseGraphClosure& c,
+                                const auto& pose_of) -> std::optional<double> {
     const std::size_t a = IndexOf(c.from_frame);
     const std::size_t b = IndexOf(c.to_frame);
     if (a >= nodes_.size() || b >= nodes_.size() || (a < first && b < first)) return std::nullopt;
@@ -250,7 +257,8 @@ std::vector<NodeCorrection> PoseGraph::Optimize(std::int64_t frame) {
   {
     double worst = 0.0;
     const auto node_pose = [&](std::size_t i) { return nodes_[i].pose; };
-    for (const PoseGraphClosure& c : closures_) worst = std::max(worst, closure_chi2(c, node_pose).value_or(0.0));
+    for (const PoseGraphClosure& c : closures_)
+      worst = std::max(worst, closure_chi2(c, node_pose).value_or(0.0));
     // Squared whitened residual beyond which a closure counts as far off: 1000 (about 30
     // standard deviations in one of the 3 dimensions); below it LM starts close enough.
     constexpr double kGraduatedStartChi2 = 1000.0;
@@ -361,7 +369,8 @@ void PoseGraph::Read(BinaryReader& in) {
       g.covariance = ReadMatrix3(in, "pose_graph.node.prior");
       node.prior = g;
     }
-    if (!nodes_.empty() && node.frame <= nodes_.back().frame) in.Fail("pose_graph.node.frame", "frames not increasing");
+    if (!nodes_.empty() && node.frame <= nodes_.back().frame)
+      in.Fail("pose_graph.node.frame", "frames not increasing");
     nodes_.push_back(std::move(node));
   }
   const std::size_t c = in.ReadCount("pose_graph.closures", 8 + 8 + 24 + 72);
@@ -371,7 +380,8 @@ void PoseGraph::Read(BinaryReader& in) {
     cl.to_frame = in.Read<std::int64_t>("pose_graph.closure.to");
     cl.z = ReadPose(in, "pose_graph.closure.z");
     cl.covariance = ReadMatrix3(in, "pose_graph.closure.covariance");
-    if (Eigen::LLT<Eigen::Matrix3d>(cl.covariance).info() != Eigen::Success || !cl.covariance.allFinite()) {
+    if (Eigen::LLT<Eigen::Matrix3d>(cl.covariance).info() != Eigen::Success ||
+        !cl.covariance.allFinite()) {
       in.Fail("pose_graph.closure.covariance", "not symmetric positive definite");
     }
     closures_.push_back(cl);
@@ -410,18 +420,22 @@ bool PoseGraph::operator==(const PoseGraph& o) const {
     for (std::size_t i = 0; i < recent_.size(); ++i) {
       const FrameOdometry& a = recent_[i];
       const FrameOdometry& b = o.recent_[i];
-      if (a.frame != b.frame || a.segment != b.segment || a.odom != b.odom || a.cov != b.cov) return false;
+      if (a.frame != b.frame || a.segment != b.segment || a.odom != b.odom || a.cov != b.cov)
+        return false;
     }
     return true;
   };
-  const bool same_prior = start_prior_.has_value() == o.start_prior_.has_value() &&
-                          (!start_prior_ || (start_prior_->mean == o.start_prior_->mean &&
-                                             start_prior_->covariance == o.start_prior_->covariance));
-  return nodes_ == o.nodes_ && closures_ == o.closures_ && same_recent() && segment_ == o.segment_ &&
-         new_segment_ == o.new_segment_ && odom_ == o.odom_ && odom_cov_ == o.odom_cov_ && start_prior_frame_ == o.start_prior_frame_ && same_prior &&
-         last_closure_frame_ == o.last_closure_frame_ && last_optimized_frame_ == o.last_optimized_frame_ &&
-         closure_since_optimize_ == o.closure_since_optimize_ && optimizations_ == o.optimizations_ &&
-         rejected_closures_ == o.rejected_closures_;
+  const bool same_prior =
+      start_prior_.has_value() == o.start_prior_.has_value() &&
+      (!start_prior_ || (start_prior_->mean == o.start_prior_->mean &&
+                         start_prior_->covariance == o.start_prior_->covariance));
+  return nodes_ == o.nodes_ && closures_ == o.closures_ && same_recent() &&
+         segment_ == o.segment_ && new_segment_ == o.new_segment_ && odom_ == o.odom_ &&
+         odom_cov_ == o.odom_cov_ && start_prior_frame_ == o.start_prior_frame_ && same_prior &&
+         last_closure_frame_ == o.last_closure_frame_ &&
+         last_optimized_frame_ == o.last_optimized_frame_ &&
+         closure_since_optimize_ == o.closure_since_optimize_ &&
+         optimizations_ == o.optimizations_ && rejected_closures_ == o.rejected_closures_;
 }
 
 }  // namespace omnicml

@@ -4,12 +4,12 @@
 #include <cmath>
 #include <memory>
 
-#include <Eigen/Cholesky>
 #include <ceres/ceres.h>
 #include <ceres/covariance.h>
+#include <Eigen/Cholesky>
 
-#include "omnicml/common/common.h"
 #include "engine/internal/pose_factors.h"
+#include "omnicml/common/common.h"
 
 namespace omnicml {
 namespace {
@@ -23,26 +23,31 @@ using OdometryFactor = internal::BetweenFactor;  // between consecutive frames
 void ReconstructionOptions::Validate() const {
   motion.Validate();
   if (!(min_translation_variance_m2 > 0.0) || !std::isfinite(min_translation_variance_m2)) {
-    throw Error(StrCat("ReconstructionOptions.min_translation_variance_m2 must be positive and finite, got ",
-                       min_translation_variance_m2));
+    throw Error(StrCat(
+        "ReconstructionOptions.min_translation_variance_m2 must be positive and finite, got ",
+        min_translation_variance_m2));
   }
   if (!(min_rotation_variance_rad2 > 0.0) || !std::isfinite(min_rotation_variance_rad2)) {
-    throw Error(StrCat("ReconstructionOptions.min_rotation_variance_rad2 must be positive and finite, got ",
-                       min_rotation_variance_rad2));
+    throw Error(
+        StrCat("ReconstructionOptions.min_rotation_variance_rad2 must be positive and finite, got ",
+               min_rotation_variance_rad2));
   }
   if (max_iterations < 1) {
     throw Error(StrCat("ReconstructionOptions.max_iterations must be >= 1, got ", max_iterations));
   }
   if (!(function_tolerance > 0.0)) {
-    throw Error(StrCat("ReconstructionOptions.function_tolerance must be positive, got ", function_tolerance));
+    throw Error(StrCat("ReconstructionOptions.function_tolerance must be positive, got ",
+                       function_tolerance));
   }
 }
 
 Pose2 IncrementToRelativePose(const OdometryIncrement& u) {
-  return MakePose(u.trans_m * std::cos(u.rot1_rad), u.trans_m * std::sin(u.rot1_rad), u.rot1_rad + u.rot2_rad);
+  return MakePose(u.trans_m * std::cos(u.rot1_rad), u.trans_m * std::sin(u.rot1_rad),
+                  u.rot1_rad + u.rot2_rad);
 }
 
-Eigen::Matrix3d IncrementCovariance(const OdometryIncrement& u, const ReconstructionOptions& options) {
+Eigen::Matrix3d IncrementCovariance(const OdometryIncrement& u,
+                                    const ReconstructionOptions& options) {
   // J_u = d(trans cos rot1, trans sin rot1, rot1 + rot2) / d(rot1, trans, rot2).
   Eigen::Matrix3d j;
   const double c = std::cos(u.rot1_rad);
@@ -75,7 +80,8 @@ ReconstructionResult ReconstructTrajectory(const std::optional<Gaussian>& start,
   std::vector<Pose2> guess(n);
   if (start) {
     guess[0] = MakePose(start->mean[0], start->mean[1], start->mean[2]);
-    for (int i = 1; i < n; ++i) guess[i] = Compose(guess[i - 1], IncrementToRelativePose(increments[i - 1]));
+    for (int i = 1; i < n; ++i)
+      guess[i] = Compose(guess[i - 1], IncrementToRelativePose(increments[i - 1]));
   } else {
     guess[n - 1] = MakePose(end->mean[0], end->mean[1], end->mean[2]);
     for (int i = n - 2; i >= 0; --i) {
@@ -96,9 +102,9 @@ ReconstructionResult ReconstructTrajectory(const std::optional<Gaussian>& start,
   }
   auto add_prior = [&](const Gaussian& g, double* block, const char* what) {
     const Eigen::Matrix3d c = RepairCovariance(g.covariance, 1e-12, what);
-    problem.AddResidualBlock(
-        new ceres::AutoDiffCostFunction<PriorFactor, 3, 3>(new PriorFactor(g.mean, SqrtInformation(c))), nullptr,
-        block);
+    problem.AddResidualBlock(new ceres::AutoDiffCostFunction<PriorFactor, 3, 3>(
+                                 new PriorFactor(g.mean, SqrtInformation(c))),
+                             nullptr, block);
   };
   if (start) add_prior(*start, x[0].data(), "start anchor covariance");
   if (end) add_prior(*end, x[n - 1].data(), "end anchor covariance");
@@ -145,14 +151,16 @@ ReconstructionResult ReconstructTrajectory(const std::optional<Gaussian>& start,
     for (int i = 0; i < n; ++i) {
       double c[9];
       dense.GetCovarianceBlock(x[i].data(), x[i].data(), c);
-      result.nodes[i].covariance = RepairCovariance(Eigen::Map<Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(c));
+      result.nodes[i].covariance =
+          RepairCovariance(Eigen::Map<Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(c));
     }
     return result;
   }
   for (int i = 0; i < n; ++i) {
     double c[9];
     covariance.GetCovarianceBlock(x[i].data(), x[i].data(), c);
-    result.nodes[i].covariance = RepairCovariance(Eigen::Map<Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(c));
+    result.nodes[i].covariance =
+        RepairCovariance(Eigen::Map<Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(c));
   }
   return result;
 }

@@ -36,9 +36,9 @@ const std::vector<std::string>& FixedColumns() {
 // Columns added after the fixed ones and the stage timings; optional when reading.
 const std::vector<std::string>& LaterColumns() {
   static const std::vector<std::string> kColumns = {
-      "localized", "run_stamp_s", "odom_x_m",     "odom_y_m", "odom_phi_rad",
-      "cov_xx_m2", "cov_xy_m2",   "cov_yy_m2",    "var_phi_rad2", "nees_xy",
-      "matches",   "best_similarity", "nees_phi", "nis", "prior_nees_xy", "fix_nees_xy"};
+      "localized", "run_stamp_s", "odom_x_m",      "odom_y_m",   "odom_phi_rad", "cov_xx_m2",
+      "cov_xy_m2", "cov_yy_m2",   "var_phi_rad2",  "nees_xy",    "matches",      "best_similarity",
+      "nees_phi",  "nis",         "prior_nees_xy", "fix_nees_xy"};
   return kColumns;
 }
 
@@ -75,23 +75,25 @@ void WriteFramesCsvHeader(std::ostream& os, const std::vector<std::string>& stag
 }
 
 void WriteFramesCsvRow(std::ostream& os, const FrameRecord& r) {
-  os << r.session << ',' << r.frame << ',' << r.global_frame << ',' << ShortestDouble(r.stamp_s) << ',';
+  os << r.session << ',' << r.frame << ',' << r.global_frame << ',' << ShortestDouble(r.stamp_s)
+     << ',';
   if (r.has_estimate) {
-    os << ShortestDouble(r.estimate.x()) << ',' << ShortestDouble(r.estimate.y()) << ',' << ShortestDouble(r.estimate.z()) << ','
-       << ShortestDouble(r.mean_estimate.x()) << ',' << ShortestDouble(r.mean_estimate.y()) << ',' << ShortestDouble(r.mean_estimate.z())
-       << ',';
+    os << ShortestDouble(r.estimate.x()) << ',' << ShortestDouble(r.estimate.y()) << ','
+       << ShortestDouble(r.estimate.z()) << ',' << ShortestDouble(r.mean_estimate.x()) << ','
+       << ShortestDouble(r.mean_estimate.y()) << ',' << ShortestDouble(r.mean_estimate.z()) << ',';
   } else {
     os << ",,,,,,";
   }
   os << (r.unimodal ? 1 : 0) << ',';
   if (r.has_truth) {
-    os << ShortestDouble(r.truth.x()) << ',' << ShortestDouble(r.truth.y()) << ',' << ShortestDouble(r.truth.z()) << ',';
+    os << ShortestDouble(r.truth.x()) << ',' << ShortestDouble(r.truth.y()) << ','
+       << ShortestDouble(r.truth.z()) << ',';
   } else {
     os << ",,,";
   }
-  os << ShortestDouble(r.position_error_m) << ',' << ShortestDouble(r.heading_error_rad) << ',' << ShortestDouble(r.odometry_error_m)
-     << ',' << r.views << ',' << r.map_components << ',' << r.hypotheses << ','
-     << r.mixture_components;
+  os << ShortestDouble(r.position_error_m) << ',' << ShortestDouble(r.heading_error_rad) << ','
+     << ShortestDouble(r.odometry_error_m) << ',' << r.views << ',' << r.map_components << ','
+     << r.hypotheses << ',' << r.mixture_components;
   for (double t : r.stage_times_us) os << ',' << ShortestDouble(t);
   os << ',' << (r.has_estimate ? 1 : 0) << ','
      << ShortestDouble(std::isfinite(r.run_stamp_s) ? r.run_stamp_s : r.stamp_s) << ',';
@@ -116,8 +118,7 @@ void WriteFramesCsvRow(std::ostream& os, const FrameRecord& r) {
 FramesTable ReadFramesCsv(const fs::path& path) {
   LineReader in(path, "run frames");  // a regular file, bounded lines
   std::string line;
-  if (!in.Next(&line))
-    throw Error(StrCat(path.string(), ":1: empty file, expected a header"));
+  if (!in.Next(&line)) throw Error(StrCat(path.string(), ":1: empty file, expected a header"));
   const std::vector<std::string> header = SplitCsv(line);
   std::map<std::string, std::size_t> col;
   for (std::size_t i = 0; i < header.size(); ++i) col[header[i]] = i;
@@ -156,8 +157,8 @@ FramesTable ReadFramesCsv(const fs::path& path) {
       char* end = nullptr;
       const double v = std::strtod(s.c_str(), &end);
       if (end == s.c_str() || *end != '\0') {
-        throw Error(
-            StrCat(path.string(), ":", line_no, ": column '", name, "': cannot parse '", Excerpt(s), "'"));
+        throw Error(StrCat(path.string(), ":", line_no, ": column '", name, "': cannot parse '",
+                           Excerpt(s), "'"));
       }
       return v;
     };
@@ -191,7 +192,8 @@ FramesTable ReadFramesCsv(const fs::path& path) {
       const double m = num("matches");
       if (std::isfinite(m)) {
         if (m < 0 || m != std::floor(m)) {
-          throw Error(StrCat(path.string(), ":", line_no, ": column 'matches' must be a count, got '",
+          throw Error(StrCat(path.string(), ":", line_no,
+                             ": column 'matches' must be a count, got '",
                              Excerpt(cells[col.at("matches")]), "'"));
         }
         r.matches = static_cast<int>(m);
@@ -249,8 +251,8 @@ void ReadSkippedFrames(const fs::path& days_csv, FramesTable* table) {
       char* end = nullptr;
       const long long v = std::strtoll(s.c_str(), &end, 10);
       if (s.empty() || *end != '\0' || v < 0) {
-        throw Error(StrCat(days_csv.string(), ":", line_no, ": column '", name,
-                           "': cannot parse '", s, "'"));
+        throw Error(StrCat(days_csv.string(), ":", line_no, ": column '", name, "': cannot parse '",
+                           s, "'"));
       }
       return v;
     };
@@ -626,12 +628,11 @@ std::vector<std::string> DayRow(const DayEvaluation& d, const DayEvaluation* pre
 
 const std::vector<std::string>& DayHeader() {
   static const std::vector<std::string> kHeader = {
-      "day",    "frames",   "localized",     "coverage%",    "skipped",     "unimodal%",
-      "mean_m", "rmse_m", "median_m", "p95_m",         "max_m",        "head_mean_deg", "head_p95_deg",
-      "odom_mean_m", "d_mean_m", "views"};
+      "day",          "frames",      "localized", "coverage%", "skipped", "unimodal%",
+      "mean_m",       "rmse_m",      "median_m",  "p95_m",     "max_m",   "head_mean_deg",
+      "head_p95_deg", "odom_mean_m", "d_mean_m",  "views"};
   return kHeader;
 }
-
 
 std::vector<std::string> ConsistencyRow(const std::string& name, const ErrorStats& s,
                                         double in_band, int frames, int dof) {
@@ -650,8 +651,9 @@ std::vector<std::string> ConsistencyRow(const std::string& name, const ErrorStat
 
 const std::vector<std::string>& ConsistencyHeader() {
   static const std::vector<std::string> kHeader = {
-      "statistic", "dof", "frames", "mean", "median", "p95", "in_band%",
-      "consistent mean/median/p95", "95% band"};
+      "statistic", "dof", "frames",   "mean",
+      "median",    "p95", "in_band%", "consistent mean/median/p95",
+      "95% band"};
   return kHeader;
 }
 
@@ -661,14 +663,13 @@ std::vector<std::vector<std::string>> ConsistencyRows(const DayEvaluation& d) {
     rows.push_back(ConsistencyRow("position NEES", d.nees_xy, d.nees_xy_in_band, d.frames, 2));
   if (d.nees_phi.count > 0)
     rows.push_back(ConsistencyRow("heading NEES", d.nees_phi, d.nees_phi_in_band, d.frames, 1));
-  if (d.nis.count > 0) rows.push_back(ConsistencyRow("NIS of fixes", d.nis, d.nis_in_band, d.frames, 3));
+  if (d.nis.count > 0)
+    rows.push_back(ConsistencyRow("NIS of fixes", d.nis, d.nis_in_band, d.frames, 3));
   if (d.prior_nees_xy.count > 0) {
-    rows.push_back(ConsistencyRow("prior NEES (odometry)", d.prior_nees_xy,
-                                  kNaN, d.frames, 2));
+    rows.push_back(ConsistencyRow("prior NEES (odometry)", d.prior_nees_xy, kNaN, d.frames, 2));
   }
   if (d.fix_nees_xy.count > 0) {
-    rows.push_back(ConsistencyRow("fix NEES (map)", d.fix_nees_xy, kNaN,
-                                  d.frames, 2));
+    rows.push_back(ConsistencyRow("fix NEES (map)", d.fix_nees_xy, kNaN, d.frames, 2));
   }
   return rows;
 }
@@ -677,9 +678,9 @@ std::vector<std::vector<std::string>> ConsistencyRows(const DayEvaluation& d) {
 
 const std::vector<std::string>& ConsistencyPerDayHeader() {
   static const std::vector<std::string> kHeader = {
-      "day",          "nees_frames",   "nees_med",     "nees_p95",  "nees_in%",
-      "head_nees_med", "head_nees_p95", "head_in%",    "nis_frames", "nis_med",
-      "nis_in%",      "prior_nees_med", "fix_nees_med"};
+      "day",           "nees_frames",    "nees_med",    "nees_p95",   "nees_in%",
+      "head_nees_med", "head_nees_p95",  "head_in%",    "nis_frames", "nis_med",
+      "nis_in%",       "prior_nees_med", "fix_nees_med"};
   return kHeader;
 }
 
@@ -737,7 +738,8 @@ std::string ShortestDouble(double v) {
 }
 
 std::string FormatTextTable(const std::vector<std::string>& header,
-                            const std::vector<std::vector<std::string>>& rows, bool left_align_first) {
+                            const std::vector<std::vector<std::string>>& rows,
+                            bool left_align_first) {
   std::vector<std::size_t> width(header.size());
   for (std::size_t i = 0; i < header.size(); ++i) width[i] = header[i].size();
   for (const auto& row : rows) {
@@ -833,8 +835,9 @@ void WriteDaysCsv(std::ostream& os, const std::vector<FrameRecord>& records,
     }
     os << ShortestDouble(d.mean_frame_time_us) << ',' << d.frames_with_estimate << ','
        << d.frames_unlocalized << ',' << ShortestDouble(d.coverage) << ',' << d.frames_skipped;
-    const std::pair<const ErrorStats*, double> consistency[] = {
-        {&d.nees_xy, d.nees_xy_in_band}, {&d.nees_phi, d.nees_phi_in_band}, {&d.nis, d.nis_in_band}};
+    const std::pair<const ErrorStats*, double> consistency[] = {{&d.nees_xy, d.nees_xy_in_band},
+                                                                {&d.nees_phi, d.nees_phi_in_band},
+                                                                {&d.nis, d.nis_in_band}};
     for (const auto& [stats, in_band] : consistency) {
       os << ',' << stats->count << ',' << ShortestDouble(stats->mean) << ','
          << ShortestDouble(stats->median) << ',' << ShortestDouble(stats->p95) << ','
@@ -892,8 +895,7 @@ std::string NeesPlot(const std::string& title, const std::vector<double>& x,
   plot.AddLine("moving median (" + std::to_string(window) + " frames)", x, median);
   if (!x.empty()) {
     const std::vector<double> ends = {x.front(), x.back()};
-    plot.AddLine("95 % band, upper " + Fixed(band.upper, 2), ends,
-                 {band.upper, band.upper});
+    plot.AddLine("95 % band, upper " + Fixed(band.upper, 2), ends, {band.upper, band.upper});
     plot.AddLine("95 % band, lower " + Fixed(band.lower, 3), ends, {band.lower, band.lower});
     const double median_consistent = ChiSquareQuantile(0.5, dof);
     plot.AddLine("consistent median " + Fixed(median_consistent, 2), ends,

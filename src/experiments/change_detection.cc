@@ -49,11 +49,9 @@ WorldDayChanges ChangesOfDay(const World& world, int day, std::uint64_t seed) {
                        : cleared ? (after.cleared[i] ? "cleared" : "refilled")
                                  : "restocked";
     out.items.push_back(StrCat(ToString(o.kind), " ", o.name, " ", what));
-    out.outlines.push_back(
-        {ObstacleOutline(world, after, static_cast<int>(i)), o.closed});
+    out.outlines.push_back({ObstacleOutline(world, after, static_cast<int>(i)), o.closed});
     if (moved) {
-      out.outlines.push_back(
-          {ObstacleOutline(world, before, static_cast<int>(i)), o.closed});
+      out.outlines.push_back({ObstacleOutline(world, before, static_cast<int>(i)), o.closed});
     }
   }
   for (std::size_t i = 0; i < world.lights.size(); ++i) {
@@ -103,7 +101,8 @@ double PolylineDistance(const std::vector<Eigen::Vector2d>& pts, bool closed,
                         const Eigen::Vector2d& p) {
   double d = std::numeric_limits<double>::infinity();
   if (pts.size() == 1) return (pts[0] - p).norm();
-  for (std::size_t i = 0; i + 1 < pts.size(); ++i) d = std::min(d, SegmentDistance(p, pts[i], pts[i + 1]));
+  for (std::size_t i = 0; i + 1 < pts.size(); ++i)
+    d = std::min(d, SegmentDistance(p, pts[i], pts[i + 1]));
   if (closed && pts.size() > 2) d = std::min(d, SegmentDistance(p, pts.back(), pts.front()));
   return d;
 }
@@ -231,7 +230,8 @@ ChangeDetectionDay ScoreChangeDetection(const MapHealth& health, const WorldDayC
     ++out.cells_scored;
     ScoredCell s;
     s.cell = cell;
-    const Eigen::Vector2d centre((cell.ix + 0.5) * options.cell_m, (cell.iy + 0.5) * options.cell_m);
+    const Eigen::Vector2d centre((cell.ix + 0.5) * options.cell_m,
+                                 (cell.iy + 0.5) * options.cell_m);
     s.distance_m = DistanceToChanges(changes, centre);
     s.geometric_changed = s.distance_m <= options.radius_m;
     if (shares) {
@@ -241,8 +241,9 @@ ChangeDetectionDay ScoreChangeDetection(const MapHealth& health, const WorldDayC
       const int n = static_cast<int>(pts.size());
       const int k = std::min(n, options.points_per_cell);
       for (int j = 0; j < k; ++j) {
-        const int index = k == 1 ? n / 2 : static_cast<int>(std::lround(
-                                               static_cast<double>(j) * (n - 1) / (k - 1)));
+        const int index =
+            k == 1 ? n / 2
+                   : static_cast<int>(std::lround(static_cast<double>(j) * (n - 1) / (k - 1)));
         const ChangedShares c = shares(pts[static_cast<std::size_t>(index)]);
         s.surface_fraction = std::max(s.surface_fraction, c.surface);
         s.lit_fraction = std::max(s.lit_fraction, c.lit);
@@ -297,7 +298,8 @@ void WriteChangeDetectionCsv(std::ostream& os, const std::vector<ChangeDetection
 void WriteChangeCellsCsv(std::ostream& os, const std::vector<ChangeDetectionDay>& days,
                          double cell_m) {
   os << "day,ix,iy,x_m,y_m,health,views,insertions,removals,expected,missed,forgotten,"
-        "changed_neighbours,distance_to_change_m,geometric_changed,surface_fraction,lit_fraction,visible_changed,"
+        "changed_neighbours,distance_to_change_m,geometric_changed,surface_fraction,lit_fraction,"
+        "visible_changed,"
         "detected\n";
   for (const ChangeDetectionDay& d : days) {
     for (const ScoredCell& s : d.cells) {
@@ -306,9 +308,8 @@ void WriteChangeCellsCsv(std::ostream& os, const std::vector<ChangeDetectionDay>
          << Number((c.iy + 0.5) * cell_m) << "," << ToString(c.health) << "," << c.views << ","
          << c.insertions_recent << "," << c.removals_recent << "," << c.expected_recent << ","
          << c.missed_recent << "," << c.forgotten_recent << "," << c.changed_neighbours << ","
-         << Number(s.distance_m) << ","
-         << s.geometric_changed << "," << Number(s.surface_fraction) << ","
-         << Number(s.lit_fraction) << "," << s.visible_changed << "," << s.detected << "\n";
+         << Number(s.distance_m) << "," << s.geometric_changed << "," << Number(s.surface_fraction)
+         << "," << Number(s.lit_fraction) << "," << s.visible_changed << "," << s.detected << "\n";
     }
   }
 }
@@ -340,13 +341,12 @@ std::string ChangeDetectionTotals(const std::vector<ChangeDetectionDay>& days) {
     return StrCat(name, " truth: precision ", Percent(Ratio(tp, det)), " (", tp, "/", det,
                   "), recall ", Percent(Ratio(tp, truly)), " (", tp, "/", truly, ")");
   };
-  return StrCat(part("visible", vtp, vt), "; ", part("geometric", gtp, gt), " over ",
-                days.size(), " day(s)");
+  return StrCat(part("visible", vtp, vt), "; ", part("geometric", gtp, gt), " over ", days.size(),
+                " day(s)");
 }
 
 ChangeDetectionObserver::ChangeDetectionObserver(std::string world_name, int first_day,
-                                                 std::uint64_t seed,
-                                                 ChangeDetectionOptions options)
+                                                 std::uint64_t seed, ChangeDetectionOptions options)
     : world_name_(std::move(world_name)), first_day_(first_day), seed_(seed), options_(options) {}
 
 void ChangeDetectionObserver::OnSessionEnd(const CmlEngine& engine, int source_session,
@@ -382,9 +382,9 @@ void ChangeDetectionObserver::OnCommit(RunRecorder& recorder,
   std::ostringstream cells_csv;
   WriteChangeCellsCsv(cells_csv, days_, options_.cell_m);
   recorder.AddFile("change_cells.csv", cells_csv.str());
-  notes->emplace_back("change detection (health changed/new vs the day events)",
-                      days_.empty() ? std::string("no day after the map's first")
-                                    : ChangeDetectionTotals(days_));
+  notes->emplace_back(
+      "change detection (health changed/new vs the day events)",
+      days_.empty() ? std::string("no day after the map's first") : ChangeDetectionTotals(days_));
 }
 
 }  // namespace omnicml

@@ -88,7 +88,8 @@ LapBoundProfile ClosedForm(const std::vector<Pose2>& lap, const LapBoundOptions&
   return p;
 }
 
-LapBoundSample MonteCarlo(const std::vector<Pose2>& lap, const LapBoundOptions& options, int sample) {
+LapBoundSample MonteCarlo(const std::vector<Pose2>& lap, const LapBoundOptions& options,
+                          int sample) {
   PoseGraphOptions g;
   g.enabled = true;
   g.min_loop_frames = 1;
@@ -153,7 +154,8 @@ void LapBoundOptions::Validate() const {
   auto fail = [](const char* field, const char* rule, auto value) {
     throw Error(StrCat("LapBoundOptions.", field, " must be ", rule, ", got ", value));
   };
-  if (!(closure_sigma_m >= 0) || !std::isfinite(closure_sigma_m)) fail("closure_sigma_m", "finite and >= 0", closure_sigma_m);
+  if (!(closure_sigma_m >= 0) || !std::isfinite(closure_sigma_m))
+    fail("closure_sigma_m", "finite and >= 0", closure_sigma_m);
   if (!(closure_sigma_rad >= 0) || !std::isfinite(closure_sigma_rad))
     fail("closure_sigma_rad", "finite and >= 0", closure_sigma_rad);
   if (samples < 0) fail("samples", ">= 0", samples);
@@ -162,22 +164,27 @@ void LapBoundOptions::Validate() const {
 
 LapBoundResult ComputeLapBound(const std::vector<Pose2>& lap, const LapBoundOptions& options) {
   options.Validate();
-  if (lap.size() < 3) throw Error(StrCat("ComputeLapBound: a lap needs at least 3 poses, got ", lap.size()));
+  if (lap.size() < 3)
+    throw Error(StrCat("ComputeLapBound: a lap needs at least 3 poses, got ", lap.size()));
   LapBoundResult r;
   r.poses = static_cast<int>(lap.size());
-  for (std::size_t i = 1; i < lap.size(); ++i) r.length_m += (lap[i].head<2>() - lap[i - 1].head<2>()).norm();
+  for (std::size_t i = 1; i < lap.size(); ++i)
+    r.length_m += (lap[i].head<2>() - lap[i - 1].head<2>()).norm();
   r.profile = ClosedForm(lap, options);
   r.odometry_rms_std_m = RootMeanSquare(r.profile.odometry_std_m);
   r.odometry_end_std_m = r.profile.odometry_std_m.back();
   r.closed_rms_std_m = RootMeanSquare(r.profile.closed_std_m);
-  r.closed_max_std_m = *std::max_element(r.profile.closed_std_m.begin(), r.profile.closed_std_m.end());
+  r.closed_max_std_m =
+      *std::max_element(r.profile.closed_std_m.begin(), r.profile.closed_std_m.end());
   for (int s = 0; s < options.samples; ++s) {
     r.samples.push_back(MonteCarlo(lap, options, s));
-    r.odometry_rms_error_m += r.samples.back().odometry_rms_error_m * r.samples.back().odometry_rms_error_m;
+    r.odometry_rms_error_m +=
+        r.samples.back().odometry_rms_error_m * r.samples.back().odometry_rms_error_m;
     r.graph_rms_error_m += r.samples.back().graph_rms_error_m * r.samples.back().graph_rms_error_m;
   }
   if (!r.samples.empty()) {
-    r.odometry_rms_error_m = std::sqrt(r.odometry_rms_error_m / static_cast<double>(r.samples.size()));
+    r.odometry_rms_error_m =
+        std::sqrt(r.odometry_rms_error_m / static_cast<double>(r.samples.size()));
     r.graph_rms_error_m = std::sqrt(r.graph_rms_error_m / static_cast<double>(r.samples.size()));
   }
   return r;
@@ -185,8 +192,11 @@ LapBoundResult ComputeLapBound(const std::vector<Pose2>& lap, const LapBoundOpti
 
 std::vector<Pose2> ExtractFirstLap(const std::vector<Pose2>& trajectory, double tolerance_m,
                                    const std::string& what) {
-  if (trajectory.size() < 3) throw Error(StrCat(what, ": a lap needs at least 3 poses, got ", trajectory.size()));
-  const auto dist = [&](std::size_t i) { return (trajectory[i].head<2>() - trajectory[0].head<2>()).norm(); };
+  if (trajectory.size() < 3)
+    throw Error(StrCat(what, ": a lap needs at least 3 poses, got ", trajectory.size()));
+  const auto dist = [&](std::size_t i) {
+    return (trajectory[i].head<2>() - trajectory[0].head<2>()).norm();
+  };
   std::size_t far = 0;
   for (std::size_t i = 1; i < trajectory.size(); ++i) {
     if (dist(i) > dist(far)) far = i;
@@ -197,17 +207,21 @@ std::vector<Pose2> ExtractFirstLap(const std::vector<Pose2>& trajectory, double 
   }
   if (back < 2 || dist(back) > tolerance_m) {
     throw Error(StrCat(what, ": the trajectory does not come back to its start (nearest return ",
-                       dist(back), " m after being ", dist(far), " m away; tolerance ", tolerance_m, " m)"));
+                       dist(back), " m after being ", dist(far), " m away; tolerance ", tolerance_m,
+                       " m)"));
   }
   return {trajectory.begin(), trajectory.begin() + static_cast<std::ptrdiff_t>(back) + 1};
 }
 
-std::vector<Pose2> SampleRouteLap(const std::vector<Eigen::Vector2d>& waypoints_m, double turn_radius_m,
-                                  double step_m) {
-  if (!(step_m > 0) || !std::isfinite(step_m)) throw Error(StrCat("SampleRouteLap: step_m must be > 0, got ", step_m));
+std::vector<Pose2> SampleRouteLap(const std::vector<Eigen::Vector2d>& waypoints_m,
+                                  double turn_radius_m, double step_m) {
+  if (!(step_m > 0) || !std::isfinite(step_m))
+    throw Error(StrCat("SampleRouteLap: step_m must be > 0, got ", step_m));
   const RoutePath route(waypoints_m, turn_radius_m);
   const auto n = static_cast<long long>(std::llround(route.length_m() / step_m));
-  if (n < 2) throw Error(StrCat("SampleRouteLap: the route (", route.length_m(), " m) is shorter than 2 steps"));
+  if (n < 2)
+    throw Error(
+        StrCat("SampleRouteLap: the route (", route.length_m(), " m) is shorter than 2 steps"));
   std::vector<Pose2> lap;
   lap.reserve(static_cast<std::size_t>(n) + 1);
   for (long long i = 0; i <= n; ++i) lap.push_back(route.PoseAt(static_cast<double>(i) * step_m));
@@ -218,9 +232,10 @@ std::string FormatLapBound(const LapBoundResult& r, const LapBoundOptions& o) {
   std::ostringstream out;
   out.setf(std::ios::fixed);
   out.precision(2);
-  out << "lap: " << r.length_m << " m, " << r.poses << " poses; odometry noise a1 " << StrCat(o.noise.a1) << " a2 "
-      << StrCat(o.noise.a2) << " a3 " << StrCat(o.noise.a3) << " a4 " << StrCat(o.noise.a4) << "; closure sigma "
-      << StrCat(o.closure_sigma_m) << " m, " << StrCat(o.closure_sigma_rad) << " rad\n";
+  out << "lap: " << r.length_m << " m, " << r.poses << " poses; odometry noise a1 "
+      << StrCat(o.noise.a1) << " a2 " << StrCat(o.noise.a2) << " a3 " << StrCat(o.noise.a3)
+      << " a4 " << StrCat(o.noise.a4) << "; closure sigma " << StrCat(o.closure_sigma_m) << " m, "
+      << StrCat(o.closure_sigma_rad) << " rad\n";
   out << "closed form (linearised about the lap; position std sqrt(tr C_xy), metres):\n"
       << "  dead reckoning:           rms over the lap " << r.odometry_rms_std_m << ", at its end "
       << r.odometry_end_std_m << "\n"
@@ -239,7 +254,8 @@ std::string FormatLapBound(const LapBoundResult& r, const LapBoundOptions& o) {
       std::sort(v.begin(), v.end());
       double sum = 0;
       for (double x : v) sum += x;
-      out << name << sum / k << " / " << v[v.size() / 2] << " / " << v.back() << "    " << rms << "\n";
+      out << name << sum / k << " / " << v[v.size() / 2] << " / " << v.back() << "    " << rms
+          << "\n";
     };
     out << "Monte Carlo (" << r.samples.size() << " realisations, seed " << o.seed
         << "; position error over the lap's poses, metres):\n"

@@ -13,10 +13,10 @@
 #include "omnicml/common/file_io.h"
 #include "omnicml/common/limits.h"
 #include "omnicml/descriptors/descriptor_factory.h"
-#include "omnicml/run/run_directory.h"
 #include "omnicml/logs/log_format.h"
 #include "omnicml/report/report.h"
 #include "omnicml/report/svg_plot.h"
+#include "omnicml/run/run_directory.h"
 #include "omnicml/sim/simulator.h"
 #include "omnicml/sim/world.h"
 
@@ -125,9 +125,8 @@ MclPrepared PrepareMcl(const MclExperimentOptions& a) {
             lo + p.grid.resolution_m() * Eigen::Vector2d(p.grid.width(), p.grid.height());
         throw Error(StrCat("mcl: ", map_name, ": day ", f.session + 1, " frame ", f.index,
                            ": ground truth (", F(f.truth->x(), 2), ", ", F(f.truth->y(), 2),
-                           ") m lies outside the map ([", F(lo.x(), 2), ", ", F(hi.x(), 2),
-                           "] x [", F(lo.y(), 2), ", ", F(hi.y(), 2),
-                           "] m); is it the map of this log?"));
+                           ") m lies outside the map ([", F(lo.x(), 2), ", ", F(hi.x(), 2), "] x [",
+                           F(lo.y(), 2), ", ", F(hi.y(), 2), "] m); is it the map of this log?"));
       }
       n += p.grid.IsFree(c) ? 0 : 1;
     }
@@ -267,9 +266,9 @@ std::string ReportHtml(const MclExperimentOptions& a, const MclPrepared& p,
                          : a.descriptor},
       {"grid", StrCat(p.grid.width(), " x ", p.grid.height(), " cells of ",
                       F(p.grid.resolution_m(), 3), " m")},
-      {"visibility areas cut at", StrCat(F(p.visibility_radius_m, 3),
-                                         " m (median reference spacing ",
-                                         F(p.reference_spacing_m, 3), " m)")},
+      {"visibility areas cut at",
+       StrCat(F(p.visibility_radius_m, 3), " m (median reference spacing ",
+              F(p.reference_spacing_m, 3), " m)")},
       {"position error mean / p95 / max", Fx(eval.overall.position_m.mean, 3) + " / " +
                                               Fx(eval.overall.position_m.p95, 3) + " / " +
                                               Fx(eval.overall.position_m.max, 3) + " m"},
@@ -290,10 +289,10 @@ std::string ReportHtml(const MclExperimentOptions& a, const MclPrepared& p,
                     Fx(d.odometry_m.mean, 3), std::to_string(d.views_at_end),
                     Fx(d.mean_frame_time_us / 1000.0, 2)});
   }
-  report.AddTable(
-      {"day", "frames", "with truth", "localized", "coverage %", "best cluster >= 50 % of weight, %", "mean m", "median m",
-       "p95 m", "max m", "heading mean deg", "odometry mean m", "references", "ms per step"},
-      rows);
+  report.AddTable({"day", "frames", "with truth", "localized", "coverage %",
+                   "best cluster >= 50 % of weight, %", "mean m", "median m", "p95 m", "max m",
+                   "heading mean deg", "odometry mean m", "references", "ms per step"},
+                  rows);
 
   report.AddHeading("Plots");
   std::vector<double> x, err, mean_err, odo;
@@ -597,8 +596,8 @@ MclPrepared PrepareMclExperiment(const MclExperimentOptions& a) {
         StrCat("mcl: --experiment must be tracking|global|kidnap|noise, got '", a.experiment, "'"));
   }
   if (a.ifh_normalize_columns && a.descriptor != "ifh") {
-    throw Error(StrCat("mcl: --ifh-normalize-columns needs --descriptor ifh, got '", a.descriptor,
-                       "'"));
+    throw Error(
+        StrCat("mcl: --ifh-normalize-columns needs --descriptor ifh, got '", a.descriptor, "'"));
   }
   if (a.experiment.empty()) CheckRunDir(a.out_dir);
   if (!a.out_dir.empty()) {

@@ -11,8 +11,8 @@
 
 #include "omnicml/common/common.h"
 #include "omnicml/common/file_io.h"
-#include "omnicml/run/floor_plan.h"
 #include "omnicml/report/svg_plot.h"
+#include "omnicml/run/floor_plan.h"
 #include "omnicml/run/run_config.h"
 
 namespace omnicml {

@@ -50,7 +50,8 @@ SurveyPoses SurveyPoses::Read(const std::filesystem::path& path) {
                            ": expected 8 numbers: stamp x y z qx qy qz qw (number ", k + 1,
                            " is missing or not a number)"));
       }
-      if (!std::isfinite(x)) throw Error(StrCat(path.string(), ":", line_no, ": non-finite number"));
+      if (!std::isfinite(x))
+        throw Error(StrCat(path.string(), ":", line_no, ": non-finite number"));
     }
     std::string rest;
     if (is >> rest) throw Error(StrCat(path.string(), ":", line_no, ": more than 8 values"));
@@ -63,7 +64,8 @@ SurveyPoses SurveyPoses::Read(const std::filesystem::path& path) {
     rows.push_back({v[0], MakePose(v[1], v[2], yaw), line_no});
   }
   if (rows.empty()) throw Error(StrCat(path.string(), ": no pose (survey trajectory, TUM)"));
-  std::stable_sort(rows.begin(), rows.end(), [](const Row& a, const Row& b) { return a.stamp < b.stamp; });
+  std::stable_sort(rows.begin(), rows.end(),
+                   [](const Row& a, const Row& b) { return a.stamp < b.stamp; });
   SurveyPoses out;
   out.path_ = path.string();
   for (std::size_t i = 0; i < rows.size(); ++i) {
@@ -104,31 +106,34 @@ FrameProcessor MakeSurveyFrameProcessor(const SurveyOptions& options,
   const Eigen::Matrix3d covariance = options.Covariance();
   const int days = options.days;
   const bool from_file = !options.poses_path.empty();
-  return [days, from_file, poses, covariance](CmlEngine& engine, const Frame& frame) -> FrameResult {
-    if (engine.session_state().session >= days) return engine.ProcessFrame(frame);
-    std::optional<Pose2> pose;
-    if (from_file) {
-      pose = poses->Find(frame.stamp_s);
-      if (!pose) {
-        throw Error(StrCat(poses->path(), ": no pose with stamp ", ShortestDouble(frame.stamp_s),
-                           " (survey day ", frame.session_index + 1, ", frame ",
-                           frame.index_in_session, "; --survey-poses needs a pose for every frame "
-                           "of the survey days, matched by stamp within ",
-                           kSurveyStampToleranceS, " s)"));
-      }
-    } else {
-      pose = frame.map_T_robot_truth;
-      if (!pose) {
-        throw Error(StrCat("--survey-days: frame ", frame.index_in_session, " of day ",
-                           frame.session_index + 1, " (stamp ", ShortestDouble(frame.stamp_s),
-                           ") has no ground-truth pose; give the trusted poses with --survey-poses FILE"));
-      }
-    }
-    Gaussian g;
-    g.mean = *pose;
-    g.covariance = covariance;
-    return engine.ProcessSurveyFrame(frame, g);
-  };
+  return
+      [days, from_file, poses, covariance](CmlEngine& engine, const Frame& frame) -> FrameResult {
+        if (engine.session_state().session >= days) return engine.ProcessFrame(frame);
+        std::optional<Pose2> pose;
+        if (from_file) {
+          pose = poses->Find(frame.stamp_s);
+          if (!pose) {
+            throw Error(StrCat(poses->path(), ": no pose with stamp ",
+                               ShortestDouble(frame.stamp_s), " (survey day ",
+                               frame.session_index + 1, ", frame ", frame.index_in_session,
+                               "; --survey-poses needs a pose for every frame "
+                               "of the survey days, matched by stamp within ",
+                               kSurveyStampToleranceS, " s)"));
+          }
+        } else {
+          pose = frame.map_T_robot_truth;
+          if (!pose) {
+            throw Error(StrCat(
+                "--survey-days: frame ", frame.index_in_session, " of day ",
+                frame.session_index + 1, " (stamp ", ShortestDouble(frame.stamp_s),
+                ") has no ground-truth pose; give the trusted poses with --survey-poses FILE"));
+          }
+        }
+        Gaussian g;
+        g.mean = *pose;
+        g.covariance = covariance;
+        return engine.ProcessSurveyFrame(frame, g);
+      };
 }
 
 std::vector<FrameRecord> RecordsAfterSurvey(const std::vector<FrameRecord>& records,

@@ -6,7 +6,9 @@
 
 namespace omnicml {
 
-Pose2 MakePose(double x_m, double y_m, double phi_rad) { return Pose2(x_m, y_m, WrapAngle(phi_rad)); }
+Pose2 MakePose(double x_m, double y_m, double phi_rad) {
+  return Pose2(x_m, y_m, WrapAngle(phi_rad));
+}
 
 Eigen::Vector3d PoseDifference(const Pose2& a, const Pose2& b) {
   return Eigen::Vector3d(a.x() - b.x(), a.y() - b.y(), WrapAngle(a.z() - b.z()));
@@ -47,8 +49,8 @@ OdometryIncrement ComputeIncrement(const Pose2& odom_T_prev, const Pose2& odom_T
 
 Pose2 ApplyIncrement(const Pose2& pose, const OdometryIncrement& u) {
   const double heading = pose.z() + u.rot1_rad;
-  return MakePose(pose.x() + u.trans_m * std::cos(heading), pose.y() + u.trans_m * std::sin(heading),
-                  heading + u.rot2_rad);
+  return MakePose(pose.x() + u.trans_m * std::cos(heading),
+                  pose.y() + u.trans_m * std::sin(heading), heading + u.rot2_rad);
 }
 
 }  // namespace omnicml

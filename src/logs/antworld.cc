@@ -117,8 +117,9 @@ std::vector<AntWorldRow> ReadAntWorldCsv(const std::string& csv) {
     for (std::size_t i = 0; ok && i < 5; ++i) ok = NormalizeHeader(fields[i]) == expected[i];
     if (!ok) {
       // The line itself is not quoted: the file may be anything given by mistake.
-      throw Error(StrCat(csv, ":1: not an AntWorld CSV: the header line is not 'X [mm], Y [mm], "
-                              "Z [mm], Heading [degrees], Filename'"));
+      throw Error(StrCat(csv,
+                         ":1: not an AntWorld CSV: the header line is not 'X [mm], Y [mm], "
+                         "Z [mm], Heading [degrees], Filename'"));
     }
   }
   const fs::path dir = fs::path(csv).parent_path();

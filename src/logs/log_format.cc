@@ -1,17 +1,17 @@
 #include "omnicml/logs/log_format.h"
 
 #include <fcntl.h>  // AT_FDCWD
-#include <sys/stat.h>
 #include <stdio.h>  // renameat2 (glibc, _GNU_SOURCE)
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <algorithm>
 #include <array>
 #include <atomic>
 #include <charconv>
-#include <deque>
 #include <cmath>
 #include <cstdio>
+#include <deque>
 #include <filesystem>
 #include <sstream>
 #include <system_error>
@@ -22,9 +22,9 @@
 
 #include "logs/internal/csv_util.h"
 #include "omnicml/common/common.h"
-#include "omnicml/common/yaml_io.h"
 #include "omnicml/common/file_io.h"
 #include "omnicml/common/limits.h"
+#include "omnicml/common/yaml_io.h"
 #include "omnicml/logs/video.h"
 #include "omnicml/unwrap/omni_unwrapper.h"
 
@@ -131,8 +131,8 @@ void CheckStart(const SessionStart& start, Fail fail) {
   if (std::abs(start.map_T_robot.x()) > kMaxPositionM ||
       std::abs(start.map_T_robot.y()) > kMaxPositionM ||
       std::abs(start.map_T_robot.z()) > kMaxHeadingRad) {
-    fail(StrCat("start.pose is out of range (|x|, |y| at most ", kMaxPositionM, " m, |phi| at most ",
-                kMaxHeadingRad, " rad)"));
+    fail(StrCat("start.pose is out of range (|x|, |y| at most ", kMaxPositionM,
+                " m, |phi| at most ", kMaxHeadingRad, " rad)"));
   }
   // A diagonal covariance is symmetric positive definite iff its diagonal is positive.
   for (int i = 0; i < 3; ++i) {
@@ -217,8 +217,8 @@ std::unique_ptr<LineReader> OpenFramesCsv(const std::string& path) {
   if (!in->Next(&header)) throw Error(StrCat(path, ":1: empty file (expected the header line)"));
   if (header != kFramesCsvHeader) {
     // The line itself is not quoted: the file may be anything (a key file given by mistake).
-    throw Error(StrCat(path, ":1: not a frames.csv file: the header line is not '",
-                       kFramesCsvHeader, "'"));
+    throw Error(
+        StrCat(path, ":1: not a frames.csv file: the header line is not '", kFramesCsvHeader, "'"));
   }
   return in;
 }
@@ -278,9 +278,9 @@ SessionInfo ReadSessionYaml(const std::string& path) {
       file.Int(file.Required(camera, "image_height", "camera"), "image_height");
   if (info.camera.kind == ImageKind::kRawRing) {
     // Every key of the model is required in session.yaml (camera_model.h).
-    info.camera.calibration = ParseCameraCalibration(
-        model_type, path, file.Required(camera, "calibration", "camera"), "camera.calibration",
-        true);
+    info.camera.calibration =
+        ParseCameraCalibration(model_type, path, file.Required(camera, "calibration", "camera"),
+                               "camera.calibration", true);
   } else {
     for (const char* key : {"calibration", "mask_image"}) {
       if (camera[key]) {
@@ -347,7 +347,8 @@ std::string SessionYamlText(const SessionInfo& info) {
   os << "  image_height: " << info.camera.image_height << "\n";
   if (info.camera.kind == ImageKind::kRawRing) {
     os << "  calibration:\n" << info.camera.calibration.YamlFields("    ");
-    if (!info.camera.mask_image.empty()) os << "  mask_image: " << YamlQuoted(info.camera.mask_image) << "\n";
+    if (!info.camera.mask_image.empty())
+      os << "  mask_image: " << YamlQuoted(info.camera.mask_image) << "\n";
   }
   os << "start:\n";
   os << "  mode: " << ToString(info.start.mode) << "\n";
@@ -736,8 +737,7 @@ void LogWriter::BeginSession(const SessionInfo& info) {
   if (!stored.camera.mask.empty()) {
     std::vector<std::uint8_t> png;
     cv::imencode(".png", stored.camera.mask, png);
-    WriteFileAtomic(fs::path(session_dir_) / stored.camera.mask_image, png,
-                    FileSync::kDeferred);
+    WriteFileAtomic(fs::path(session_dir_) / stored.camera.mask_image, png, FileSync::kDeferred);
   }
   csv_ = std::make_unique<AtomicFile>(fs::path(session_dir_) / "frames.csv", FileSync::kDeferred);
   csv_->stream() << kFramesCsvHeader << "\n";
@@ -829,8 +829,9 @@ std::string LogWriter::AddSessionVideo(const std::string& video_path) {
   const std::string name = fs::path(video_path).filename().string();
   if (name.empty() || name[0] == '.' || !IsVideoFileName(name) ||
       name.find('#') != std::string::npos) {
-    throw Error(StrCat(video_path, ": not a video file name (.avi, .mkv, .mp4, .mov or .webm, "
-                                   "without '#' and not starting with '.')"));
+    throw Error(StrCat(video_path,
+                       ": not a video file name (.avi, .mkv, .mp4, .mov or .webm, "
+                       "without '#' and not starting with '.')"));
   }
   CheckRegularFile(video_path, "video file");
   const fs::path target = fs::path(session_dir_) / name;
@@ -892,8 +893,8 @@ void LogWriter::Finish() {
   CloseSession();
   SyncFileSystem(partial_dir_);  // every file durable before the log appears under its name
   std::error_code ec;
-  const fs::path parent = fs::path(log_dir_).has_parent_path() ? fs::path(log_dir_).parent_path()
-                                                                : fs::path(".");
+  const fs::path parent =
+      fs::path(log_dir_).has_parent_path() ? fs::path(log_dir_).parent_path() : fs::path(".");
   struct SyncParentOnReturn {
     const fs::path& dir;
     ~SyncParentOnReturn() { SyncDirectory(dir); }

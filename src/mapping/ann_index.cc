@@ -91,10 +91,9 @@ void AnnIndex::Reset(std::size_t dims, const Params& params, std::size_t capacit
   params_ = params;
   impl_ = std::make_unique<Impl>();
   impl_->space = std::make_unique<hnswlib::L2Space>(dims);
-  impl_->graph = std::make_unique<Graph>(impl_->space.get(), std::max<std::size_t>(capacity, 16),
-                                         static_cast<std::size_t>(params.m),
-                                         static_cast<std::size_t>(params.ef_construction),
-                                         params.seed);
+  impl_->graph = std::make_unique<Graph>(
+      impl_->space.get(), std::max<std::size_t>(capacity, 16), static_cast<std::size_t>(params.m),
+      static_cast<std::size_t>(params.ef_construction), params.seed);
   // Nearest asks for max(k, ef) neighbours: hnswlib's own list is then exactly that long.
   impl_->graph->setEf(1);
 }
@@ -165,8 +164,8 @@ std::size_t AnnIndex::MemoryBytes() const {
       bytes += g.size_links_per_element_ * static_cast<std::size_t>(g.element_levels_[i]);
   }
   bytes += g.label_lookup_.bucket_count() * sizeof(void*) +
-           g.label_lookup_.size() * (sizeof(hnswlib::labeltype) + sizeof(hnswlib::tableint) +
-                                     2 * sizeof(void*));
+           g.label_lookup_.size() *
+               (sizeof(hnswlib::labeltype) + sizeof(hnswlib::tableint) + 2 * sizeof(void*));
   bytes += impl_->free_slots.size() * (sizeof(hnswlib::tableint) + 4 * sizeof(void*));
   return bytes;
 }

@@ -325,7 +325,8 @@ std::vector<ViewMatch> EnvironmentModel::FindUpdateMatches(const Descriptor& y,
   std::vector<std::size_t> found;
   for (const ViewMatch& m : matches) found.push_back(m.view_index);
   std::sort(found.begin(), found.end());
-  std::erase_if(rows, [&](std::size_t r) { return std::binary_search(found.begin(), found.end(), r); });
+  std::erase_if(rows,
+                [&](std::size_t r) { return std::binary_search(found.begin(), found.end(), r); });
   if (rows.empty()) return matches;
   // Both lists are in MatchBefore order: merge them.
   const std::vector<ViewMatch> extra = retrieval_.Search(store_, y, 0, /*exhaustive=*/false, &rows);
@@ -383,9 +384,8 @@ std::vector<std::uint64_t> EnvironmentModel::AddObservations(const std::vector<V
     added.eta = m.similarity / sum_s;  // [G] (11)
     added.mean = InViewFrame(mu_t, m.relative_heading_rad);
     added.covariance = c_t;
-    const std::size_t k =
-        ClosestWithinDelta(view.components, added, view.components.size(),
-                           options_.update.merge_delta);
+    const std::size_t k = ClosestWithinDelta(view.components, added, view.components.size(),
+                                             options_.update.merge_delta);
     if (k == view.components.size()) {
       fresh.push_back(AppendComponent(m.view_index, added, context, "observation", stats));
     } else {
@@ -437,15 +437,16 @@ void EnvironmentModel::RemoveWeakComponents(const WeightChanges& changes,
     Pose2 last_position = comps.empty() ? mu_t : comps.back().mean;
     for (std::size_t j = 0; j < comps.size();) {
       const ViewComponent& c = comps[j];
-      if (c.weight >= options_.update.w_min || std::binary_search(fresh.begin(), fresh.end(), c.id)) {
+      if (c.weight >= options_.update.w_min ||
+          std::binary_search(fresh.begin(), fresh.end(), c.id)) {
         ++j;
         continue;
       }
       const auto rule = changes.last_rule.find(c.id);
-      events_.Log(MapEvent{MapEventType::kComponentRemoved, context.frame, context.session,
-                           view_id, c.id, c.mean, c.weight,
-                           RemovalReason(rule == changes.last_rule.end() ? WeightRule::kNone
-                                                                         : rule->second)});
+      events_.Log(MapEvent{
+          MapEventType::kComponentRemoved, context.frame, context.session, view_id, c.id, c.mean,
+          c.weight,
+          RemovalReason(rule == changes.last_rule.end() ? WeightRule::kNone : rule->second)});
       last_position = c.mean;
       store_.EraseComponent(*row, j);
       ++stats->components_removed;
@@ -472,7 +473,8 @@ void EnvironmentModel::LookBack(const Descriptor& y, const Pose2& mu_t, const Ei
     const std::vector<std::size_t> only = {*row};
     for (auto it = recent_updates_.rbegin(); it != recent_updates_.rend(); ++it) {
       if (context.frame - it->context.frame > frames) break;
-      const std::vector<ViewMatch> m = retrieval_.Search(store_, it->y, 0, /*exhaustive=*/true, &only);
+      const std::vector<ViewMatch> m =
+          retrieval_.Search(store_, it->y, 0, /*exhaustive=*/true, &only);
       if (m.empty()) break;  // the view's appearance ends here, going back
       ViewComponent c;
       c.weight = options_.update.beta * m.front().similarity;  // one (16) confirmation from 0

@@ -175,7 +175,8 @@ ReferenceView ReadView(BinaryReader& in, std::uint32_t version, const Expected& 
   v.id = in.Read<std::uint64_t>("view id");
   v.descriptor = ReadDescriptorRecord(in);
   if (!expected.Fits(v.descriptor)) {
-    in.Fail("view descriptor", StrCat("view ", v.id, " has a descriptor of another kind or length"));
+    in.Fail("view descriptor",
+            StrCat("view ", v.id, " has a descriptor of another kind or length"));
   }
   v.stats = ReadStats(in);
   if (version >= 2) v.footprint = ReadFootprint(in, v.id);

@@ -130,7 +130,8 @@ bool ActiveFootprintForgetting::ForgetView(const WeightUpdate& update, std::size
   return true;
 }
 
-std::shared_ptr<const ForgettingPolicy> MakeForgettingPolicy(const EnvironmentModelOptions& options) {
+std::shared_ptr<const ForgettingPolicy> MakeForgettingPolicy(
+    const EnvironmentModelOptions& options) {
   switch (options.forgetting.mode) {
     case ForgettingMode::kActive:
       return std::make_shared<const ActiveFootprintForgetting>(options);

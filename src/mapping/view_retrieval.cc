@@ -55,8 +55,8 @@ ViewRetrieval::Strategy ViewRetrieval::StrategyFor(const ViewStore& store) const
   return Strategy::kScan;
 }
 
-std::vector<ViewMatch> ViewRetrieval::Search(const ViewStore& store, const Descriptor& y,
-                                             int top_k, bool exhaustive,
+std::vector<ViewMatch> ViewRetrieval::Search(const ViewStore& store, const Descriptor& y, int top_k,
+                                             bool exhaustive,
                                              const std::vector<std::size_t>* only) const {
   const std::size_t n = store.feature_size();
   const float* query = y.features.data();
@@ -120,8 +120,8 @@ void ViewRetrieval::BuildIndex(const ViewStore& store) {
   std::vector<std::size_t> scratch;
   for (std::size_t k = 0; k < kProfitSamples && n > 0; ++k) {
     scratch.clear();
-    bounded += view_index_.Candidates(store.row_features(k * n / kProfitSamples),
-                                      retrieval_.e_max, &scratch);
+    bounded += view_index_.Candidates(store.row_features(k * n / kProfitSamples), retrieval_.e_max,
+                                      &scratch);
     ++queries;
   }
   index_bounded_fraction_ =

@@ -12,7 +12,8 @@ ViewStore::ViewStore(std::size_t feature_size, double spatial_cell_m)
     : feature_size_(feature_size), spatial_(spatial_cell_m) {}
 
 std::size_t ViewStore::Insert(ReferenceView v) {
-  OMNICML_CHECK(v.descriptor.features.size() == feature_size_) << "ViewStore::Insert: feature length";
+  OMNICML_CHECK(v.descriptor.features.size() == feature_size_)
+      << "ViewStore::Insert: feature length";
   v.id = next_view_id_++;
   for (ViewComponent& c : v.components) {
     c.id = next_component_id_++;

@@ -88,8 +88,7 @@ struct Scene {
 constexpr double kHersheyScalePerPx = 1.0 / 30.0;
 double TextWidthPx(const std::string& text, double font_px = 11) {
   int baseline = 0;
-  return cv::getTextSize(text, cv::FONT_HERSHEY_SIMPLEX, font_px * kHersheyScalePerPx, 1,
-                         &baseline)
+  return cv::getTextSize(text, cv::FONT_HERSHEY_SIMPLEX, font_px * kHersheyScalePerPx, 1, &baseline)
       .width;
 }
 
@@ -124,7 +123,9 @@ std::string WeightColor(double w) {
   const double t = std::clamp(w, 0.0, 1.0) * 2;
   const int i = std::min(1, static_cast<int>(t));
   const double f = t - i;
-  auto mix = [&](int k) { return static_cast<int>(std::lround(stops[i][k] * (1 - f) + stops[i + 1][k] * f)); };
+  auto mix = [&](int k) {
+    return static_cast<int>(std::lround(stops[i][k] * (1 - f) + stops[i + 1][k] * f));
+  };
   return Hex(mix(0), mix(1), mix(2));
 }
 
@@ -218,8 +219,8 @@ Scene BuildMapScene(const EnvironmentModel& model, const std::vector<Pose2>& tra
       } else {
         Prim& p = s.Add(shape.closed ? Prim::Type::kPolygon : Prim::Type::kPolyline);
         p.pts = std::move(pts);
-        p.fill = shape.closed ? (shape.kind == FloorPlanShape::Kind::kBox ? kBoxFill : kShelfFill)
-                              : "";
+        p.fill =
+            shape.closed ? (shape.kind == FloorPlanShape::Kind::kBox ? kBoxFill : kShelfFill) : "";
         p.stroke = kShelfEdge;
         p.stroke_width = 1;
       }
@@ -389,8 +390,7 @@ Scene BuildMapScene(const EnvironmentModel& model, const std::vector<Pose2>& tra
       x += 11 + TextWidthPx(ToString(h)) + 14;
     }
   }
-  s.Text(x + 10, y2,
-         StrCat(model.NumViews(), " views, ", model.NumComponents(), " components"));
+  s.Text(x + 10, y2, StrCat(model.NumViews(), " views, ", model.NumComponents(), " components"));
   const double bar_m = RoundMetres((s.width - 2 * margin) / c.scale / 6);
   const double bar_px = bar_m * c.scale;
   const double bar_x1 = s.width - margin - 50, bar_x0 = bar_x1 - bar_px;
@@ -415,8 +415,7 @@ std::string RenderSvg(const Scene& s) {
     switch (p.type) {
       case Prim::Type::kPolyline:
       case Prim::Type::kPolygon:
-        os << (p.type == Prim::Type::kPolygon ? "<polygon" : "<polyline") << paint
-           << " points=\"";
+        os << (p.type == Prim::Type::kPolygon ? "<polygon" : "<polyline") << paint << " points=\"";
         for (const auto& q : p.pts) os << Px(q.x) << "," << Px(q.y) << " ";
         os << "\"/>\n";
         break;
@@ -494,8 +493,8 @@ cv::Mat RenderImage(const Scene& s) {
       }
       case Prim::Type::kCircle:
         if (!p.fill.empty()) {
-          cv::circle(image, fix(p.pts[0]), cvRound(p.rx * f), Bgr(p.fill), cv::FILLED,
-                     cv::LINE_AA, kShift);
+          cv::circle(image, fix(p.pts[0]), cvRound(p.rx * f), Bgr(p.fill), cv::FILLED, cv::LINE_AA,
+                     kShift);
         }
         if (!p.stroke.empty()) {
           cv::circle(image, fix(p.pts[0]), cvRound(p.rx * f), Bgr(p.stroke), thick, cv::LINE_AA,
@@ -833,8 +832,7 @@ MapHealth ComputeMapHealth(const EnvironmentModel& model, int latest_session,
   };
   auto own_evidence = [&](const Acc& acc) {
     const MapCell& c = acc.cell;
-    return is_new(acc) || c.insertions_recent > 0 || c.missed_recent > 0 ||
-           c.forgotten_recent > 0;
+    return is_new(acc) || c.insertions_recent > 0 || c.missed_recent > 0 || c.forgotten_recent > 0;
   };
   for (auto& [key, acc] : cells) {
     for (int dy = -1; dy <= 1; ++dy) {
@@ -914,9 +912,9 @@ std::string InspectText(const CmlEngine& engine, const MapHealthOptions& options
     std::int64_t held = 0;
     for (const MapEvent& e : model.events()) held += e.session == latest ? 1 : 0;
     if (held < logged) {
-      os << "note: the map's event ring (model.events.max_events " << model.options().events.max_events
-         << ") holds " << held << " of the " << logged << " events of session "
-         << DescribeSession(latest) << "; the health counts only those\n";
+      os << "note: the map's event ring (model.events.max_events "
+         << model.options().events.max_events << ") holds " << held << " of the " << logged
+         << " events of session " << DescribeSession(latest) << "; the health counts only those\n";
     }
   }
   if (!health.cells.empty()) {

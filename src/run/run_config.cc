@@ -58,11 +58,10 @@ bool SameEngineOptions(const CmlEngineOptions& a, const CmlEngineOptions& b) {
 
 CmlEngineOptions ResolveEngineOptions(const OptionOverrides& overrides,
                                       const CmlEngineOptions& base) {
-  CmlEngineOptions options =
-      overrides.config_path.empty()
-          ? base
-          : ParseEngineOptionsYaml(ReadOptionFile(overrides.config_path), overrides.config_path,
-                                   base);
+  CmlEngineOptions options = overrides.config_path.empty()
+                                 ? base
+                                 : ParseEngineOptionsYaml(ReadOptionFile(overrides.config_path),
+                                                          overrides.config_path, base);
   if (overrides.descriptor) {
     options.descriptor.kind = DescriptorKindFromString(*overrides.descriptor);
   }
@@ -126,8 +125,8 @@ CmlEngineOptions ResolveNewMapOptions(const OptionOverrides& overrides, const Ru
   if (note != nullptr) {
     const MotionNoise& m = c.motion.noise;
     *note = StrCat("motion noise identified from ", c.motion.pairs_used, " loop pairs in ",
-                   c.loop_frames, " frames of ", c.loop_sessions, " session(s): a1 ", m.a1,
-                   ", a2 ", m.a2, ", a3 ", m.a3, ", a4 ", m.a4, ", appearance_sigma_m ",
+                   c.loop_frames, " frames of ", c.loop_sessions, " session(s): a1 ", m.a1, ", a2 ",
+                   m.a2, ", a3 ", m.a3, ", a4 ", m.a4, ", appearance_sigma_m ",
                    calibrated.appearance_sigma_m, " (loop NIS median ", c.motion.median_nis, ")");
   }
   // Explicit values of the configuration file and the flags win over the identified ones.

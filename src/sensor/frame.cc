@@ -6,9 +6,12 @@ namespace omnicml {
 
 std::string ToString(SessionStartMode mode) {
   switch (mode) {
-    case SessionStartMode::kKnownPose: return "known";
-    case SessionStartMode::kContinue: return "continue";
-    case SessionStartMode::kGlobal: return "global";
+    case SessionStartMode::kKnownPose:
+      return "known";
+    case SessionStartMode::kContinue:
+      return "continue";
+    case SessionStartMode::kGlobal:
+      return "global";
   }
   return "unknown";
 }

@@ -9,8 +9,8 @@
 #include <emmintrin.h>
 #endif
 
-#include "omnicml/geometry/planar_geometry.h"
 #include "omnicml/common/common.h"
+#include "omnicml/geometry/planar_geometry.h"
 
 namespace omnicml {
 namespace {
@@ -620,14 +620,16 @@ struct Renderer::Impl {
         ZoneLightBox(z, &lx0, &lx1, &ly0, &ly1);
         const auto lo = [&](int l, int n) {
           return l == 0 ? 0
-                        : std::clamp(static_cast<int>(std::floor(l * kLightCellM / planes->cell_m)) - 1,
-                                     0, n - 1);
+                        : std::clamp(
+                              static_cast<int>(std::floor(l * kLightCellM / planes->cell_m)) - 1, 0,
+                              n - 1);
         };
         const auto hi = [&](int l, int lmax, int n) {
-          return l == lmax ? n - 1
-                           : std::clamp(static_cast<int>(std::ceil((l + 1) * kLightCellM /
-                                                                   planes->cell_m)) + 1,
-                                        0, n - 1);
+          return l == lmax
+                     ? n - 1
+                     : std::clamp(
+                           static_cast<int>(std::ceil((l + 1) * kLightCellM / planes->cell_m)) + 1,
+                           0, n - 1);
         };
         BakeCells(lo(lx0, planes->w), hi(lx1, light_w - 1, planes->w), lo(ly0, planes->h),
                   hi(ly1, light_h - 1, planes->h), planes);

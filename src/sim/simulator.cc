@@ -3,9 +3,9 @@
 #include <algorithm>
 #include <cmath>
 
-#include "omnicml/common/options.h"
 #include "omnicml/common/common.h"
 #include "omnicml/common/limits.h"
+#include "omnicml/common/options.h"
 
 namespace omnicml {
 namespace {
@@ -306,8 +306,7 @@ struct SimulatedFrameSource::Impl {
       }
     } else {
       ++frame_in_day;
-      if (ApplyStepEvents(world, day, frame_in_day, options.seed, &state).any())
-        SetRendererState();
+      if (ApplyStepEvents(world, day, frame_in_day, options.seed, &state).any()) SetRendererState();
       MovePeople();
       const Pose2 next_truth =
           route.PoseAt(day_start_s[day - 1] + static_cast<double>(frame_in_day) * options.step_m);
@@ -378,7 +377,8 @@ const Renderer& SimulatedFrameSource::renderer() const { return impl_->renderer;
 
 // ---- options (the schema of the header's VisitFields, common/options.h)
 
-SimulatorOptions ParseSimulatorOptionsYaml(const std::string& yaml_text, const std::string& source) {
+SimulatorOptions ParseSimulatorOptionsYaml(const std::string& yaml_text,
+                                           const std::string& source) {
   return ParseOptionsYaml<SimulatorOptions>(yaml_text, source, SimulatorOptions{},
                                             kSimulatorRunKeys);
 }

@@ -15,11 +15,11 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include "unwrap/internal/png_decode.h"
 #include "omnicml/common/binary_io.h"
 #include "omnicml/common/common.h"
 #include "omnicml/common/file_io.h"
 #include "omnicml/common/limits.h"
+#include "unwrap/internal/png_decode.h"
 
 namespace omnicml {
 namespace {
@@ -210,10 +210,11 @@ void OmniCalibration::Validate() const {
   Require(panorama_height >= 1 && panorama_height <= kMaxPanoramaSidePx,
           StrCat("calibration: panorama_height = ", panorama_height, " must be in [1, ",
                  kMaxPanoramaSidePx, "]"));
-  Require(static_cast<std::uint64_t>(panorama_width) * static_cast<std::uint64_t>(panorama_height) <=
-              kMaxImagePixels,
-          StrCat("calibration: panorama_width x panorama_height = ", panorama_width, " x ",
-                 panorama_height, " exceeds ", kMaxImagePixels, " pixels"));
+  Require(
+      static_cast<std::uint64_t>(panorama_width) * static_cast<std::uint64_t>(panorama_height) <=
+          kMaxImagePixels,
+      StrCat("calibration: panorama_width x panorama_height = ", panorama_width, " x ",
+             panorama_height, " exceeds ", kMaxImagePixels, " pixels"));
 }
 
 void OmniCalibration::ValidateFor(int image_width, int image_height) const {
@@ -244,8 +245,8 @@ OmniUnwrapper::OmniUnwrapper(const CameraCalibration& calibration, int image_wid
   camera_.ValidateFor(image_width, image_height);
   if (!user_mask.empty() && (user_mask.type() != CV_8UC1 || user_mask.cols != image_width ||
                              user_mask.rows != image_height)) {
-    throw Error(StrCat("mask image is ", TypeName(user_mask), " but the camera needs 8-bit grey of ",
-                       image_width, "x", image_height));
+    throw Error(StrCat("mask image is ", TypeName(user_mask),
+                       " but the camera needs 8-bit grey of ", image_width, "x", image_height));
   }
   const int width = camera_.panorama_width(), height = camera_.panorama_height();
   const bool equirect = camera_.model == CameraModelType::kEquirectangular;
@@ -298,7 +299,8 @@ OmniUnwrapper::OmniUnwrapper(const CameraCalibration& calibration, int image_wid
     const cv::Point2d b = PanoramaToImage(camera_, 0, row + 0.5, image_width, image_height);
     return 1.0 / std::max(1e-9, std::hypot(a.x - b.x, a.y - b.y));
   };
-  const double margin_rows = kRenderMarginPx * std::max(rows_per_px(0.0), rows_per_px(height - 1.0));
+  const double margin_rows =
+      kRenderMarginPx * std::max(rows_per_px(0.0), rows_per_px(height - 1.0));
   constexpr float kOutside = -1000.0f;
   inv_map_x_.create(image_height, image_width, CV_32FC1);
   inv_map_y_.create(image_height, image_width, CV_32FC1);

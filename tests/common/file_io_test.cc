@@ -7,10 +7,10 @@
 
 #include <algorithm>
 #include <atomic>
-#include <span>
 #include <filesystem>
 #include <fstream>
 #include <random>
+#include <span>
 #include <sstream>
 #include <string>
 #include <thread>
@@ -214,8 +214,8 @@ TEST(AtomicFile, StaleTemporariesAreRecognisedByTheirLockNotTheirPid) {
   const fs::path dir = FreshDir("stale");
   const fs::path target = dir / "map.omnicml";
   pid_t pid = 0;
-  EXPECT_TRUE(IsAtomicTempName(TempPathFor(target, 1234, 7).filename().string(), "map.omnicml",
-                               &pid));
+  EXPECT_TRUE(
+      IsAtomicTempName(TempPathFor(target, 1234, 7).filename().string(), "map.omnicml", &pid));
   EXPECT_EQ(pid, 1234);
   EXPECT_FALSE(IsAtomicTempName(".map.omnicml.omnicml-tmp-12x-7"));
   EXPECT_FALSE(IsAtomicTempName("map.omnicml"));
@@ -330,7 +330,7 @@ TEST(StagedDirectory, CommitsWholeOrNotAtAll) {
     StagedDirectory staged(target, "--out", markers);
     WriteFileAtomic(staged.path() / "frames.csv", "new", FileSync::kDeferred);
     EXPECT_EQ(Slurp(target / "frames.csv"), "old");  // not yet
-  }  // no Commit: discarded
+  }                                                  // no Commit: discarded
   EXPECT_EQ(Slurp(target / "frames.csv"), "old");
   EXPECT_EQ(Entries(dir), (std::vector<std::string>{"run"}));
   {

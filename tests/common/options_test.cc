@@ -7,8 +7,8 @@
 #include <string>
 #include <vector>
 
-#include <Eigen/Core>
 #include <gtest/gtest.h>
+#include <Eigen/Core>
 
 #include "omnicml/baselines/mcl/mcl.h"
 #include "omnicml/baselines/topo/topological.h"
@@ -68,7 +68,9 @@ std::string ErrorOf(const std::function<void()>& fn) {
   return "";
 }
 
-ToyOptions ParseToy(const std::string& text) { return ParseOptionsYaml<ToyOptions>(text, "toy.yaml"); }
+ToyOptions ParseToy(const std::string& text) {
+  return ParseOptionsYaml<ToyOptions>(text, "toy.yaml");
+}
 
 // Every leaf (scalar or list) of `a` differs from the same leaf of `b` (maps recurse).
 void ExpectEveryLeafDiffers(const OptionValue& a, const OptionValue& b, const std::string& path) {
@@ -115,7 +117,8 @@ void ExpectRoundTrips(std::uint32_t seed) {
 // Every field shape survives YAML and binary round trips; absent keys keep their values.
 TEST(Options, ToyRoundTrips) {
   for (std::uint32_t seed : {1u, 2u, 3u}) ExpectRoundTrips<ToyOptions>(seed);
-  const ToyOptions o = ParseToy("count: 5\ninner: {gain: 0.25}\ncovariance: [[2, 0.5], [0.5, 3]]\n");
+  const ToyOptions o =
+      ParseToy("count: 5\ninner: {gain: 0.25}\ncovariance: [[2, 0.5], [0.5, 3]]\n");
   EXPECT_EQ(o.count, 5);
   EXPECT_EQ(o.inner.gain, 0.25);
   EXPECT_EQ(o.inner.seed, 7u);
@@ -152,8 +155,9 @@ TEST(Options, CompleteReadNamesMissingField) {
   OptionValue v = OptionsToValue(ToyOptions{});
   v.members.erase(v.members.begin() + 1);  // rate_hz
   ToyOptions o;
-  const std::string e =
-      ErrorOf([&] { OptionsFromValue(v, OptionSource{"engine.omap: options", true, {}}, &o); });
+  const std::string e = ErrorOf([&] {
+    OptionsFromValue(v, OptionSource{"engine.omap: options", true, {}}, &o);
+  });
   EXPECT_NE(e.find("missing option 'rate_hz'"), std::string::npos) << e;
 }
 
@@ -219,7 +223,8 @@ TEST(Options, ModuleLoadersReadTheirDumps) {
   TopologicalOptions topo;
   topo.band_threshold[2] = 0.3;
   topo.histogram.bins = 16;
-  EXPECT_TRUE(SameOptions(topo, ParseTopologicalOptionsYaml(TopologicalOptionsToYaml(topo), "t.yaml")));
+  EXPECT_TRUE(
+      SameOptions(topo, ParseTopologicalOptionsYaml(TopologicalOptionsToYaml(topo), "t.yaml")));
   SimulatorOptions sim;
   sim.output = ImageKind::kPanorama;
   sim.later_days_start = SessionStartMode::kGlobal;

@@ -158,7 +158,8 @@ TEST(AntWorld, FourierNearestGridViewAndHeading) {
       // median 1.64 deg, p90 8.3 deg. Column normalisation, which buys robustness to
       // light zones indoors, costs place discrimination in this outdoor world of constant
       // light, where each column's brightness (the skyline) is itself place information.
-      {"default (4 bands x 16, columns and bands normalised, L2)", FourierOptions{}, 0.38, 2.2, 10.5},
+      {"default (4 bands x 16, columns and bands normalised, L2)", FourierOptions{}, 0.38, 2.2,
+       10.5},
       // Measured: 0.473 within 0.5 m; median 2.08 deg, p90 11.5 deg.
       {"bands normalised, columns not", bands_only, 0.45, 2.6, 13.0},
       // Measured: 0.547 within 0.5 m (the DC term carries place information in this

@@ -173,11 +173,13 @@ TEST(FourierSignature, ColumnNormalisationRemovesASectorGain) {
   // Multiples of 5 (per pixel: OpenCV would fold (grey / 5) * 5 into one scale of 1), so
   // that 0.4 x value is an exact integer.
   for (int r = 0; r < grey.rows; ++r)
-    for (int c = 0; c < grey.cols; ++c) grey.at<std::uint8_t>(r, c) = grey.at<std::uint8_t>(r, c) / 5 * 5;
+    for (int c = 0; c < grey.cols; ++c)
+      grey.at<std::uint8_t>(r, c) = grey.at<std::uint8_t>(r, c) / 5 * 5;
   cv::Mat dimmed = grey.clone();
   for (int r = 0; r < dimmed.rows; ++r)
     for (int c = 200; c < 380; ++c)
-      dimmed.at<std::uint8_t>(r, c) = static_cast<std::uint8_t>(dimmed.at<std::uint8_t>(r, c) * 2 / 5);
+      dimmed.at<std::uint8_t>(r, c) =
+          static_cast<std::uint8_t>(dimmed.at<std::uint8_t>(r, c) * 2 / 5);
   const FourierSignature fs;  // defaults: normalize_columns and normalize_bands
   ASSERT_TRUE(fs.options().normalize_columns);
   const Descriptor a = fs.Compute(grey), b = fs.Compute(dimmed);

@@ -24,7 +24,8 @@ constexpr double kRoomX = 10.0, kRoomY = 8.0, kWallH = 2.5, kCamH = 1.0;
 
 double WallTexture(double s, double z) {
   // Incommensurate stripes along the perimeter coordinate s (metres), varying with height.
-  return 128.0 + 45.0 * std::sin(2.0 * kPi * s / 3.7) + 30.0 * std::sin(2.0 * kPi * s / 1.13 + 1.7 * z) +
+  return 128.0 + 45.0 * std::sin(2.0 * kPi * s / 3.7) +
+         30.0 * std::sin(2.0 * kPi * s / 1.13 + 1.7 * z) +
          25.0 * std::sin(2.0 * kPi * s / 0.61 + 0.4) * (z > 1.2 ? 1.0 : -1.0);
 }
 
@@ -42,10 +43,14 @@ cv::Mat RenderRoom(const Pose2& pose, int width = 128, int height = 24) {
     const double hx = pose[0] + t * dx, hy = pose[1] + t * dy;
     // Perimeter coordinate, counter-clockwise from (0, 0).
     double s;
-    if (hy < 1e-6) s = hx;
-    else if (hx > kRoomX - 1e-6) s = kRoomX + hy;
-    else if (hy > kRoomY - 1e-6) s = kRoomX + kRoomY + (kRoomX - hx);
-    else s = 2 * kRoomX + kRoomY + (kRoomY - hy);
+    if (hy < 1e-6)
+      s = hx;
+    else if (hx > kRoomX - 1e-6)
+      s = kRoomX + hy;
+    else if (hy > kRoomY - 1e-6)
+      s = kRoomX + kRoomY + (kRoomX - hx);
+    else
+      s = 2 * kRoomX + kRoomY + (kRoomY - hy);
     for (int r = 0; r < height; ++r) {
       const double elev = (35.0 - 70.0 * r / (height - 1)) * kPi / 180.0;
       const double z = kCamH + t * std::tan(elev);
@@ -63,7 +68,8 @@ struct RouteFrame {
 
 // Laps around a rectangle inside the room, `step_m` apart, odometry with seeded noise
 // (relative noise on translation and rotation, plus a small heading bias).
-std::vector<RouteFrame> MakeLaps(int laps, double step_m, std::uint32_t seed, int start_offset = 0) {
+std::vector<RouteFrame> MakeLaps(int laps, double step_m, std::uint32_t seed,
+                                 int start_offset = 0) {
   const std::vector<Eigen::Vector2d> corners = {{2.0, 2.0}, {8.0, 2.0}, {8.0, 6.0}, {2.0, 6.0}};
   std::vector<Pose2> truth;
   for (int lap = 0; lap < laps; ++lap) {
@@ -167,7 +173,8 @@ TEST(CmlEngineOptions, ValidateNamesField) {
   expect_named([](CmlEngineOptions& o) { o.update_delay_frames = 0; }, "update_delay_frames");
   expect_named([](CmlEngineOptions& o) { o.model.retrieval.e_max = -1.0; }, "model");
   expect_named([](CmlEngineOptions& o) { o.panorama_width = 64; }, "panorama_width");
-  expect_named([](CmlEngineOptions& o) { o.hypothesis_weight_scale = 0.0; }, "hypothesis_weight_scale");
+  expect_named([](CmlEngineOptions& o) { o.hypothesis_weight_scale = 0.0; },
+               "hypothesis_weight_scale");
   expect_named([](CmlEngineOptions& o) { o.appearance_sigma_m = -1.0; }, "appearance_sigma_m");
   expect_named([](CmlEngineOptions& o) { o.anchor_max_sigma_m = -1.0; }, "anchor_max_sigma_m");
   expect_named([](CmlEngineOptions& o) { o.gated_matching.gate_sigmas = 0.0; },
@@ -239,7 +246,8 @@ TEST(CmlEngine, MappingBeatsOdometry) {
     ASSERT_TRUE(r.estimate.has_value());
     if (i >= route.size() / 2) {  // second half: after a couple of laps
       err_engine += PositionError(r, route[i].truth);
-      err_odom += PoseDifference(Compose(route[0].truth, Between(route[0].odom, route[i].odom)), route[i].truth)
+      err_odom += PoseDifference(Compose(route[0].truth, Between(route[0].odom, route[i].odom)),
+                                 route[i].truth)
                       .head<2>()
                       .norm();
       ++n;
@@ -249,7 +257,8 @@ TEST(CmlEngine, MappingBeatsOdometry) {
   engine.model().CheckInvariants();
   EXPECT_GT(engine.model().NumViews(), 5u);
   EXPECT_TRUE(engine.queued_updates().empty());
-  EXPECT_LT(err_engine / n, 0.5 * err_odom / n) << "engine " << err_engine / n << " odometry " << err_odom / n;
+  EXPECT_LT(err_engine / n, 0.5 * err_odom / n)
+      << "engine " << err_engine / n << " odometry " << err_odom / n;
 }
 
 // Pose-gated matching (GatedMatchingOptions): while tracking, p(x|y) compares the views
@@ -334,7 +343,8 @@ TEST(CmlEngine, BitIdenticalAcrossThreadCounts) {
   }
   for (std::size_t k = 1; k < results.size(); ++k) {
     ASSERT_EQ(results[k].size(), results[0].size());
-    for (std::size_t i = 0; i < results[0].size(); ++i) ExpectSameEstimate(results[0][i], results[k][i]);
+    for (std::size_t i = 0; i < results[0].size(); ++i)
+      ExpectSameEstimate(results[0][i], results[k][i]);
     EXPECT_EQ(maps[k], maps[0]) << "run " << k;
   }
 }
@@ -395,7 +405,8 @@ TEST(CmlEngine, RawRingSessionLocalizes) {
     ASSERT_TRUE(r.estimate.has_value());
     if (i >= route.size() / 2) {
       err += PositionError(r, route[i].truth);
-      odo += PoseDifference(Compose(route[0].truth, Between(route[0].odom, route[i].odom)), route[i].truth)
+      odo += PoseDifference(Compose(route[0].truth, Between(route[0].odom, route[i].odom)),
+                            route[i].truth)
                  .head<2>()
                  .norm();
       ++n;
@@ -431,7 +442,8 @@ TEST(CmlEngine, UnconfidentUnimodalFramesWaitForTheNextAnchor) {
     std::set<std::int64_t> waiting;
     int waited = 0, reconstructed_waiting = 0;
     for (std::size_t i = 0; i < route.size(); ++i) {
-      const FrameResult r = engine.ProcessFrame(MakeFrame(route[i], 0, static_cast<std::int64_t>(i)));
+      const FrameResult r =
+          engine.ProcessFrame(MakeFrame(route[i], 0, static_cast<std::int64_t>(i)));
       ASSERT_TRUE(r.estimate.has_value());
       for (const auto& [frame, g] : r.reconstructed) {
         reconstructed_waiting += waiting.erase(frame) > 0 ? 1 : 0;

@@ -9,13 +9,13 @@
 #include <string>
 #include <vector>
 
-#include <Eigen/Geometry>
 #include <gtest/gtest.h>
+#include <Eigen/Geometry>
 #include <opencv2/videoio.hpp>
 
-#include "omnicml/engine/cml_engine.h"
 #include "omnicml/common/common.h"
 #include "omnicml/engine/calibration.h"
+#include "omnicml/engine/cml_engine.h"
 #include "omnicml/logs/log_format.h"
 #include "omnicml/logs/video.h"
 #include "omnicml/sim/simulator.h"
@@ -134,13 +134,18 @@ TEST(EndToEnd, BeatsOdometryAndImprovesOverLaps) {
     const double odometry_all = Mean(e.odometry_m, e.lap, -1);
     const double engine_first = Mean(e.engine_m, e.lap, 0);
     const double engine_last = Mean(e.engine_m, e.lap, last_lap);
-    std::printf("end-to-end seed %u: mean position error engine %.3f m, odometry %.3f m; engine lap 0 %.3f m, lap %d %.3f m\n",
-                seed, engine_all, odometry_all, engine_first, last_lap, engine_last);
+    std::printf(
+        "end-to-end seed %u: mean position error engine %.3f m, odometry %.3f m; engine lap 0 %.3f "
+        "m, lap %d %.3f m\n",
+        seed, engine_all, odometry_all, engine_first, last_lap, engine_last);
     const std::vector<double> aligned = AlignedErrors(e);
-    const double aligned_first = Mean(aligned, e.lap, 0), aligned_last = Mean(aligned, e.lap, last_lap);
-    std::printf("  aligned (SE(2)): lap 0 %.3f m, lap %d %.3f m\n", aligned_first, last_lap, aligned_last);
+    const double aligned_first = Mean(aligned, e.lap, 0),
+                 aligned_last = Mean(aligned, e.lap, last_lap);
+    std::printf("  aligned (SE(2)): lap 0 %.3f m, lap %d %.3f m\n", aligned_first, last_lap,
+                aligned_last);
     std::printf("counters: unimodal %lld multimodal %lld reconstructed %lld dropped %lld\n",
-                static_cast<long long>(e.counters.unimodal_frames), static_cast<long long>(e.counters.multimodal_frames),
+                static_cast<long long>(e.counters.unimodal_frames),
+                static_cast<long long>(e.counters.multimodal_frames),
                 static_cast<long long>(e.counters.reconstructed_frames),
                 static_cast<long long>(e.counters.dropped_pending_frames));
     EXPECT_LT(engine_all, odometry_all) << "seed " << seed;
@@ -190,9 +195,10 @@ TEST(EndToEnd, GlobalStartOnDayTwoFindsRobot) {
   const double day2 = Mean(e.engine_m, e.lap, 1);
   int day2_frames = 0;
   for (int lap : e.lap) day2_frames += lap == 1 ? 1 : 0;
-  std::printf("global start: day 1 error %.3f m, day 2 error %.3f m over %d frames with an estimate "
-              "(%d without)\n",
-              day1, day2, day2_frames, e.frames_without_estimate);
+  std::printf(
+      "global start: day 1 error %.3f m, day 2 error %.3f m over %d frames with an estimate "
+      "(%d without)\n",
+      day1, day2, day2_frames, e.frames_without_estimate);
   EXPECT_EQ(e.counters.global_seeds, 1);
   // Found within the first 20 frames of the day, then tracked for the rest.
   EXPECT_LE(e.frames_without_estimate, 20);
@@ -269,8 +275,8 @@ TEST(EndToEnd, RunFromVideoMatchesRunFromPngLog) {
     std::vector<Frame> frames;
     WriteFrames(source, png, [&](const Frame& f) { frames.push_back(f); });
     png.Finish();
-    cv::VideoWriter writer(video, cv::CAP_FFMPEG, cv::VideoWriter::fourcc('F', 'F', 'V', '1'),
-                           10.0, frames.front().image.size(), true);
+    cv::VideoWriter writer(video, cv::CAP_FFMPEG, cv::VideoWriter::fourcc('F', 'F', 'V', '1'), 10.0,
+                           frames.front().image.size(), true);
     ASSERT_TRUE(writer.isOpened()) << "FFV1 encoder unavailable";
     for (const Frame& f : frames) writer.write(f.image);
     writer.release();

@@ -10,10 +10,10 @@
 
 #include <gtest/gtest.h>
 
-#include "omnicml/engine/cml_engine.h"
 #include "omnicml/common/binary_io.h"
 #include "omnicml/common/common.h"
 #include "omnicml/common/options.h"
+#include "omnicml/engine/cml_engine.h"
 #include "omnicml/mapping/environment_model.h"
 
 namespace omnicml {
@@ -45,16 +45,18 @@ fs::path ScratchDir(const std::string& name) {
 
 std::vector<std::uint8_t> ReadAll(const fs::path& p) {
   std::ifstream in(p, std::ios::binary);
-  return std::vector<std::uint8_t>((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  return std::vector<std::uint8_t>((std::istreambuf_iterator<char>(in)),
+                                   std::istreambuf_iterator<char>());
 }
 void WriteAll(const fs::path& p, const std::vector<std::uint8_t>& bytes) {
   std::ofstream out(p, std::ios::binary | std::ios::trunc);
-  out.write(reinterpret_cast<const char*>(bytes.data()), static_cast<std::streamsize>(bytes.size()));
+  out.write(reinterpret_cast<const char*>(bytes.data()),
+            static_cast<std::streamsize>(bytes.size()));
 }
 
 // Runs the frames of one day; returns the results.
-std::vector<FrameResult> RunDay(CmlEngine& engine, const SessionInfo& info, const std::vector<RouteFrame>& route,
-                                int session) {
+std::vector<FrameResult> RunDay(CmlEngine& engine, const SessionInfo& info,
+                                const std::vector<RouteFrame>& route, int session) {
   engine.BeginSession(info);
   std::vector<FrameResult> out;
   for (std::size_t i = 0; i < route.size(); ++i) {
@@ -71,7 +73,8 @@ void ExpectErrorWith(Fn fn, const std::vector<std::string>& fragments) {
     ADD_FAILURE() << "no error thrown";
   } catch (const Error& e) {
     for (const std::string& f : fragments) {
-      EXPECT_NE(std::string(e.what()).find(f), std::string::npos) << "'" << f << "' not in: " << e.what();
+      EXPECT_NE(std::string(e.what()).find(f), std::string::npos)
+          << "'" << f << "' not in: " << e.what();
     }
   }
 }
@@ -208,8 +211,10 @@ TEST(EngineIo, RejectsDamagedFiles) {
 
   const fs::path bad = dir / "bad.omnicml";
   // Truncated at several places (header, payload, checksum).
-  for (std::size_t keep : {std::size_t{0}, std::size_t{5}, std::size_t{15}, bytes.size() / 2, bytes.size() - 1}) {
-    WriteAll(bad, std::vector<std::uint8_t>(bytes.begin(), bytes.begin() + static_cast<std::ptrdiff_t>(keep)));
+  for (std::size_t keep :
+       {std::size_t{0}, std::size_t{5}, std::size_t{15}, bytes.size() / 2, bytes.size() - 1}) {
+    WriteAll(bad, std::vector<std::uint8_t>(bytes.begin(),
+                                            bytes.begin() + static_cast<std::ptrdiff_t>(keep)));
     ExpectErrorWith([&] { LoadEngine(bad.string()); }, {bad.string()});
   }
   WriteAll(bad, std::vector<std::uint8_t>(bytes.begin(), bytes.end() - 10));
@@ -309,7 +314,8 @@ TEST(EngineIo, AtomicOverwriteAndWriteErrors) {
   CmlEngine engine(TestOptions());
   SaveEngine(engine, file.string());
   EXPECT_EQ(ReadAll(file), EncodeEngine(engine));
-  ExpectErrorWith([&] { SaveEngine(engine, (dir / "no_such_dir" / "e.omnicml").string()); }, {"no_such_dir"});
+  ExpectErrorWith([&] { SaveEngine(engine, (dir / "no_such_dir" / "e.omnicml").string()); },
+                  {"no_such_dir"});
 }
 
 }  // namespace

@@ -116,7 +116,8 @@ TEST(MapUpdater, BitIdenticalWithAndWithoutWorker) {
   ASSERT_EQ(sync.size(), async1.size());
   for (std::size_t i = 0; i < sync.size(); ++i) {
     EXPECT_EQ(std::bit_cast<std::uint64_t>(sync[i]), std::bit_cast<std::uint64_t>(async1[i])) << i;
-    EXPECT_EQ(std::bit_cast<std::uint64_t>(async1[i]), std::bit_cast<std::uint64_t>(async2[i])) << i;
+    EXPECT_EQ(std::bit_cast<std::uint64_t>(async1[i]), std::bit_cast<std::uint64_t>(async2[i]))
+        << i;
   }
 }
 
@@ -151,7 +152,11 @@ TEST(MapUpdater, WorkerRunsConcurrentlyWithCaller) {
 // An exception thrown by apply on the worker reaches the engine thread at the barrier.
 TEST(MapUpdater, WorkerExceptionIsRethrownAtBarrier) {
   for (bool background : {false, true}) {
-    MapUpdater updater([](const MapUpdate& u) { if (u.frame == 2) throw Error("bad update"); }, 1, background);
+    MapUpdater updater(
+        [](const MapUpdate& u) {
+          if (u.frame == 2) throw Error("bad update");
+        },
+        1, background);
     for (std::int64_t t = 0; t < 3; ++t) updater.Push(UpdateOf(t), t);
     updater.Schedule(3);
     EXPECT_THROW(updater.WaitUntilApplied(3), Error);

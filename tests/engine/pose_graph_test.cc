@@ -93,15 +93,18 @@ TEST(PoseGraph, DriftedLoopClosesTowardsTruth) {
   PoseGraph graph(LoopOptions(), MotionNoise{}, 1e-6, 1e-6, 1000);
   const Loop loop = FeedLoop(&graph, 0.004);
   const int last = kLoopNodes - 1;
-  const double end_before = (loop.dead_reckoned[last].head<2>() - loop.truth[last].head<2>()).norm();
+  const double end_before =
+      (loop.dead_reckoned[last].head<2>() - loop.truth[last].head<2>()).norm();
   ASSERT_GT(end_before, 3.0);  // the drift is real
   const double mean_before = MeanError(graph, loop);
   // The view of node 0 says the robot is at the truth of the last node.
-  ASSERT_TRUE(graph.AddClosure(0, last, loop.truth[last], Eigen::Vector3d(0.01, 0.01, 1e-4).asDiagonal()));
+  ASSERT_TRUE(
+      graph.AddClosure(0, last, loop.truth[last], Eigen::Vector3d(0.01, 0.01, 1e-4).asDiagonal()));
   ASSERT_TRUE(graph.ShouldOptimize(last));
   const std::vector<NodeCorrection> moved = graph.Optimize(last);
   EXPECT_GT(moved.size(), 100u);
-  const double end_after = (graph.nodes().back().pose.head<2>() - loop.truth[last].head<2>()).norm();
+  const double end_after =
+      (graph.nodes().back().pose.head<2>() - loop.truth[last].head<2>()).norm();
   EXPECT_LT(end_after, 0.5) << "before " << end_before;
   EXPECT_LT(MeanError(graph, loop), 0.4 * mean_before);
   // Node 0 is held by its prior.
@@ -117,7 +120,8 @@ TEST(PoseGraph, FalseClosureDoesNotWreckTheMapUnderTheRobustLoss) {
     PoseGraph graph(o, MotionNoise{}, 1e-6, 1e-6, 1000);
     const Loop loop = FeedLoop(&graph, 0.0);
     const int last = kLoopNodes - 1;
-    const Pose2 wrong = MakePose(loop.truth[last].x() + 15.0, loop.truth[last].y(), loop.truth[last].z());
+    const Pose2 wrong =
+        MakePose(loop.truth[last].x() + 15.0, loop.truth[last].y(), loop.truth[last].z());
     EXPECT_TRUE(graph.AddClosure(0, last, wrong, Eigen::Vector3d(0.01, 0.01, 1e-4).asDiagonal()));
     double worst = 0;
     for (const NodeCorrection& c : graph.Optimize(last)) {
@@ -143,14 +147,16 @@ TEST(PoseGraph, TwoDaysOverOnePathMeetHalfWay) {
   PoseGraph graph(o, MotionNoise{}, 1e-6, 1e-6, 1000);
   const auto truth = [](int i) { return MakePose(0.2 * i, 0.0, 0.0); };
   FeedSession(&graph, 0, kDayNodes, truth, 0.0);
-  const std::vector<Pose2> day2_dead_reckoned = FeedSession(&graph, kDayNodes, kDayNodes, truth, 0.002);
+  const std::vector<Pose2> day2_dead_reckoned =
+      FeedSession(&graph, kDayNodes, kDayNodes, truth, 0.002);
   const int last = kDayNodes - 1;
   const double disagreement = (day2_dead_reckoned[last].head<2>() - truth(last).head<2>()).norm();
   ASSERT_GT(disagreement, 1.0);  // the drift is real
   for (int i = 10; i < kDayNodes; i += 10) {
     const PoseGraphNode* day1 = graph.FindNode(i);
     ASSERT_NE(day1, nullptr);
-    ASSERT_TRUE(graph.AddClosure(i, kDayNodes + i, day1->pose, Eigen::Vector3d(1e-4, 1e-4, 1e-6).asDiagonal()));
+    ASSERT_TRUE(graph.AddClosure(i, kDayNodes + i, day1->pose,
+                                 Eigen::Vector3d(1e-4, 1e-4, 1e-6).asDiagonal()));
   }
   ASSERT_TRUE(graph.ShouldOptimize(2 * kDayNodes - 1));
   graph.Optimize(2 * kDayNodes - 1);
@@ -163,8 +169,9 @@ TEST(PoseGraph, TwoDaysOverOnePathMeetHalfWay) {
   EXPECT_GT(day2_moved, 0.35 * day2_disagreement);
   EXPECT_LT(day2_moved, 0.65 * day2_disagreement);
   // The closures hold: both days' nodes at one place end up together.
-  EXPECT_LT((graph.FindNode(90)->pose.head<2>() - graph.FindNode(kDayNodes + 90)->pose.head<2>()).norm(),
-            0.1 * day2_disagreement);
+  EXPECT_LT(
+      (graph.FindNode(90)->pose.head<2>() - graph.FindNode(kDayNodes + 90)->pose.head<2>()).norm(),
+      0.1 * day2_disagreement);
 }
 
 // Closures need min_loop_frames between the nodes, closure_every_frames between closures
@@ -231,7 +238,8 @@ struct RunOutput {
 };
 
 // Runs `engine` over the frames of `so` from `first_day` to `last_day` (inclusive).
-void Feed(CmlEngine* engine, const SimulatorOptions& so, int first_day, int last_day, RunOutput* out) {
+void Feed(CmlEngine* engine, const SimulatorOptions& so, int first_day, int last_day,
+          RunOutput* out) {
   SimulatedFrameSource source(so);
   Frame f;
   int session = -1;
@@ -242,7 +250,9 @@ void Feed(CmlEngine* engine, const SimulatorOptions& so, int first_day, int last
       engine->BeginSession(source.Session(session));
     }
     const FrameResult r = engine->ProcessFrame(f);
-    out->estimates.push_back(r.estimate ? r.estimate->mean.mean : Pose2::Constant(std::numeric_limits<double>::quiet_NaN()));
+    out->estimates.push_back(r.estimate
+                                 ? r.estimate->mean.mean
+                                 : Pose2::Constant(std::numeric_limits<double>::quiet_NaN()));
   }
 }
 

@@ -15,14 +15,16 @@ namespace {
 // A path of n+1 true poses driven by a sequence of increments from `start`.
 std::vector<Pose2> DeadReckon(const Pose2& start, const std::vector<OdometryIncrement>& us) {
   std::vector<Pose2> poses{start};
-  for (const OdometryIncrement& u : us) poses.push_back(Compose(poses.back(), IncrementToRelativePose(u)));
+  for (const OdometryIncrement& u : us)
+    poses.push_back(Compose(poses.back(), IncrementToRelativePose(u)));
   return poses;
 }
 
 Gaussian Anchor(const Pose2& mean, double sigma_xy_m, double sigma_phi_rad) {
   Gaussian g;
   g.mean = mean;
-  g.covariance = Eigen::Vector3d(sigma_xy_m * sigma_xy_m, sigma_xy_m * sigma_xy_m, sigma_phi_rad * sigma_phi_rad)
+  g.covariance = Eigen::Vector3d(sigma_xy_m * sigma_xy_m, sigma_xy_m * sigma_xy_m,
+                                 sigma_phi_rad * sigma_phi_rad)
                      .asDiagonal();
   return g;
 }
@@ -38,8 +40,8 @@ TEST(TrajectoryReconstruction, NoiselessOdometryIsExact) {
   const std::vector<OdometryIncrement> us = CurvyIncrements(25);
   const std::vector<Pose2> truth = DeadReckon(MakePose(1.0, -2.0, 0.4), us);
   ReconstructionOptions options;
-  const ReconstructionResult r =
-      ReconstructTrajectory(Anchor(truth.front(), 0.05, 0.02), us, Anchor(truth.back(), 0.05, 0.02), options);
+  const ReconstructionResult r = ReconstructTrajectory(Anchor(truth.front(), 0.05, 0.02), us,
+                                                       Anchor(truth.back(), 0.05, 0.02), options);
   ASSERT_EQ(r.nodes.size(), truth.size());
   for (std::size_t i = 0; i < truth.size(); ++i) {
     const Eigen::Vector3d d = PoseDifference(r.nodes[i].mean, truth[i]);
@@ -50,10 +52,11 @@ TEST(TrajectoryReconstruction, NoiselessOdometryIsExact) {
 // Headings that cross +-pi are handled by the wrapped angle residuals.
 TEST(TrajectoryReconstruction, HeadingAcrossPiIsExact) {
   std::vector<OdometryIncrement> us(30, OdometryIncrement{0.0, 0.1, 0.05});
-  const std::vector<Pose2> truth = DeadReckon(MakePose(0.0, 0.0, 2.5), us);  // ends near 4 rad -> wraps
+  const std::vector<Pose2> truth =
+      DeadReckon(MakePose(0.0, 0.0, 2.5), us);  // ends near 4 rad -> wraps
   ReconstructionOptions options;
-  const ReconstructionResult r =
-      ReconstructTrajectory(Anchor(truth.front(), 0.1, 0.05), us, Anchor(truth.back(), 0.1, 0.05), options);
+  const ReconstructionResult r = ReconstructTrajectory(Anchor(truth.front(), 0.1, 0.05), us,
+                                                       Anchor(truth.back(), 0.1, 0.05), options);
   for (std::size_t i = 0; i < truth.size(); ++i) {
     EXPECT_LT(PoseDifference(r.nodes[i].mean, truth[i]).norm(), 1e-7) << "node " << i;
     EXPECT_LE(std::abs(r.nodes[i].mean[2]), kPi);
@@ -75,8 +78,8 @@ TEST(TrajectoryReconstruction, DriftIsDistributedAndCovarianceLargestMidway) {
   const std::vector<Pose2> truth = DeadReckon(MakePose(2.0, 1.0, -0.3), truth_us);
   const std::vector<Pose2> dead = DeadReckon(truth.front(), odo_us);
   ReconstructionOptions options;
-  const ReconstructionResult r =
-      ReconstructTrajectory(Anchor(truth.front(), 0.02, 0.01), odo_us, Anchor(truth.back(), 0.02, 0.01), options);
+  const ReconstructionResult r = ReconstructTrajectory(Anchor(truth.front(), 0.02, 0.01), odo_us,
+                                                       Anchor(truth.back(), 0.02, 0.01), options);
   ASSERT_EQ(static_cast<int>(r.nodes.size()), n + 1);
 
   // Anchors are held, error is spread: the reconstruction's worst error is well below
@@ -109,8 +112,8 @@ TEST(TrajectoryReconstruction, DriftIsDistributedAndCovarianceLargestMidway) {
 TEST(TrajectoryReconstruction, EndAnchorOnly) {
   const std::vector<OdometryIncrement> us = CurvyIncrements(10);
   const std::vector<Pose2> truth = DeadReckon(MakePose(-1.0, 3.0, 3.0), us);
-  const ReconstructionResult r =
-      ReconstructTrajectory(std::nullopt, us, Anchor(truth.back(), 0.05, 0.02), ReconstructionOptions{});
+  const ReconstructionResult r = ReconstructTrajectory(
+      std::nullopt, us, Anchor(truth.back(), 0.05, 0.02), ReconstructionOptions{});
   for (std::size_t i = 0; i < truth.size(); ++i) {
     EXPECT_LT(PoseDifference(r.nodes[i].mean, truth[i]).norm(), 1e-7) << "node " << i;
   }
@@ -124,8 +127,8 @@ TEST(TrajectoryReconstruction, Deterministic) {
   for (OdometryIncrement& u : us) u.trans_m *= 1.03;
   const std::vector<Pose2> truth = DeadReckon(MakePose(0.0, 0.0, 0.0), CurvyIncrements(50));
   const auto run = [&] {
-    return ReconstructTrajectory(Anchor(truth.front(), 0.03, 0.01), us, Anchor(truth.back(), 0.03, 0.01),
-                                 ReconstructionOptions{});
+    return ReconstructTrajectory(Anchor(truth.front(), 0.03, 0.01), us,
+                                 Anchor(truth.back(), 0.03, 0.01), ReconstructionOptions{});
   };
   const ReconstructionResult a = run();
   const ReconstructionResult b = run();
@@ -138,8 +141,10 @@ TEST(TrajectoryReconstruction, Deterministic) {
 // Bad input is reported as omnicml::Error.
 TEST(TrajectoryReconstruction, RejectsMissingAnchorsAndEmptyChain) {
   const std::vector<OdometryIncrement> us = CurvyIncrements(3);
-  EXPECT_THROW(ReconstructTrajectory(std::nullopt, us, std::nullopt, ReconstructionOptions{}), Error);
-  EXPECT_THROW(ReconstructTrajectory(Anchor(Pose2::Zero(), 0.1, 0.1), {}, std::nullopt, ReconstructionOptions{}),
+  EXPECT_THROW(ReconstructTrajectory(std::nullopt, us, std::nullopt, ReconstructionOptions{}),
+               Error);
+  EXPECT_THROW(ReconstructTrajectory(Anchor(Pose2::Zero(), 0.1, 0.1), {}, std::nullopt,
+                                     ReconstructionOptions{}),
                Error);
   ReconstructionOptions bad;
   bad.max_iterations = 0;
@@ -162,8 +167,9 @@ TEST(TrajectoryReconstruction, IncrementCovarianceMatchesNumericJacobian) {
     j.col(k) = PoseDifference(IncrementToRelativePose(up), IncrementToRelativePose(dn)) / (2 * h);
   }
   Eigen::Matrix3d expected = j * MotionNoiseCovariance(u, options.motion) * j.transpose();
-  expected.diagonal() += Eigen::Vector3d(options.min_translation_variance_m2, options.min_translation_variance_m2,
-                                         options.min_rotation_variance_rad2);
+  expected.diagonal() +=
+      Eigen::Vector3d(options.min_translation_variance_m2, options.min_translation_variance_m2,
+                      options.min_rotation_variance_rad2);
   EXPECT_TRUE(sigma.isApprox(expected, 1e-6)) << sigma << "\nvs\n" << expected;
 }
 

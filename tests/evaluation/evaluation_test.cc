@@ -8,9 +8,9 @@
 #include <random>
 #include <sstream>
 
+#include <gtest/gtest.h>
 #include <Eigen/Cholesky>
 #include <Eigen/Geometry>
-#include <gtest/gtest.h>
 
 #include "omnicml/common/common.h"
 #include "omnicml/evaluation/trajectory_metrics.h"
@@ -232,7 +232,8 @@ TEST(Evaluate, CoverageCountsFramesWithoutEstimateAndErrorsStayOverLocalizedFram
   // (days.csv columns and the text table).
   FramesTable table;
   table.stage_names = {"total"};
-  for (int i = 0; i < 10; ++i) table.records.push_back(MakeRecord(0, i, Pose2(1, 0, 0), Pose2(0, 0, 0)));
+  for (int i = 0; i < 10; ++i)
+    table.records.push_back(MakeRecord(0, i, Pose2(1, 0, 0), Pose2(0, 0, 0)));
   for (int i = 0; i < 10; ++i) {
     FrameRecord r = MakeRecord(1, i, Pose2(0.5, 0, 0), Pose2(0, 0, 0));
     r.has_estimate = i >= 7;  // a global start that localizes at frame 7
@@ -268,7 +269,8 @@ TEST(Evaluate, CoverageCountsFramesWithoutEstimateAndErrorsStayOverLocalizedFram
   std::getline(in, day2);
   // The coverage columns, then the consistency columns (empty without covariances).
   const std::string block =
-      "mean_frame_time_us,frames_localized,frames_unlocalized,coverage,frames_skipped,nees_xy_frames,";
+      "mean_frame_time_us,frames_localized,frames_unlocalized,coverage,frames_skipped,nees_xy_"
+      "frames,";
   EXPECT_NE(header.find(block), std::string::npos) << header;
   const std::string suffix = ",prior_nees_xy_median,fix_nees_xy_median";
   EXPECT_EQ(header.substr(header.size() - suffix.size()), suffix);
@@ -460,7 +462,8 @@ TEST(FramesCsv, CovarianceAndNeesRoundTrip) {
     ReadFramesCsv(dir / "bad.csv");
     ADD_FAILURE() << "a fractional match count was accepted";
   } catch (const Error& e) {
-    EXPECT_NE(std::string(e.what()).find("bad.csv:2: column 'matches'"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("bad.csv:2: column 'matches'"), std::string::npos)
+        << e.what();
   }
   fs::remove_all(dir);
 }
@@ -646,8 +649,9 @@ TEST(Consistency, ConsistentGaussianEstimatorAveragesTheDegreesOfFreedom) {
     const Eigen::Matrix2d l = c.llt().matrixL();
     const Eigen::Vector2d e = l * Eigen::Vector2d(n(rng), n(rng));
     const Pose2 truth = MakePose(5 * u(rng), 5 * u(rng), 3 * (u(rng) - 0.4));
-    FrameRecord r = MakeRecord(2 * i / kFrames, i, MakePose(truth.x() + e.x(), truth.y() + e.y(),
-                                                      truth.z() + sphi * n(rng)), truth);
+    FrameRecord r = MakeRecord(
+        2 * i / kFrames, i,
+        MakePose(truth.x() + e.x(), truth.y() + e.y(), truth.z() + sphi * n(rng)), truth);
     r.cov_xx_m2 = c(0, 0);
     r.cov_xy_m2 = c(0, 1);
     r.cov_yy_m2 = c(1, 1);
@@ -698,7 +702,6 @@ TEST(Consistency, ConsistentGaussianEstimatorAveragesTheDegreesOfFreedom) {
   EXPECT_DOUBLE_EQ(cell("nees_phi_p95"), day0.nees_phi.p95);
   EXPECT_EQ(cell("nis_frames"), 0);
 }
-
 
 }  // namespace
 }  // namespace omnicml

@@ -56,10 +56,8 @@ TEST(ChangeDetection, ChangesOfDayFollowTheSchedule) {
   // pallet_2 moved 4 m: both its old and its new place are changed places.
   const int pallet = ObstacleIndex(w, "pallet_2");
   ASSERT_GE(pallet, 0);
-  const Eigen::Vector2d old_centre =
-      Centroid(ObstacleOutline(w, StateAtDayStart(w, 1, 1), pallet));
-  const Eigen::Vector2d new_centre =
-      Centroid(ObstacleOutline(w, StateAtDayStart(w, 2, 1), pallet));
+  const Eigen::Vector2d old_centre = Centroid(ObstacleOutline(w, StateAtDayStart(w, 1, 1), pallet));
+  const Eigen::Vector2d new_centre = Centroid(ObstacleOutline(w, StateAtDayStart(w, 2, 1), pallet));
   EXPECT_NEAR((new_centre - old_centre).norm(), 4.0, 1e-9);
   EXPECT_EQ(DistanceToChanges(day2, old_centre), 0.0);
   EXPECT_EQ(DistanceToChanges(day2, new_centre), 0.0);
@@ -119,7 +117,7 @@ TEST(ChangeDetection, ScoreCountsCellsCrossedByThePath) {
   EXPECT_EQ(d.session, 1);
   EXPECT_EQ(d.changed_items, 1);
   EXPECT_EQ(d.cells_scored, 4);
-  EXPECT_EQ(d.cells_detected, 3);  // (0,0) changed, (2,0) new, (3,0) changed
+  EXPECT_EQ(d.cells_detected, 3);            // (0,0) changed, (2,0) new, (3,0) changed
   EXPECT_EQ(d.geometric.truly_changed, 3);   // (0,0) (1,0) (2,0)
   EXPECT_EQ(d.geometric.true_positives, 2);  // (0,0) (2,0)
   EXPECT_DOUBLE_EQ(d.geometric.precision, 2.0 / 3.0);
@@ -326,4 +324,3 @@ TEST(MapHealth, NeighbourEvidenceMarksACellBetweenChangedOnes) {
 
 }  // namespace
 }  // namespace omnicml
-

@@ -18,7 +18,6 @@
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 
-#include "testing/cli_helpers.h"
 #include "omnicml/common/file_io.h"
 #include "omnicml/engine/cml_engine.h"
 #include "omnicml/engine/engine_io.h"
@@ -27,6 +26,7 @@
 #include "omnicml/report/map_export.h"
 #include "omnicml/run/run_config.h"
 #include "omnicml/sim/simulator.h"
+#include "testing/cli_helpers.h"
 
 namespace omnicml {
 namespace {
@@ -267,10 +267,12 @@ TEST_F(CliEndToEnd, ExportInspectAndEvaluate) {
   // Each evaluation keeps the earlier ones; --out never replaces a file without --force.
   EXPECT_TRUE(fs::is_regular_file(run / "evaluation-2.html"));
   EXPECT_TRUE(fs::is_regular_file(run / "evaluation-3.html"));
-  const CommandResult eval = RunOmnicml("evaluate " + run.string() + " --out " + (run / "evaluation.html").string());
+  const CommandResult eval =
+      RunOmnicml("evaluate " + run.string() + " --out " + (run / "evaluation.html").string());
   EXPECT_EQ(eval.exit_code, 2) << eval.output;
   EXPECT_NE(eval.output.find("--force"), std::string::npos) << eval.output;
-  const CommandResult forced = RunOmnicml("evaluate " + run.string() + " --force --out " + (run / "evaluation.html").string());
+  const CommandResult forced = RunOmnicml("evaluate " + run.string() + " --force --out " +
+                                          (run / "evaluation.html").string());
   EXPECT_EQ(forced.exit_code, 0) << forced.output;
   EXPECT_NE(forced.output.find("APE position"), std::string::npos) << forced.output;
   EXPECT_NE(forced.output.find("RPE translation"), std::string::npos) << forced.output;
@@ -282,8 +284,8 @@ TEST_F(CliEndToEnd, CompareRunsTheThreeModes) {
   const fs::path out = Dir() / "compare";
   const fs::path maps = Dir() / "compare_maps";
   const CommandResult r = RunOmnicml("compare " + (Dir() / "log").string() +
-                                     " --quiet --jobs 3 --steps 25,50,100,1000 --out " + out.string() +
-                                     " --map-out " + maps.string());
+                                     " --quiet --jobs 3 --steps 25,50,100,1000 --out " +
+                                     out.string() + " --map-out " + maps.string());
   ASSERT_EQ(r.exit_code, 0) << r.output;
   // --map-out: one map per mode, each holding the views the table reports at the end.
   for (const char* mode : {"passive", "active", "static"}) {
@@ -293,7 +295,8 @@ TEST_F(CliEndToEnd, CompareRunsTheThreeModes) {
     const std::string views_end = std::to_string(engine->model().NumViews());
     const auto line_start = r.output.find("\n" + std::string(mode) + " ");
     ASSERT_NE(line_start, std::string::npos) << r.output;
-    const std::string line = r.output.substr(line_start + 1, r.output.find('\n', line_start + 1) - line_start - 1);
+    const std::string line =
+        r.output.substr(line_start + 1, r.output.find('\n', line_start + 1) - line_start - 1);
     std::stringstream cells(line);
     std::vector<std::string> cell{std::istream_iterator<std::string>(cells), {}};
     ASSERT_GE(cell.size(), 6u) << line;
@@ -302,11 +305,13 @@ TEST_F(CliEndToEnd, CompareRunsTheThreeModes) {
   EXPECT_TRUE(fs::is_regular_file(out / "replay.html"));
   // The modes ran in three threads; one after the other they give the same frames.
   const fs::path sequential = Dir() / "compare_sequential";
-  const CommandResult r1 = RunOmnicml("compare " + (Dir() / "log").string() +
-                                      " --quiet --jobs 1 --steps 25,50,100,1000 --out " + sequential.string());
+  const CommandResult r1 =
+      RunOmnicml("compare " + (Dir() / "log").string() +
+                 " --quiet --jobs 1 --steps 25,50,100,1000 --out " + sequential.string());
   ASSERT_EQ(r1.exit_code, 0) << r1.output;
   for (const char* mode : {"passive", "active", "static"}) {
-    EXPECT_EQ(DeterministicRows(out / mode / "frames.csv"), DeterministicRows(sequential / mode / "frames.csv"))
+    EXPECT_EQ(DeterministicRows(out / mode / "frames.csv"),
+              DeterministicRows(sequential / mode / "frames.csv"))
         << mode;
   }
   auto slurp = [](const fs::path& p) {
@@ -347,9 +352,9 @@ TEST_F(CliEndToEnd, MclWritesARunDirectoryThatEvaluates) {
   // `omnicml mcl` writes the run directory of `omnicml run` (frames.csv in the same
   // format, days.csv, config, report), so `evaluate` and the tables work on the baseline too.
   const fs::path out = Dir() / "mcl";
-  const CommandResult r = RunOmnicml(
-      "mcl --world home_store --days 2 --frames-per-day " + std::to_string(kFramesPerDay) +
-      " --seed 3 --particles 2000 --out " + out.string());
+  const CommandResult r = RunOmnicml("mcl --world home_store --days 2 --frames-per-day " +
+                                     std::to_string(kFramesPerDay) +
+                                     " --seed 3 --particles 2000 --out " + out.string());
   ASSERT_EQ(r.exit_code, 0) << r.output;
   for (const char* f : {"frames.csv", "days.csv", "config.yaml", "report.html", "map.yaml"})
     EXPECT_TRUE(fs::is_regular_file(out / f)) << f;
@@ -392,14 +397,16 @@ TEST_F(CliEndToEnd, DescribeTakesDescriptorOptionsFromAnEngineConfig) {
   const CommandResult c = RunOmnicml("describe" + images + " --config " + color.string());
   ASSERT_EQ(c.exit_code, 0) << c.output;
   EXPECT_NE(c.output.find("descriptor: color"), std::string::npos) << c.output;
-  const CommandResult over =
-      RunOmnicml("describe" + images + " --config " + color.string() + " --descriptor fourier --json");
+  const CommandResult over = RunOmnicml("describe" + images + " --config " + color.string() +
+                                        " --descriptor fourier --json");
   ASSERT_EQ(over.exit_code, 0) << over.output;
   const auto with_columns = RunOmnicml("describe" + images + " --json");
-  const auto without = RunOmnicml("describe" + images + " --config " + columns.string() + " --json");
+  const auto without =
+      RunOmnicml("describe" + images + " --config " + columns.string() + " --json");
   ASSERT_EQ(with_columns.exit_code, 0) << with_columns.output;
   ASSERT_EQ(without.exit_code, 0) << without.output;
-  const auto jo = nlohmann::json::parse(over.output), jc = nlohmann::json::parse(with_columns.output),
+  const auto jo = nlohmann::json::parse(over.output),
+             jc = nlohmann::json::parse(with_columns.output),
              jn = nlohmann::json::parse(without.output);
   EXPECT_EQ(jo["descriptor"], "fourier");
   // The default configuration equals the built-in default; normalize_columns changes E.
@@ -542,10 +549,12 @@ TEST_F(CliEndToEnd, SurveyDaysFromGroundTruthAndTumErrors) {
     os << "# stamp x y z qx qy qz qw\n0 1 2 0 0 0 0 1\n0.5 1 2 0\n";
   }
   const fs::path bad_out = Dir() / "survey_bad";
-  const CommandResult bad = RunOmnicml("run " + (Dir() / "log").string() + " --survey-days 1 --survey-poses " +
-                                       tum.string() + " --out " + bad_out.string());
+  const CommandResult bad =
+      RunOmnicml("run " + (Dir() / "log").string() + " --survey-days 1 --survey-poses " +
+                 tum.string() + " --out " + bad_out.string());
   EXPECT_EQ(bad.exit_code, 2);
-  EXPECT_NE(bad.output.find(tum.string() + ":3: expected 8 numbers"), std::string::npos) << bad.output;
+  EXPECT_NE(bad.output.find(tum.string() + ":3: expected 8 numbers"), std::string::npos)
+      << bad.output;
   EXPECT_FALSE(fs::exists(bad_out));
 }
 

@@ -16,11 +16,11 @@
 
 #include <gtest/gtest.h>
 
-#include "testing/cli_helpers.h"
 #include "omnicml/baselines/mcl/mcl.h"
 #include "omnicml/baselines/topo/topological.h"
 #include "omnicml/logs/log_format.h"
 #include "omnicml/sim/simulator.h"
+#include "testing/cli_helpers.h"
 
 namespace omnicml {
 namespace {
@@ -71,7 +71,8 @@ void ExpectBadInput(const CommandResult& r, const std::vector<std::string>& ment
   EXPECT_EQ(r.exit_code, 2) << r.output;
   EXPECT_EQ(std::count(r.output.begin(), r.output.end(), '\n'), 1) << r.output;
   EXPECT_EQ(r.output.find("internal error"), std::string::npos) << r.output;
-  for (const auto& m : mentions) EXPECT_NE(r.output.find(m), std::string::npos) << m << ": " << r.output;
+  for (const auto& m : mentions)
+    EXPECT_NE(r.output.find(m), std::string::npos) << m << ": " << r.output;
 }
 
 class CliLimits : public ::testing::Test {
@@ -116,29 +117,27 @@ TEST_F(CliLimits, AbsurdSizesAreRefusedUpFront) {
   const fs::path out = Dir() / "never";
   ExpectBadInput(RunOmnicml("simulate --days 10000 --frames-per-day 10 --out " + out.string()),
                  {"--days", "10000"});
-  ExpectBadInput(
-      RunOmnicml("simulate --days 2 --frames-per-day 2147483647 --out " + out.string()),
-      {"--frames-per-day"});
-  ExpectBadInput(
-      RunOmnicml("simulate --days 1000 --frames-per-day 100000 --out " + out.string()),
-      {"--days x --frames-per-day"});
+  ExpectBadInput(RunOmnicml("simulate --days 2 --frames-per-day 2147483647 --out " + out.string()),
+                 {"--frames-per-day"});
+  ExpectBadInput(RunOmnicml("simulate --days 1000 --frames-per-day 100000 --out " + out.string()),
+                 {"--days x --frames-per-day"});
   ExpectBadInput(RunOmnicml("run --world home_store --days 5000 --quiet --out " + out.string()),
                  {"--days"});
   ExpectBadInput(RunOmnicml("run --world home_store --frames-per-day 2147483647 --quiet --out " +
                             out.string()),
                  {"--frames-per-day"});
-  ExpectBadInput(RunOmnicml("run " + Log().string() + " --threads 100000 --quiet --out " +
-                            out.string()),
-                 {"threads", "100000"});
+  ExpectBadInput(
+      RunOmnicml("run " + Log().string() + " --threads 100000 --quiet --out " + out.string()),
+      {"threads", "100000"});
   const fs::path config = Dir() / "threads.yaml";
   Spit(config, "threads: 100000\n");
   ExpectBadInput(RunOmnicml("run " + Log().string() + " --config " + config.string() +
                             " --quiet --out " + out.string()),
                  {"threads", "threads.yaml"});
   fs::remove(config);
-  ExpectBadInput(RunOmnicml("compare " + Log().string() + " --jobs 1000 --quiet --out " +
-                            out.string()),
-                 {"--jobs"});
+  ExpectBadInput(
+      RunOmnicml("compare " + Log().string() + " --jobs 1000 --quiet --out " + out.string()),
+      {"--jobs"});
   ExpectBadInput(RunOmnicml("mcl --world home_store --experiment tracking --runs 0"), {"--runs"});
   ExpectBadInput(RunOmnicml("mcl --world home_store --particles 2000000000 --out " + out.string()),
                  {"--particles"});
@@ -175,12 +174,12 @@ TEST_F(CliLimits, OutputsAreCheckedBeforeTheRunStarts) {
   ExpectBadInput(
       RunOmnicml("run " + Log().string() + " --quiet --out " + (a_file / "sub").string()),
       {"--out", a_file.string()});
-  ExpectBadInput(RunOmnicml("mcl --world home_store --frames-per-day 10 --out " +
-                            (a_file / "sub").string()),
-                 {"--out"});
-  ExpectBadInput(RunOmnicml("topo --world home_store --frames-per-day 10 --out " +
-                            (a_file / "sub").string()),
-                 {"--out"});
+  ExpectBadInput(
+      RunOmnicml("mcl --world home_store --frames-per-day 10 --out " + (a_file / "sub").string()),
+      {"--out"});
+  ExpectBadInput(
+      RunOmnicml("topo --world home_store --frames-per-day 10 --out " + (a_file / "sub").string()),
+      {"--out"});
   ExpectBadInput(RunOmnicml("simulate --days 1 --frames-per-day 5 --out " +
                             (Dir() / "sim_never").string() + " --preview " + a_dir.string()),
                  {"--preview", "is a directory"});
@@ -210,12 +209,12 @@ TEST_F(CliLimits, SymlinkLoopsAndDirectoriesAreBadInputNamingThePath) {
   fs::create_symlink(loop, loop);
   const fs::path out = Dir() / "never";
   const std::string l = loop.string();
-  ExpectBadInput(RunOmnicml("run " + Log().string() + " --quiet --config " + l + " --out " +
-                            out.string()),
-                 {l});
-  ExpectBadInput(RunOmnicml("run " + Log().string() + " --quiet --map-in " + l + " --out " +
-                            out.string()),
-                 {l});
+  ExpectBadInput(
+      RunOmnicml("run " + Log().string() + " --quiet --config " + l + " --out " + out.string()),
+      {l});
+  ExpectBadInput(
+      RunOmnicml("run " + Log().string() + " --quiet --map-in " + l + " --out " + out.string()),
+      {l});
   ExpectBadInput(RunOmnicml("inspect " + l), {l});
   ExpectBadInput(RunOmnicml("run --world " + l + " --quiet --out " + out.string()), {l});
   ExpectBadInput(RunOmnicml("simulate --world " + l + " --days 1 --out " + out.string()), {l});
@@ -223,18 +222,18 @@ TEST_F(CliLimits, SymlinkLoopsAndDirectoriesAreBadInputNamingThePath) {
   ExpectBadInput(RunOmnicml("topo --world home_store --config " + l + " --out " + out.string()),
                  {l});
   ExpectBadInput(RunOmnicml("simulate --config " + l + " --out " + out.string()), {l});
-  ExpectBadInput(RunOmnicml("run " + Log().string() + " --quiet --map-out " + l + " --out " +
-                            out.string()),
-                 {"--map-out", l});
+  ExpectBadInput(
+      RunOmnicml("run " + Log().string() + " --quiet --map-out " + l + " --out " + out.string()),
+      {"--map-out", l});
   // session.yaml as a directory.
   const fs::path session = CopyLog("log_dir_session");
   fs::remove(session / "session.yaml");
   fs::create_directory(session / "session.yaml");
   ExpectBadInput(RunOmnicml("validate " + (Dir() / "log_dir_session").string()),
                  {(session / "session.yaml").string()});
-  ExpectBadInput(RunOmnicml("run " + (Dir() / "log_dir_session").string() + " --quiet --out " +
-                            out.string()),
-                 {(session / "session.yaml").string()});
+  ExpectBadInput(
+      RunOmnicml("run " + (Dir() / "log_dir_session").string() + " --quiet --out " + out.string()),
+      {(session / "session.yaml").string()});
   EXPECT_FALSE(fs::exists(out));
   fs::remove(loop);
   fs::remove_all(Dir() / "log_dir_session");
@@ -245,8 +244,8 @@ TEST_F(CliLimits, ValidationCatchesWhatWouldBreakTheRunLater) {
   // rejected by `validate` and `run`, naming file and line; long excerpts are cut.
   struct Case {
     std::string name;
-    std::string file;            // "session.yaml" or "frames.csv"
-    std::string from, to;        // text replaced in the file ("" from: whole file = to)
+    std::string file;      // "session.yaml" or "frames.csv"
+    std::string from, to;  // text replaced in the file ("" from: whole file = to)
     std::vector<std::string> mentions;
   };
   const fs::path session0 = CopyLog("probe");
@@ -254,7 +253,8 @@ TEST_F(CliLimits, ValidationCatchesWhatWouldBreakTheRunLater) {
   const std::string csv = Slurp(session0 / "frames.csv");
   fs::remove_all(Dir() / "probe");
   const std::string header = csv.substr(0, csv.find('\n') + 1);
-  const std::string row1 = csv.substr(header.size(), csv.find('\n', header.size()) + 1 - header.size());
+  const std::string row1 =
+      csv.substr(header.size(), csv.find('\n', header.size()) + 1 - header.size());
   // The covariance line of session.yaml.
   const std::size_t cov = yaml.find("covariance_diagonal: [");
   ASSERT_NE(cov, std::string::npos) << yaml;
@@ -277,16 +277,29 @@ TEST_F(CliLimits, ValidationCatchesWhatWouldBreakTheRunLater) {
     return r + "\n";
   };
   const std::vector<Case> cases = {
-      {"huge_heading_variance", "session.yaml", cov_line,
-       "covariance_diagonal: [0.01, 0.01, 9.2e18]", {"session.yaml:", "too large"}},
-      {"negative_variance", "session.yaml", cov_line, "covariance_diagonal: [0.01, -1, 0.01]",
+      {"huge_heading_variance",
+       "session.yaml",
+       cov_line,
+       "covariance_diagonal: [0.01, 0.01, 9.2e18]",
+       {"session.yaml:", "too large"}},
+      {"negative_variance",
+       "session.yaml",
+       cov_line,
+       "covariance_diagonal: [0.01, -1, 0.01]",
        {"session.yaml:", "positive"}},
-      {"huge_start_pose", "session.yaml", pose_line, "pose: [3e6, 0, 0]", {"session.yaml:", "range"}},
+      {"huge_start_pose",
+       "session.yaml",
+       pose_line,
+       "pose: [3e6, 0, 0]",
+       {"session.yaml:", "range"}},
       {"huge_odometry", "frames.csv", row1, row_with(2, "1e300"), {"frames.csv:2", "odom_x_m"}},
       {"far_truth", "frames.csv", row1, row_with(6, "-2000000"), {"frames.csv:2", "gt_y_m"}},
       {"huge_heading", "frames.csv", row1, row_with(4, "1e200"), {"frames.csv:2", "odom_phi_rad"}},
       {"header_only", "frames.csv", "", header, {"frames.csv", "no frames"}},
-      {"long_excerpt", "frames.csv", row1, row_with(3, std::string(60000, '7') + "x"),
+      {"long_excerpt",
+       "frames.csv",
+       row1,
+       row_with(3, std::string(60000, '7') + "x"),
        {"frames.csv:2", "odom_y_m", "..."}},
   };
   for (const Case& c : cases) {
@@ -320,9 +333,10 @@ TEST_F(CliLimits, SimulateConfigLoadsBackToTheSameLog) {
   // simulation.yaml of a simulated log, given to --config, simulates the same log; a flag
   // given next to it wins.
   const fs::path a = Dir() / "sim_a", b = Dir() / "sim_b", c = Dir() / "sim_c";
-  const CommandResult ra = RunOmnicml("simulate --world institute --days 2 --frames-per-day 8 "
-                                      "--seed 7 --panorama --step-m 0.3 --start continue --out " +
-                                      a.string());
+  const CommandResult ra = RunOmnicml(
+      "simulate --world institute --days 2 --frames-per-day 8 "
+      "--seed 7 --panorama --step-m 0.3 --start continue --out " +
+      a.string());
   ASSERT_EQ(ra.exit_code, 0) << ra.output;
   ASSERT_TRUE(fs::is_regular_file(a / "simulation.yaml"));
   ASSERT_TRUE(fs::is_regular_file(a / "world.yaml"));
@@ -348,9 +362,9 @@ TEST_F(CliLimits, SimulateConfigLoadsBackToTheSameLog) {
   // An unknown key names file and line.
   const fs::path bad = Dir() / "bad_sim.yaml";
   Spit(bad, "days: 1\nframes_per_dya: 3\n");
-  ExpectBadInput(RunOmnicml("simulate --config " + bad.string() + " --out " +
-                            (Dir() / "never").string()),
-                 {"bad_sim.yaml:2", "frames_per_dya"});
+  ExpectBadInput(
+      RunOmnicml("simulate --config " + bad.string() + " --out " + (Dir() / "never").string()),
+      {"bad_sim.yaml:2", "frames_per_dya"});
   EXPECT_FALSE(fs::exists(Dir() / "never"));
   for (const auto& p : {a, b, c, bad}) fs::remove_all(p);
 }
@@ -362,7 +376,8 @@ TEST_F(CliLimits, MclConfigLoadsBackToTheSameRun) {
   const fs::path a = Dir() / "mcl_a", b = Dir() / "mcl_b";
   const CommandResult ra = RunOmnicml(inputs +
                                       "--particles 400 --random-samples 7 --top-k 5 "
-                                      "--heading-gate-deg 20 --mcl-seed 9 --out " + a.string());
+                                      "--heading-gate-deg 20 --mcl-seed 9 --out " +
+                                      a.string());
   ASSERT_EQ(ra.exit_code, 0) << ra.output;
   const CommandResult rb =
       RunOmnicml(inputs + "--config " + (a / "config.yaml").string() + " --out " + b.string());
@@ -385,8 +400,8 @@ TEST_F(CliLimits, TopoConfigLoadsBackToTheSameRun) {
                                       "--band-threshold 0.1 --global-search-after 5 --out " +
                                       a.string());
   ASSERT_EQ(ra.exit_code, 0) << ra.output;
-  const CommandResult rb = RunOmnicml(inputs + "--config " + (a / "topo_config.yaml").string() +
-                                      " --out " + b.string());
+  const CommandResult rb =
+      RunOmnicml(inputs + "--config " + (a / "topo_config.yaml").string() + " --out " + b.string());
   ASSERT_EQ(rb.exit_code, 0) << rb.output;
   EXPECT_EQ(Slurp(a / "topo_config.yaml"), Slurp(b / "topo_config.yaml"));
   EXPECT_EQ(Slurp(a / "frames.csv"), Slurp(b / "frames.csv"));

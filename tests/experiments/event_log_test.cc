@@ -13,8 +13,8 @@
 
 #include "omnicml/common/common.h"
 #include "omnicml/engine/engine_io.h"
-#include "omnicml/run/engine_driver.h"
 #include "omnicml/report/map_export.h"
+#include "omnicml/run/engine_driver.h"
 #include "omnicml/sim/simulator.h"
 
 namespace omnicml {

@@ -95,8 +95,10 @@ TEST(LapBound, PoseGraphReachesTheClosedForm) {
   ASSERT_EQ(r.samples.size(), 150u);
   const double odo_rms = r.odometry_rms_error_m;
   const double graph_rms = r.graph_rms_error_m;
-  EXPECT_NEAR(odo_rms / r.odometry_rms_std_m, 1.0, 0.15) << odo_rms << " vs " << r.odometry_rms_std_m;
-  EXPECT_NEAR(graph_rms / r.closed_rms_std_m, 1.0, 0.15) << graph_rms << " vs " << r.closed_rms_std_m;
+  EXPECT_NEAR(odo_rms / r.odometry_rms_std_m, 1.0, 0.15)
+      << odo_rms << " vs " << r.odometry_rms_std_m;
+  EXPECT_NEAR(graph_rms / r.closed_rms_std_m, 1.0, 0.15)
+      << graph_rms << " vs " << r.closed_rms_std_m;
   EXPECT_LT(graph_rms, 0.5 * odo_rms);
 }
 

@@ -44,9 +44,9 @@ class MclExperimentTest : public ::testing::Test {
   // An empty directory under the system's temporary directory, unique per test program
   // run (gtest's random seed).
   static fs::path FreshDir(const std::string& name) {
-    const fs::path dir = fs::temp_directory_path() /
-                         StrCat("omnicml_mcl_", name, "_",
-                                ::testing::UnitTest::GetInstance()->random_seed());
+    const fs::path dir =
+        fs::temp_directory_path() /
+        StrCat("omnicml_mcl_", name, "_", ::testing::UnitTest::GetInstance()->random_seed());
     fs::remove_all(dir);
     fs::create_directories(dir);
     return dir;
@@ -91,8 +91,8 @@ TEST_F(MclExperimentTest, MapThatIsNotTheInputsIsRejectedNamingMapAndFrame) {
   EXPECT_EQ(p.refs_not_free, 0);
   EXPECT_EQ(p.test_not_free, 0);
   // A grid whose cells are all unknown: every true position counted, and a warning line.
-  SaveOccupancyGrid(
-      OccupancyGrid(300, 150, 0.1, Eigen::Vector2d(-2.0, -2.0), CellState::kUnknown), yaml);
+  SaveOccupancyGrid(OccupancyGrid(300, 150, 0.1, Eigen::Vector2d(-2.0, -2.0), CellState::kUnknown),
+                    yaml);
   const MclPrepared q = PrepareMclExperiment(o);
   EXPECT_EQ(q.refs_not_free, static_cast<int>(q.refs.size()));
   EXPECT_EQ(q.test_not_free, static_cast<int>(q.test.size()));
@@ -199,8 +199,8 @@ TEST_F(MclExperimentTest, SingleRunWritesEveryFileOfTheRunDirectory) {
     return names;
   };
   const std::vector<std::string> expected = {
-      "config.yaml", "days.csv",    "frames.csv",  "groundtruth.tum", "map.pgm",       "map.yaml",
-      "odometry.tum", "report.html", "summary.txt", "trajectory.tum"};
+      "config.yaml", "days.csv",     "frames.csv",  "groundtruth.tum", "map.pgm",
+      "map.yaml",    "odometry.tum", "report.html", "summary.txt",     "trajectory.tum"};
   EXPECT_EQ(names_in(dir), expected);
   EXPECT_EQ(names_in(parent), std::vector<std::string>{"run"});
   EXPECT_EQ(ReadTextFile(dir / "summary.txt"), r.summary_text);

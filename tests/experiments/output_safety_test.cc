@@ -20,15 +20,15 @@
 #include <gtest/gtest.h>
 #include <opencv2/imgcodecs.hpp>
 
-#include "testing/cli_helpers.h"
 #include "omnicml/common/binary_io.h"
 #include "omnicml/common/common.h"
 #include "omnicml/common/file_io.h"
 #include "omnicml/common/limits.h"
 #include "omnicml/engine/cml_engine.h"
-#include "omnicml/run/run_recorder.h"
 #include "omnicml/experiments/sweep.h"
+#include "omnicml/run/run_recorder.h"
 #include "omnicml/unwrap/omni_unwrapper.h"
+#include "testing/cli_helpers.h"
 
 namespace omnicml {
 namespace {

@@ -74,8 +74,7 @@ class RunMetricsTest : public ::testing::Test {
   // imported days would); day 2 starts globally, so its first frames have no estimate
   // until p(x|y) seeds the tracker. One NaN row is inserted in day 2.
   static void SetUpTestSuite() {
-    dir_ = new fs::path(fs::temp_directory_path() /
-                        StrCat("omnicml_run_metrics_", ::getpid()));
+    dir_ = new fs::path(fs::temp_directory_path() / StrCat("omnicml_run_metrics_", ::getpid()));
     fs::remove_all(*dir_);
     fs::create_directories(*dir_);
     SimulatorOptions sim;
@@ -174,8 +173,7 @@ TEST_F(RunMetricsTest, DaysCsvCountsUnlocalizedAndSkippedFramesNextToTheError) {
     EXPECT_EQ(std::stoi(row.at("frames_localized")), localized);
     EXPECT_EQ(std::stoi(row.at("frames_localized")) + std::stoi(row.at("frames_unlocalized")),
               std::stoi(row.at("frames")));
-    EXPECT_DOUBLE_EQ(std::stod(row.at("coverage")),
-                     static_cast<double>(localized) / kFramesPerDay);
+    EXPECT_DOUBLE_EQ(std::stod(row.at("coverage")), static_cast<double>(localized) / kFramesPerDay);
     EXPECT_EQ(std::stoi(row.at("frames_skipped")), d == 1 ? 1 : 0);
     ASSERT_GT(with_error, 0);
     EXPECT_NEAR(std::stod(row.at("position_error_mean_m")), sum / with_error, 1e-12);

@@ -48,7 +48,8 @@ std::vector<std::uint8_t> ModelBytes(const CmlEngine& engine) {
 }
 
 // Runs `engine` over the simulated days with the survey processor; returns the frames.
-std::vector<Frame> RunSurvey(CmlEngine& engine, const SimulatorOptions& so, const SurveyOptions& survey) {
+std::vector<Frame> RunSurvey(CmlEngine& engine, const SimulatorOptions& so,
+                             const SurveyOptions& survey) {
   SimulatedFrameSource source(so);
   ProgressOptions quiet;
   quiet.quiet = true;
@@ -57,7 +58,8 @@ std::vector<Frame> RunSurvey(CmlEngine& engine, const SimulatorOptions& so, cons
   SimulatedFrameSource copy(so);
   Frame f;
   while (copy.Next(&f)) frames.push_back(f);
-  RunEngineOverSource(engine, source, nullptr, quiet, {}, MakeSurveyFrameProcessor(survey, nullptr));
+  RunEngineOverSource(engine, source, nullptr, quiet, {},
+                      MakeSurveyFrameProcessor(survey, nullptr));
   engine.Finish();
   return frames;
 }
@@ -85,9 +87,11 @@ TEST(Survey, ViewsAreBuiltAtTheTrustedPoses) {
     for (const ViewComponent& c : v.components) {
       bool found = false;
       for (const Frame& fr : frames) {
-        found = found || (fr.map_T_robot_truth->x() == c.mean.x() && fr.map_T_robot_truth->y() == c.mean.y());
+        found = found || (fr.map_T_robot_truth->x() == c.mean.x() &&
+                          fr.map_T_robot_truth->y() == c.mean.y());
       }
-      EXPECT_TRUE(found) << "component " << c.id << " of view " << v.id << " at " << c.mean.transpose();
+      EXPECT_TRUE(found) << "component " << c.id << " of view " << v.id << " at "
+                         << c.mean.transpose();
     }
   }
 }
@@ -97,7 +101,8 @@ TEST(Survey, EstimateIsTheTrustedPoseThenCmlTakesOver) {
   CmlEngine engine(CmlEngineOptions{});
   SimulatedFrameSource source(Sim(2, 60));
   Frame f;
-  const FrameProcessor process = MakeSurveyFrameProcessor(SurveyOptions{1, "", 0.05, 0.02}, nullptr);
+  const FrameProcessor process =
+      MakeSurveyFrameProcessor(SurveyOptions{1, "", 0.05, 0.02}, nullptr);
   int session = -1, cml_frames = 0;
   while (source.Next(&f)) {
     if (f.session_index != session) {
@@ -113,7 +118,8 @@ TEST(Survey, EstimateIsTheTrustedPoseThenCmlTakesOver) {
     } else {
       ++cml_frames;
       // Day 2 localizes on the survey map (within a metre of the truth).
-      EXPECT_LT((r.estimate->strongest.mean.head<2>() - f.map_T_robot_truth->head<2>()).norm(), 1.0);
+      EXPECT_LT((r.estimate->strongest.mean.head<2>() - f.map_T_robot_truth->head<2>()).norm(),
+                1.0);
     }
   }
   EXPECT_EQ(cml_frames, 60);
@@ -175,7 +181,8 @@ TEST(Survey, TumErrorsNameFileAndLine) {
   EXPECT_NE(message(nan).find(nan + ":2:"), std::string::npos) << message(nan);
   const std::string zero_q = write("q.tum", "0 0 0 0 0 0 0 0\n");
   EXPECT_NE(message(zero_q).find(zero_q + ":1: zero quaternion"), std::string::npos);
-  const std::string dup = write("dup.tum", "0 0 0 0 0 0 0 1\n5 0 0 0 0 0 0 1\n# x\n5 1 0 0 0 0 0 1\n");
+  const std::string dup =
+      write("dup.tum", "0 0 0 0 0 0 0 1\n5 0 0 0 0 0 0 1\n# x\n5 1 0 0 0 0 0 1\n");
   EXPECT_NE(message(dup).find(dup + ":4: stamp 5 repeats the stamp of line 2"), std::string::npos)
       << message(dup);
   const std::string empty = write("empty.tum", "# nothing\n");
@@ -188,7 +195,8 @@ TEST(Survey, TumErrorsNameFileAndLine) {
     RunSurvey(engine, Sim(1, 5), SurveyOptions{1, partial, 0.05, 0.02});
     ADD_FAILURE() << "no error for frames without a pose";
   } catch (const Error& e) {
-    EXPECT_NE(std::string(e.what()).find(partial + ": no pose with stamp"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find(partial + ": no pose with stamp"), std::string::npos)
+        << e.what();
   }
   // --survey-poses without --survey-days, negative days.
   EXPECT_THROW((SurveyOptions{0, partial, 0.05, 0.02}.Validate()), Error);
@@ -228,7 +236,8 @@ TEST(Survey, RunEvaluatesTheDaysAfterTheSurvey) {
   EXPECT_EQ(r.evaluation.days[0].session, 1);
   EXPECT_EQ(r.evaluation.overall.frames, 60);
   const std::string text = FormatRunExperimentResult(o, r);
-  EXPECT_NE(text.find("survey day 1 (60 frames) excluded from the errors"), std::string::npos) << text;
+  EXPECT_NE(text.find("survey day 1 (60 frames) excluded from the errors"), std::string::npos)
+      << text;
   fs::remove_all(dir);
 }
 

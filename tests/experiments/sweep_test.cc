@@ -103,7 +103,8 @@ TEST(SweepEndToEnd, TwoByTwoLocally) {
   int code = 0;
   RunShell("command -v snakemake", &code);
   if (code != 0) GTEST_SKIP() << "snakemake is not installed (Debian package snakemake)";
-  const fs::path dir = fs::temp_directory_path() / ("omnicml_sweep_test_" + std::to_string(::getpid()));
+  const fs::path dir =
+      fs::temp_directory_path() / ("omnicml_sweep_test_" + std::to_string(::getpid()));
   fs::remove_all(dir);
   fs::create_directories(dir);
   const fs::path spec = dir / "spec_2x2.yaml";

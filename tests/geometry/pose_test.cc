@@ -36,7 +36,8 @@ TEST(Pose, IncrementRoundTrip) {
     const OdometryIncrement inc = ComputeIncrement(a, b);
     EXPECT_LE(std::abs(inc.rot1_rad), kPi / 2 + 1e-12);
     EXPECT_LT(PoseDifference(ApplyIncrement(a, inc), b).norm(), 1e-9);
-    // The increment is frame-independent: applied to another start it yields the same relative motion.
+    // The increment is frame-independent: applied to another start it yields the same relative
+    // motion.
     const Pose2 c = MakePose(u(rng), u(rng), u(rng));
     EXPECT_LT(PoseDifference(Between(c, ApplyIncrement(c, inc)), ab).norm(), 1e-9);
   }

@@ -340,7 +340,8 @@ TEST(EnvironmentModelAnn, UpdateNearTheRobotIsExact) {
     for (const ReferenceView& v : b.views()) {
       for (const ViewComponent& c : v.components) {
         // Strictly inside d_for (QueryRadius's boundary), with a margin for rounding.
-        if ((c.mean.head<2>() - at.mean.head<2>()).norm() > scan.forgetting.d_for_m - 1e-6) continue;
+        if ((c.mean.head<2>() - at.mean.head<2>()).norm() > scan.forgetting.d_for_m - 1e-6)
+          continue;
         const auto other = a.FindView(v.id);
         ASSERT_TRUE(other.has_value()) << "view " << v.id << " removed only with the graph";
         for (const ViewComponent& d : a.views()[*other].components) {
@@ -380,7 +381,8 @@ TEST(EnvironmentModelAnn, Options) {
        std::vector<std::pair<std::string, void (*)(EnvironmentModelOptions&)>>{
            {"ann_min_views", [](EnvironmentModelOptions& x) { x.index.ann_min_views = -1; }},
            {"ann_m", [](EnvironmentModelOptions& x) { x.index.ann_m = 1; }},
-           {"ann_ef_construction", [](EnvironmentModelOptions& x) { x.index.ann_ef_construction = 0; }},
+           {"ann_ef_construction",
+            [](EnvironmentModelOptions& x) { x.index.ann_ef_construction = 0; }},
            {"ann_ef", [](EnvironmentModelOptions& x) { x.index.ann_ef = 0; }},
            {"ann_k", [](EnvironmentModelOptions& x) { x.index.ann_k = 0; }}}) {
     EnvironmentModelOptions bad = o;

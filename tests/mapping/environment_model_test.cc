@@ -100,7 +100,8 @@ TEST(EnvironmentModelOptions, SectionsRoundTripThroughYaml) {
 // is the former mode key); a section wins over a flat key given as well.
 TEST(EnvironmentModelOptions, FlatKeysStillLoad) {
   const EnvironmentModelOptions o = ParseOptionsYaml<EnvironmentModelOptions>(
-      "e_max: 0.3\nforgetting: passive\nmax_events: 7\nann_k: 5\nlook_back_frames: 3\n", "flat.yaml");
+      "e_max: 0.3\nforgetting: passive\nmax_events: 7\nann_k: 5\nlook_back_frames: 3\n",
+      "flat.yaml");
   EXPECT_EQ(o.retrieval.e_max, 0.3);
   EXPECT_EQ(o.forgetting.mode, ForgettingMode::kPassive);
   EXPECT_EQ(o.events.max_events, 7);
@@ -308,7 +309,8 @@ TEST(EnvironmentModel, WeightIncreaseEq16) {
   const double w0 = m.views()[0].components[0].weight;
   EXPECT_NEAR(w0, o.update.beta, kTol);
   const Descriptor y = fx->Make({0.3f, 0});
-  const double bs = o.update.beta * (1.0 - fx->Distance(y, m.views()[0].descriptor) / o.retrieval.e_max);
+  const double bs =
+      o.update.beta * (1.0 - fx->Distance(y, m.views()[0].descriptor) / o.retrieval.e_max);
   const UpdateStats st = m.Update(y, Est(0.1, 0, 0), {1, 0});
   ASSERT_EQ(m.views()[0].components.size(), 2u);
   EXPECT_NEAR(m.views()[0].components[0].weight, bs + (1 - bs) * w0, kTol);
@@ -327,7 +329,8 @@ TEST(EnvironmentModel, PassiveForgettingEq17) {
   m.Update(fx->Make({0, 0}), Est(0, 0, 0), {0, 0});
   const double w0 = m.views()[0].components[0].weight;
   const Descriptor y = fx->Make({0.3f, 0});
-  const double bs = o.update.beta * (1.0 - fx->Distance(y, m.views()[0].descriptor) / o.retrieval.e_max);
+  const double bs =
+      o.update.beta * (1.0 - fx->Distance(y, m.views()[0].descriptor) / o.retrieval.e_max);
   // d = |(0.5, 0)| / sqrt(0.02) = 3.54 > d_max = 3.
   const Pose2 a = m.views()[0].components[0].mean;
   const double d =
@@ -478,7 +481,7 @@ TEST(EnvironmentModel, PreciseComponentIsNotDraggedByUncertainMatches) {
     m.CheckInvariants();
   }
   EXPECT_GT(moved[0], 0.15);  // eta shares: about the estimates' mean
-  EXPECT_LT(moved[1], 0.1);  // precision weights: the precise component holds
+  EXPECT_LT(moved[1], 0.1);   // precision weights: the precise component holds
   EXPECT_LT(moved[1], 0.4 * moved[0]) << moved[0] << " " << moved[1];
 }
 
@@ -827,7 +830,8 @@ TEST(EnvironmentModel, ForgettingSlowsWithMatchedPasses) {
     EnvironmentModelOptions o = TestOptions();
     o.forgetting.d_for_m = 1.0;
     o.forgetting.forget_by_matched_passes = by_passes;
-    o.forgetting.forget_unconfirmed_views = false;  // the same free first missed pass for every view
+    o.forgetting.forget_unconfirmed_views =
+        false;  // the same free first missed pass for every view
     EnvironmentModel m(o, fx);
     std::int64_t frame = SeeOriginOnPasses(m, *fx, matched_passes, 3, 0.5);
     const std::uint64_t id = m.views()[0].id;
@@ -1161,9 +1165,9 @@ TEST(EnvironmentModel, LookBackGivesANewViewThePosesThatWouldHaveMatchedIt) {
   o.retrieval.e_max = 1.0;
   o.update.look_back_frames = 10;
   EnvironmentModel m(o, fx);
-  m.Update(fx->Make({0, 0}), Est(0, 0, 0), {0, 0});        // view A
-  m.Update(fx->Make({0.9f, 0}), Est(1, 0, 0), {1, 0});     // matches A; would match B
-  m.Update(fx->Make({0.2f, 0}), Est(2, 0, 0), {2, 0});     // matches A, not B: look-back stops
+  m.Update(fx->Make({0, 0}), Est(0, 0, 0), {0, 0});     // view A
+  m.Update(fx->Make({0.9f, 0}), Est(1, 0, 0), {1, 0});  // matches A; would match B
+  m.Update(fx->Make({0.2f, 0}), Est(2, 0, 0), {2, 0});  // matches A, not B: look-back stops
   m.Update(fx->Make({0.95f, 0}), Est(3, 0, 0, 0.2, 0.3), {3, 0});  // matches A and B
   ASSERT_EQ(m.NumViews(), 1u);
   // A model saved here and loaded again looks back the same way (a resumed run's queued
@@ -1185,7 +1189,7 @@ TEST(EnvironmentModel, LookBackGivesANewViewThePosesThatWouldHaveMatchedIt) {
   EXPECT_NEAR(back.eta, s3, kTol);
   EXPECT_NEAR(back.covariance(0, 0), 0.04, kTol);
   EXPECT_NEAR(back.covariance(1, 1), 0.09, kTol);
-  EXPECT_EQ(st.components_added, 2);  // the view's own and one looked back
+  EXPECT_EQ(st.components_added, 2);                // the view's own and one looked back
   EXPECT_NEAR(b.footprint.weight, 1.0 + s3, kTol);  // its own match (S = 1) and frame 3
   // The spatial index knows the new component: rule (18)'s candidates near frame 3 include B.
   const std::vector<ViewMatch> near = m.FindMatchesNear(fx->Make({1.5f, 0}), {{3.0, 0.0, 0.1}});
@@ -1196,7 +1200,8 @@ TEST(EnvironmentModel, LookBackGivesANewViewThePosesThatWouldHaveMatchedIt) {
 // No look-back across sessions, beyond look_back_frames, or with look_back_frames 0.
 TEST(EnvironmentModel, LookBackStaysInItsSessionAndWindow) {
   auto fx = MakeFakeExtractor(2);
-  const auto components_of_new_view = [&](int look_back, UpdateContext second, UpdateContext third) {
+  const auto components_of_new_view = [&](int look_back, UpdateContext second,
+                                          UpdateContext third) {
     EnvironmentModelOptions o = TestOptions();
     o.retrieval.e_max = 1.0;
     o.update.look_back_frames = look_back;
@@ -1241,7 +1246,8 @@ TEST(EnvironmentModel, MoveViewRigidlyFollowsTheAnchor) {
   EXPECT_EQ(m.views()[1], before1);
   EXPECT_EQ(c.weight, before0.components.front().weight);
   m.MoveViewRigidly(0, MakePose(5, 5, kPi / 2), MakePose(1, 1, 0));
-  EXPECT_TRUE(m.views()[0].components.front().mean.isApprox(before0.components.front().mean, 1e-12));
+  EXPECT_TRUE(
+      m.views()[0].components.front().mean.isApprox(before0.components.front().mean, 1e-12));
   EXPECT_TRUE(m.views()[0].footprint.mean.isApprox(before0.footprint.mean, 1e-12));
   // The moved model serialises and reads back to the same views.
   BinaryWriter w;

@@ -142,7 +142,8 @@ TEST(ViewStore, CheckInvariantsDetectsEmptyViewsAndBadWeights) {
 // Restore rebuilds rows, id map, grid and counts equal to the incrementally built ones.
 TEST(ViewStore, RestoreRebuildsDerivedState) {
   ViewStore s(kFeatures, 1.0);
-  for (int i = 0; i < 6; ++i) s.Insert(View(static_cast<float>(i), {Component(i, 0), Component(i, 1)}));
+  for (int i = 0; i < 6; ++i)
+    s.Insert(View(static_cast<float>(i), {Component(i, 0), Component(i, 1)}));
   s.RemoveAt(2);
   ViewStore r(kFeatures, 1.0);
   r.Restore(s.views(), s.next_view_id(), s.next_component_id());

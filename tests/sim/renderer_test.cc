@@ -168,8 +168,9 @@ TEST(RawCamera, GroundTruthUnwrapsToThePanorama) {
       const OmniCalibration& r = setup.calibration.ring;
       const cv::Mat raw = camera.Render(renderer.RenderPanorama(MakePose(4.6, 3.0, 1.2)),
                                         MakePose(4.6, 3.0, 1.2), {});
-      const cv::Vec3b body = raw.at<cv::Vec3b>(static_cast<int>(std::lround(r.center_y_px)),
-                                               static_cast<int>(std::lround(r.center_x_px + 0.6 * r.inner_radius_px)));
+      const cv::Vec3b body =
+          raw.at<cv::Vec3b>(static_cast<int>(std::lround(r.center_y_px)),
+                            static_cast<int>(std::lround(r.center_x_px + 0.6 * r.inner_radius_px)));
       EXPECT_GT(body[0], 180) << "the hole shows the robot's bright body";
     }
   }

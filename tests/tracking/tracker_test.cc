@@ -274,7 +274,8 @@ TEST(Fusion, WeightsOfFigure2) {
   const Gaussian a1{MakePose(0, 0, 0), c, 0.6}, a2{MakePose(10, 0, 0), c, 0.4};
   const Gaussian b1{MakePose(0.3, 0, 0), c, 0.5}, b2{MakePose(-0.3, 0, 0), c, 0.3},
       b3{MakePose(20, 0, 0), c, 0.2};
-  TrackerOptions options;  // [G]'s 99 % gate 11.34: a1-b1 and a1-b2 at 0.3^2 / 0.02 = 4.5 are gated in
+  TrackerOptions
+      options;  // [G]'s 99 % gate 11.34: a1-b1 and a1-b2 at 0.3^2 / 0.02 = 4.5 are gated in
   options.gamma = 11.34;
   const Mixture out = FuseOnce({a1, a2}, {b1, b2, b3}, options);
   ASSERT_EQ(out.size(), 4u);
@@ -613,7 +614,8 @@ TEST(MotionNoiseIdentification, DriftBasesEqualPropagation) {
   int per_lap = 0;
   const std::vector<Pose2> odometry =
       NoisyLaps(MotionNoise{0.01, 0.002, 0.005, 0.001}, 3, rng, &per_lap);
-  const std::vector<LoopPair> pairs{{0, 50}, {7, 7}, {20, 100}, {3, static_cast<int>(odometry.size()) - 1}};
+  const std::vector<LoopPair> pairs{
+      {0, 50}, {7, 7}, {20, 100}, {3, static_cast<int>(odometry.size()) - 1}};
   const auto bases = LoopDriftBases(odometry, pairs);
   for (std::size_t k = 0; k < pairs.size(); ++k) {
     for (int j = 0; j < 4; ++j) {
@@ -684,9 +686,11 @@ TEST(MotionNoiseIdentification, RecoversTheDriftOfTheTrueNoise) {
 TEST(MotionNoiseIdentification, RejectsAliasedPairs) {
   std::mt19937_64 rng(5);
   int per_lap = 0;
-  const std::vector<Pose2> odometry = NoisyLaps(MotionNoise{0.01, 0.002, 0.005, 0.001}, 60, rng, &per_lap);
+  const std::vector<Pose2> odometry =
+      NoisyLaps(MotionNoise{0.01, 0.002, 0.005, 0.001}, 60, rng, &per_lap);
   std::vector<LoopPair> pairs;
-  for (int t = per_lap; t < static_cast<int>(odometry.size()); t += 4) pairs.push_back({t - per_lap, t});
+  for (int t = per_lap; t < static_cast<int>(odometry.size()); t += 4)
+    pairs.push_back({t - per_lap, t});
   const MotionNoiseIdentification clean = IdentifyMotionNoise(odometry, pairs);
   const std::size_t good = pairs.size();
   // 5 % aliases: a frame against the opposite side of the square of the previous lap.
@@ -711,7 +715,6 @@ TEST(MotionNoiseIdentification, RefusesTooLittleDataAndBadInput) {
   bad.outlier_confidence = 1.0;
   EXPECT_THROW(IdentifyMotionNoise(odometry, {}, bad), Error);
 }
-
 
 }  // namespace
 }  // namespace omnicml

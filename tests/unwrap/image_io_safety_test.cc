@@ -29,7 +29,8 @@ fs::path FreshDir(const std::string& name) {
 
 void WriteBytes(const fs::path& path, const std::vector<std::uint8_t>& bytes) {
   std::ofstream(path, std::ios::binary)
-      .write(reinterpret_cast<const char*>(bytes.data()), static_cast<std::streamsize>(bytes.size()));
+      .write(reinterpret_cast<const char*>(bytes.data()),
+             static_cast<std::streamsize>(bytes.size()));
 }
 
 // ReadImage's error for `path`, with what was printed on stderr meanwhile.
@@ -124,7 +125,8 @@ TEST(ImageIoSafety, UnknownSignatureIsRefusedBeforeDecoding) {
 TEST(ImageIoSafety, BrokenPngIsOneQuietLine) {
   const fs::path dir = FreshDir("broken");
   const std::vector<std::uint8_t> png = Png(64, 32);
-  WriteBytes(dir / "truncated.png", std::vector<std::uint8_t>(png.begin(), png.begin() + png.size() / 2));
+  WriteBytes(dir / "truncated.png",
+             std::vector<std::uint8_t>(png.begin(), png.begin() + png.size() / 2));
   std::vector<std::uint8_t> flipped = png;
   flipped[png.size() / 2] ^= 0x5A;
   WriteBytes(dir / "flipped.png", flipped);

@@ -48,16 +48,17 @@ double WrapAngle(double angle_rad);
 
 // Checks an invariant; on failure throws omnicml::InternalError naming file and line.
 // Usage: OMNICML_CHECK(n > 0) << "n=" << n;   (the streamed text is optional)
-#define OMNICML_CHECK(condition)                                                   \
-  if (condition) {                                                                 \
-  } else                                                                           \
+#define OMNICML_CHECK(condition) \
+  if (condition) {               \
+  } else                         \
     ::omnicml::internal::CheckFailer(__FILE__, __LINE__, #condition).stream()
 
 namespace omnicml::internal {
 // Collects the streamed message and throws when destroyed (end of the full expression).
 class CheckFailer {
  public:
-  CheckFailer(const char* file, int line, const char* expr) : file_(file), line_(line), expr_(expr) {}
+  CheckFailer(const char* file, int line, const char* expr)
+      : file_(file), line_(line), expr_(expr) {}
   CheckFailer(const CheckFailer&) = delete;
   CheckFailer& operator=(const CheckFailer&) = delete;
   ~CheckFailer() noexcept(false) { FailCheck(file_, line_, expr_, os_.str()); }

@@ -70,11 +70,11 @@
 namespace omnicml {
 
 // Limits of the bounded readers.
-inline constexpr std::uintmax_t kMaxTextFileBytes = 16u << 20;  // YAML and config files
-inline constexpr std::size_t kMaxCsvLineBytes = 64u << 10;      // one line of a CSV file
-inline constexpr std::uintmax_t kMaxMapFileBytes = 4ull << 30;  // a saved engine/map
+inline constexpr std::uintmax_t kMaxTextFileBytes = 16u << 20;    // YAML and config files
+inline constexpr std::size_t kMaxCsvLineBytes = 64u << 10;        // one line of a CSV file
+inline constexpr std::uintmax_t kMaxMapFileBytes = 4ull << 30;    // a saved engine/map
 inline constexpr std::uintmax_t kMaxImageFileBytes = 512u << 20;  // one image file
-inline constexpr std::uint64_t kMaxImagePixels = 100'000'000;   // width * height of an image
+inline constexpr std::uint64_t kMaxImagePixels = 100'000'000;     // width * height of an image
 
 // ---------------------------------------------------------------------------------------
 // Writing
@@ -136,13 +136,11 @@ void WriteFileAtomic(const std::filesystem::path& path, std::span<const std::uin
                      FileSync sync = FileSync::kFsync);
 
 // The temporary name AtomicFile uses for `target` in process `pid`, n-th file.
-std::filesystem::path TempPathFor(const std::filesystem::path& target, pid_t pid,
-                                  std::uint64_t n);
+std::filesystem::path TempPathFor(const std::filesystem::path& target, pid_t pid, std::uint64_t n);
 // True for a file name (no directory) of the form ".<name>.omnicml-tmp-<pid>-<n>";
 // when `name` is non-empty, only for temporaries of a target with that file name.
 // Stores the pid in *pid when given.
-bool IsAtomicTempName(std::string_view file_name, std::string_view name = {},
-                      pid_t* pid = nullptr);
+bool IsAtomicTempName(std::string_view file_name, std::string_view name = {}, pid_t* pid = nullptr);
 // Removes temporaries of `target` (same directory, same name) whose writer is gone (their
 // lock is free). Returns how many were removed; never throws.
 int RemoveStaleTemporaries(const std::filesystem::path& target);
@@ -180,15 +178,14 @@ class OutputLock {
 
 // A directory output assembled under "<target>.partial-<pid>" and renamed onto `target`
 // by Commit(), optionally together with files outside it (companions: a run's map and
-// trajectory beside its run directory). Lifecycle: construct (takes the target's OutputLock, removes stale
-// staging directories, creates the staging directory) -> write files into path() (with
-// FileSync::kDeferred: Commit makes them durable at once) -> Commit() or destruction
-// (removes the staging directory). An existing target is replaced whole (exchanged
-// atomically where the file system can, then removed), so it must be empty or hold one
-// of `markers` (a file an earlier output of the same kind wrote, e.g. "frames.csv"):
-// an unrelated non-empty directory is refused rather than deleted.
-// Throws omnicml::Error "<flag> '<target>': ..." (not a directory, a symbolic link, an
-// unrelated directory, cannot create, rename failure).
+// trajectory beside its run directory). Lifecycle: construct (takes the target's OutputLock,
+// removes stale staging directories, creates the staging directory) -> write files into path()
+// (with FileSync::kDeferred: Commit makes them durable at once) -> Commit() or destruction (removes
+// the staging directory). An existing target is replaced whole (exchanged atomically where the file
+// system can, then removed), so it must be empty or hold one of `markers` (a file an earlier output
+// of the same kind wrote, e.g. "frames.csv"): an unrelated non-empty directory is refused rather
+// than deleted. Throws omnicml::Error "<flag> '<target>': ..." (not a directory, a symbolic link,
+// an unrelated directory, cannot create, rename failure).
 class StagedDirectory {
  public:
   StagedDirectory(std::filesystem::path target, std::string_view flag,

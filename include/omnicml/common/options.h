@@ -65,9 +65,9 @@ namespace omnicml {
 struct OptionValue {
   enum class Kind : std::uint8_t { kScalar = 0, kList = 1, kMap = 2 };
   Kind kind = Kind::kMap;
-  std::string scalar;  // kScalar: the text ("true", "12", "0.45", "home_store")
-  bool quoted = false;  // kScalar of a string field: dumped double-quoted
-  std::vector<OptionValue> items;                            // kList
+  std::string scalar;              // kScalar: the text ("true", "12", "0.45", "home_store")
+  bool quoted = false;             // kScalar of a string field: dumped double-quoted
+  std::vector<OptionValue> items;  // kList
   std::vector<std::pair<std::string, OptionValue>> members;  // kMap
   int line = 0;  // 1-based line in the source text; 0 when unknown (binary, built)
   // The format version a field was added in (TreeWriter under Since); 0 for fields of
@@ -120,7 +120,8 @@ template <class T>
 concept EigenFixed = requires {
   T::RowsAtCompileTime;
   T::ColsAtCompileTime;
-} && (T::RowsAtCompileTime > 0) && (T::ColsAtCompileTime > 0);
+}
+&&(T::RowsAtCompileTime > 0) && (T::ColsAtCompileTime > 0);
 
 template <class T>
 struct IsVector : std::false_type {};
@@ -184,8 +185,8 @@ void FromValue(const OptionValue& v, const OptionSource& src, const std::string&
   if constexpr (std::is_same_v<T, bool>) {
     field = ParseBool(v, src, path);
   } else if constexpr (std::is_integral_v<T> && std::is_signed_v<T>) {
-    field = static_cast<T>(ParseInt(v, src, path, std::numeric_limits<T>::lowest(),
-                                    std::numeric_limits<T>::max()));
+    field = static_cast<T>(
+        ParseInt(v, src, path, std::numeric_limits<T>::lowest(), std::numeric_limits<T>::max()));
   } else if constexpr (std::is_integral_v<T>) {
     field = static_cast<T>(ParseUInt(v, src, path, std::numeric_limits<T>::max()));
   } else if constexpr (std::is_floating_point_v<T>) {
@@ -233,7 +234,8 @@ class TreeWriter {
     Add(key, OptionValue::Scalar(ToString(field)));
   }
   template <class E>
-  void NamedEnum(const char* key, E& field, std::initializer_list<std::pair<E, const char*>> names) {
+  void NamedEnum(const char* key, E& field,
+                 std::initializer_list<std::pair<E, const char*>> names) {
     for (const auto& [e, name] : names) {
       if (e == field) {
         Add(key, OptionValue::Scalar(name));
@@ -302,7 +304,8 @@ class TreeReader {
     Fail(src_, n, path, "unknown value '" + name + "' (one of: " + names + ")");
   }
   template <class E>
-  void NamedEnum(const char* key, E& field, std::initializer_list<std::pair<E, const char*>> names) {
+  void NamedEnum(const char* key, E& field,
+                 std::initializer_list<std::pair<E, const char*>> names) {
     const OptionValue* n = Take(key);
     if (n == nullptr) return;
     const std::string path = JoinPath(prefix_, key);
@@ -398,7 +401,8 @@ class Randomizer {
     if (!others.empty()) field = others[rng_() % others.size()];
   }
   template <class E>
-  void NamedEnum(const char* key, E& field, std::initializer_list<std::pair<E, const char*>> names) {
+  void NamedEnum(const char* key, E& field,
+                 std::initializer_list<std::pair<E, const char*>> names) {
     std::vector<E> values;
     for (const auto& [e, unused] : names) values.push_back(e);
     std::vector<E> others;
@@ -429,7 +433,9 @@ class Randomizer {
   }
 
  private:
-  double Uniform(double lo, double hi) { return std::uniform_real_distribution<double>(lo, hi)(rng_); }
+  double Uniform(double lo, double hi) {
+    return std::uniform_real_distribution<double>(lo, hi)(rng_);
+  }
   template <class T>
   void Randomize(T& f, bool in_matrix) {
     if constexpr (std::is_same_v<T, bool>) {
@@ -466,7 +472,8 @@ class Randomizer {
 
 // Removes from *tree (recursively) the members added after `format_version` (since_version
 // > format_version) that equal the same member of `defaults`.
-void OmitNewerDefaults(OptionValue* tree, const OptionValue& defaults, std::uint32_t format_version);
+void OmitNewerDefaults(OptionValue* tree, const OptionValue& defaults,
+                       std::uint32_t format_version);
 
 }  // namespace options_internal
 

@@ -60,17 +60,17 @@ struct CalibrationOptions {
 struct CalibrationPoint {
   int lag_frames = 0;
   int pairs = 0;
-  double median_path_m = 0.0;  // odometry path length between the frames of a pair
+  double median_path_m = 0.0;    // odometry path length between the frames of a pair
   double median_distance = 0.0;  // descriptor distance E, extractor units
 };
 
 struct Calibration {
   int frames_used = 0;
-  double e_max = 0.0;            // the threshold the match length refers to
-  double median_step_m = 0.0;    // median odometry step between consecutive frames
-  double match_length_m = 0.0;   // L; the largest measured path if E never reaches e_max
-  bool saturated = false;        // E stayed below e_max up to max_lag_frames
-  double scale = 1.0;            // s = clamp(L / reference_match_length_m)
+  double e_max = 0.0;           // the threshold the match length refers to
+  double median_step_m = 0.0;   // median odometry step between consecutive frames
+  double match_length_m = 0.0;  // L; the largest measured path if E never reaches e_max
+  bool saturated = false;       // E stayed below e_max up to max_lag_frames
+  double scale = 1.0;           // s = clamp(L / reference_match_length_m)
   std::vector<CalibrationPoint> curve;
   // Derived values (defaults of CmlEngineOptions times s).
   double appearance_sigma_m = 0.0;

@@ -58,15 +58,15 @@
 
 #include "omnicml/descriptors/descriptor.h"
 #include "omnicml/descriptors/descriptor_factory.h"
-#include "omnicml/mapping/environment_model.h"
-#include "omnicml/sensor/frame.h"
-#include "omnicml/geometry/gaussian_mixture.h"
 #include "omnicml/engine/map_updater.h"
 #include "omnicml/engine/pose_graph.h"
-#include "omnicml/unwrap/omni_unwrapper.h"
-#include "omnicml/geometry/pose.h"
-#include "omnicml/tracking/tracker.h"
 #include "omnicml/engine/trajectory_reconstruction.h"
+#include "omnicml/geometry/gaussian_mixture.h"
+#include "omnicml/geometry/pose.h"
+#include "omnicml/mapping/environment_model.h"
+#include "omnicml/sensor/frame.h"
+#include "omnicml/tracking/tracker.h"
+#include "omnicml/unwrap/omni_unwrapper.h"
 
 namespace omnicml {
 
@@ -235,16 +235,16 @@ void VisitFields(V& v, CmlEngineOptions& o) {
 
 // Timing (microseconds, wall clock) and sizes of one ProcessFrame call.
 struct FrameStats {
-  double unwrap_us = 0.0;       // unwrapping / panorama preparation
-  double describe_us = 0.0;     // descriptor computation
-  double update_us = 0.0;       // time blocked at the map barrier (includes synchronous application)
-  double apply_us = 0.0;        // time the map updates took to apply (either thread)
-  double match_us = 0.0;        // FindMatches + Hypothesis
-  double fuse_us = 0.0;         // propagation, fusion, summary
+  double unwrap_us = 0.0;    // unwrapping / panorama preparation
+  double describe_us = 0.0;  // descriptor computation
+  double update_us = 0.0;    // time blocked at the map barrier (includes synchronous application)
+  double apply_us = 0.0;     // time the map updates took to apply (either thread)
+  double match_us = 0.0;     // FindMatches + Hypothesis
+  double fuse_us = 0.0;      // propagation, fusion, summary
   double reconstruct_us = 0.0;  // pose-graph reconstruction (0 when none)
   double pose_graph_us = 0.0;   // global pose graph: closure, optimisation, map moved (0 when none)
-  int pose_graph_moved_views = 0;  // views moved by the global pose graph in this call
-  double total_us = 0.0;        // the whole call
+  int pose_graph_moved_views = 0;       // views moved by the global pose graph in this call
+  double total_us = 0.0;                // the whole call
   std::size_t num_views = 0;            // views in the map when it was queried
   std::size_t num_map_components = 0;   // components in the map when it was queried
   int num_matches = 0;                  // views with E < e_max (after top_k)
@@ -290,12 +290,12 @@ struct EngineCounters {
   std::int64_t frames = 0;
   std::int64_t unimodal_frames = 0;
   std::int64_t multimodal_frames = 0;
-  std::int64_t unknown_frames = 0;         // no estimate (global start not yet seeded)
+  std::int64_t unknown_frames = 0;  // no estimate (global start not yet seeded)
   std::int64_t reconstructed_frames = 0;
   std::int64_t dropped_pending_frames = 0;
   std::int64_t updates_queued = 0;
-  std::int64_t global_seeds = 0;           // global sessions that found the robot
-  std::int64_t global_fallbacks = 0;       // global sessions on an empty map
+  std::int64_t global_seeds = 0;      // global sessions that found the robot
+  std::int64_t global_fallbacks = 0;  // global sessions on an empty map
   bool operator==(const EngineCounters&) const = default;
 };
 
@@ -313,9 +313,9 @@ struct PendingFrame {
 // The state of the engine between frames that SaveEngine writes (besides options and
 // the model); exposed for persistence and tests.
 struct EngineSessionState {
-  int session = -1;                 // index of the current session, -1 before the first
+  int session = -1;  // index of the current session, -1 before the first
   bool in_session = false;
-  CameraModel camera;               // current session's camera
+  CameraModel camera;  // current session's camera
   SessionStartMode start_mode = SessionStartMode::kKnownPose;
   bool has_prev_odom = false;
   Pose2 prev_odom = Pose2::Zero();  // odom_T_robot of the previous frame
@@ -413,7 +413,8 @@ class CmlEngine {
   // the map. Fills the unwrap/describe/update/apply timings and updates_applied of
   // `stats`. Never leaves the worker running when it throws.
   Descriptor DescribeBehindBarrier(const Frame& frame, std::int64_t t, FrameStats* stats);
-  void QueueUnimodal(std::int64_t frame, const Descriptor& y, const Estimate& estimate, FrameResult* result);
+  void QueueUnimodal(std::int64_t frame, const Descriptor& y, const Estimate& estimate,
+                     FrameResult* result);
   // The end of ProcessFrame and ProcessSurveyFrame for `frame` (index result->frame):
   // pending count, odometry carried to the next frame, frame counters, and
   // result->stats.total_us from t_start.

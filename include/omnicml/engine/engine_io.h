@@ -81,7 +81,8 @@ std::unique_ptr<CmlEngine> LoadEngine(const std::string& path);
 // The file bytes SaveEngine writes (header, payload, checksum); exposed for tests.
 std::vector<std::uint8_t> EncodeEngine(const CmlEngine& engine);
 // Parses bytes produced by EncodeEngine; `source` names them in errors.
-std::unique_ptr<CmlEngine> DecodeEngine(const std::vector<std::uint8_t>& bytes, const std::string& source);
+std::unique_ptr<CmlEngine> DecodeEngine(const std::vector<std::uint8_t>& bytes,
+                                        const std::string& source);
 
 // Option encoding, shared with anything else that stores an engine configuration. Written
 // for the current format; fields added in a later format than `format_version` (the

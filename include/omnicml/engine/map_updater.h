@@ -141,14 +141,14 @@ class MapUpdater {
   DelayedUpdateQueue queue_;  // touched only by the engine thread
 
   mutable std::mutex mutex_;
-  std::condition_variable work_cv_;  // engine -> worker: new batch or stop
-  std::condition_variable done_cv_;  // worker -> engine: batch finished
-  std::vector<MapUpdate> handed_;    // batch handed to the worker (guarded)
-  bool busy_ = false;                // worker holds a batch (guarded)
-  bool stop_ = false;                // guarded
-  std::exception_ptr worker_error_;  // guarded
-  std::int64_t applied_ = 0;         // guarded
-  int applied_since_barrier_ = 0;    // guarded
+  std::condition_variable work_cv_;      // engine -> worker: new batch or stop
+  std::condition_variable done_cv_;      // worker -> engine: batch finished
+  std::vector<MapUpdate> handed_;        // batch handed to the worker (guarded)
+  bool busy_ = false;                    // worker holds a batch (guarded)
+  bool stop_ = false;                    // guarded
+  std::exception_ptr worker_error_;      // guarded
+  std::int64_t applied_ = 0;             // guarded
+  int applied_since_barrier_ = 0;        // guarded
   double apply_us_since_barrier_ = 0.0;  // guarded
   std::thread worker_;
 };

@@ -46,8 +46,8 @@
 
 #include "omnicml/common/binary_io.h"
 #include "omnicml/geometry/gaussian_mixture.h"
-#include "omnicml/geometry/pose.h"
 #include "omnicml/geometry/motion_model.h"
+#include "omnicml/geometry/pose.h"
 
 namespace omnicml {
 
@@ -111,12 +111,12 @@ void VisitFields(V& v, PoseGraphOptions& o) {
 
 // One node: the pose of a map update.
 struct PoseGraphNode {
-  std::int64_t frame = 0;     // engine frame index (increasing over the nodes)
-  std::int64_t segment = -1;  // odometry segment; -1: no odometry known for the frame
-  Pose2 pose = Pose2::Zero();            // current estimate (map frame)
-  Pose2 odom = Pose2::Zero();            // dead-reckoned pose in the segment's frame
+  std::int64_t frame = 0;      // engine frame index (increasing over the nodes)
+  std::int64_t segment = -1;   // odometry segment; -1: no odometry known for the frame
+  Pose2 pose = Pose2::Zero();  // current estimate (map frame)
+  Pose2 odom = Pose2::Zero();  // dead-reckoned pose in the segment's frame
   Eigen::Matrix3d odom_cov = Eigen::Matrix3d::Zero();  // summed increment covariances
-  std::optional<Gaussian> prior;         // survey pose or known session start (weight unused)
+  std::optional<Gaussian> prior;  // survey pose or known session start (weight unused)
   bool operator==(const PoseGraphNode& o) const {
     return frame == o.frame && segment == o.segment && pose == o.pose && odom == o.odom &&
            odom_cov == o.odom_cov && prior.has_value() == o.prior.has_value() &&
@@ -202,9 +202,9 @@ class PoseGraph {
   std::vector<PoseGraphClosure> closures_;
   std::deque<FrameOdometry> recent_;  // frames not yet nodes (since the last node)
   std::size_t max_recent_frames_;
-  std::int64_t segment_ = -1;         // current odometry segment
-  bool new_segment_ = true;           // the next frame starts a segment
-  Pose2 odom_ = Pose2::Zero();        // dead-reckoned pose of the last frame (segment frame)
+  std::int64_t segment_ = -1;   // current odometry segment
+  bool new_segment_ = true;     // the next frame starts a segment
+  Pose2 odom_ = Pose2::Zero();  // dead-reckoned pose of the last frame (segment frame)
   Eigen::Matrix3d odom_cov_ = Eigen::Matrix3d::Zero();  // summed increment covariances
   std::int64_t start_prior_frame_ = -1;
   std::optional<Gaussian> start_prior_;

@@ -12,8 +12,8 @@
 //   odometry i -> i+1:  r = W_i (Between(x_i, x_{i+1}) - z_i),  angle wrapped,
 //     z_i = the relative pose of increment u_{i+1} = (trans cos rot1, trans sin rot1,
 //     rot1 + rot2); its covariance in pose space is J_u M(u) J_u^T with M the motion noise
-//     of geometry/motion_model.h (MotionNoiseCovariance) and J_u = dz/du, plus a small floor so that
-//     a zero increment still gives an invertible factor; W_i = Sigma_i^{-1/2}.
+//     of geometry/motion_model.h (MotionNoiseCovariance) and J_u = dz/du, plus a small floor so
+//     that a zero increment still gives an invertible factor; W_i = Sigma_i^{-1/2}.
 //   anchor prior:       r = W_a (x_a - mu_a),  angle wrapped, W_a = C_a^{-1/2}.
 // Either anchor may be absent (a stretch at the start of a global session has no start
 // anchor); at least one is required.
@@ -29,8 +29,8 @@
 #include <Eigen/Core>
 
 #include "omnicml/geometry/gaussian_mixture.h"
-#include "omnicml/geometry/pose.h"
 #include "omnicml/geometry/motion_model.h"
+#include "omnicml/geometry/pose.h"
 
 namespace omnicml {
 
@@ -67,7 +67,8 @@ Pose2 IncrementToRelativePose(const OdometryIncrement& u);
 
 // Covariance of IncrementToRelativePose(u) in pose space: J_u M(u) J_u^T plus the floors
 // of `options` on the diagonal.
-Eigen::Matrix3d IncrementCovariance(const OdometryIncrement& u, const ReconstructionOptions& options);
+Eigen::Matrix3d IncrementCovariance(const OdometryIncrement& u,
+                                    const ReconstructionOptions& options);
 
 struct ReconstructionResult {
   // One Gaussian per node, node 0 = start anchor: nodes.size() == increments.size() + 1.

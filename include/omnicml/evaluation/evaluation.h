@@ -22,13 +22,13 @@
 // (The columns after the timings were added later; readers accept files without them.)
 // Errors are computed from the strongest component (what a robot would act on).
 //
-// Metrics and frames without an estimate (docs/outputs.md, "Definitions used everywhere"): a frame is
-// localized when the engine produced a pose for it (FrameResult::estimate; after a
-// global start there is none until the first confident p(x|y) seeds the tracker).
-// Coverage = localized frames / frames. Error statistics are over the localized frames
-// with ground truth only and are never reported without the coverage next to them.
-// Frames the log reader skipped as unreadable (--skip-unreadable-frames) are not frames
-// of the run; they are counted separately (frames_skipped).
+// Metrics and frames without an estimate (docs/outputs.md, "Definitions used everywhere"): a frame
+// is localized when the engine produced a pose for it (FrameResult::estimate; after a global start
+// there is none until the first confident p(x|y) seeds the tracker). Coverage = localized frames /
+// frames. Error statistics are over the localized frames with ground truth only and are never
+// reported without the coverage next to them. Frames the log reader skipped as unreadable
+// (--skip-unreadable-frames) are not frames of the run; they are counted separately
+// (frames_skipped).
 //
 // All functions are pure; thread-compatible.
 #ifndef OMNICML_EVALUATION_EVALUATION_H_
@@ -55,9 +55,9 @@ constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
 // One row of frames.csv.
 struct FrameRecord {
-  int session = 0;                // 0-based session (day) index
-  std::int64_t frame = 0;         // index within the session
-  std::int64_t global_frame = 0;  // index over the whole run
+  int session = 0;                      // 0-based session (day) index
+  std::int64_t frame = 0;               // index within the session
+  std::int64_t global_frame = 0;        // index over the whole run
   double stamp_s = 0.0;                 // as delivered by the source
   double run_stamp_s = kNaN;            // unique over the run (RunStampClock); NaN = stamp_s
   bool has_estimate = false;            // false while a global start has not localized yet
@@ -70,7 +70,7 @@ struct FrameRecord {
   double heading_error_rad = kNaN;  // |WrapAngle(est - truth)|
   double odometry_error_m = kNaN;
   bool has_odometry = false;
-  Pose2 odometry = Pose2::Zero();  // odom_T_robot as delivered (the session's odometry frame)
+  Pose2 odometry = Pose2::Zero();      // odom_T_robot as delivered (the session's odometry frame)
   int views = 0;                       // reference views in the map after this frame
   int map_components = 0;              // components over all views
   int hypotheses = 0;                  // components of p(x|y)
@@ -223,9 +223,9 @@ struct DayEvaluation {
   int session = 0;
   int frames = 0;  // frames delivered to the engine (= localized + unlocalized)
   int frames_with_truth = 0;
-  int frames_with_estimate = 0;  // localized frames
-  int frames_unlocalized = 0;    // frames - frames_with_estimate
-  double coverage = kNaN;        // frames_with_estimate / frames; NaN without frames
+  int frames_with_estimate = 0;     // localized frames
+  int frames_unlocalized = 0;       // frames - frames_with_estimate
+  double coverage = kNaN;           // frames_with_estimate / frames; NaN without frames
   std::int64_t frames_skipped = 0;  // input frames skipped as unreadable (not in `frames`)
   double unimodal_fraction = kNaN;
   ErrorStats position_m;

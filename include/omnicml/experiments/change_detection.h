@@ -57,7 +57,7 @@
 namespace omnicml {
 
 struct ChangeDetectionOptions {
-  double cell_m = 2.0;    // health grid cell, metres (as `omnicml inspect --cell`), > 0
+  double cell_m = 2.0;  // health grid cell, metres (as `omnicml inspect --cell`), > 0
   // Geometric truth: a cell within this distance of a changed item is changed, metres, >= 0.
   double radius_m = 2.0;
   // Visible truth: the share of the panorama's pixels a change must alter to count, in
@@ -129,13 +129,13 @@ using ChangedSharesFn = std::function<ChangedShares(const Eigen::Vector2d& p_m)>
 
 // One scored cell of a day: the map's evidence there and both truths.
 struct ScoredCell {
-  MapCell cell;                     // the health map's cell (health and evidence)
-  double distance_m = 0.0;          // from the cell centre to the nearest change (inf: none)
-  bool geometric_changed = false;   // distance_m <= radius_m
-  double surface_fraction = 0.0;    // largest surface share over the cell's sample points
-  double lit_fraction = 0.0;        // largest lit share over the cell's sample points
-  bool visible_changed = false;     // surface_fraction >= min_changed_fraction
-  bool detected = false;            // health changed or new
+  MapCell cell;                    // the health map's cell (health and evidence)
+  double distance_m = 0.0;         // from the cell centre to the nearest change (inf: none)
+  bool geometric_changed = false;  // distance_m <= radius_m
+  double surface_fraction = 0.0;   // largest surface share over the cell's sample points
+  double lit_fraction = 0.0;       // largest lit share over the cell's sample points
+  bool visible_changed = false;    // surface_fraction >= min_changed_fraction
+  bool detected = false;           // health changed or new
 };
 
 // Counts of one truth.
@@ -147,13 +147,13 @@ struct ChangeScore {
 };
 
 struct ChangeDetectionDay {
-  int day = 0;                // 1-based simulated day
-  int session = 0;            // engine session of that day
-  int changed_items = 0;      // items the day events changed
-  int cells_scored = 0;       // cells crossed that day with map content
-  int cells_detected = 0;     // health changed or new
-  ChangeScore visible;        // against the visible truth
-  ChangeScore geometric;      // against the geometric truth
+  int day = 0;                    // 1-based simulated day
+  int session = 0;                // engine session of that day
+  int changed_items = 0;          // items the day events changed
+  int cells_scored = 0;           // cells crossed that day with map content
+  int cells_detected = 0;         // health changed or new
+  ChangeScore visible;            // against the visible truth
+  ChangeScore geometric;          // against the geometric truth
   std::vector<ScoredCell> cells;  // the scored cells, in the health map's order
 };
 

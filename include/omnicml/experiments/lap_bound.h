@@ -31,8 +31,8 @@
 #include <string>
 #include <vector>
 
-#include "omnicml/geometry/pose.h"
 #include "omnicml/geometry/motion_model.h"
+#include "omnicml/geometry/pose.h"
 
 namespace omnicml {
 
@@ -69,8 +69,8 @@ struct LapBoundSample {
 };
 
 struct LapBoundResult {
-  int poses = 0;             // T + 1
-  double length_m = 0;       // path length of the lap
+  int poses = 0;        // T + 1
+  double length_m = 0;  // path length of the lap
   LapBoundProfile profile;
   // Summaries of the profile: root mean square over the poses and the largest (metres).
   double odometry_rms_std_m = 0;

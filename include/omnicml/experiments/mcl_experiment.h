@@ -51,17 +51,17 @@ struct MclExperimentOptions {
   double grid_resolution_m = 0.1;  // grid rasterised from the world
   int particles = 5000;
   int random_samples = MclOptions{}.random_samples_per_step;  // injected per step ([W])
-  double heading_gate_deg = 0.0;  // half width of d(psi); 0: heading independent (omni)
+  double heading_gate_deg = 0.0;   // half width of d(psi); 0: heading independent (omni)
   int top_k = MclOptions{}.top_k;  // retrieved references per query (0 = all)
-  double prior_fraction = 0.2;    // [W] eq. (8)
+  double prior_fraction = 0.2;     // [W] eq. (8)
   double min_likelihood = MclOptions{}.min_likelihood;
   // visibility areas cut-off (0 = off)
   double max_distance_from_reference_m = MclOptions{}.visibility.max_distance_from_reference_m;
-  bool global = false;                         // single run: uniform start
-  std::uint64_t mcl_seed = 1;                  // filter seed
-  std::string out_dir;                         // single run: run directory ("" = none)
-  std::string experiment;  // "" (single run) | tracking | global | kidnap | noise
-  int runs = 20;           // runs per experiment (per noise level), >= 1
+  bool global = false;         // single run: uniform start
+  std::uint64_t mcl_seed = 1;  // filter seed
+  std::string out_dir;         // single run: run directory ("" = none)
+  std::string experiment;      // "" (single run) | tracking | global | kidnap | noise
+  int runs = 20;               // runs per experiment (per noise level), >= 1
   std::string noise_levels = "0,1,4,16,64";
   double success_error_m = 2.0;
   double success_heading_deg = 35.0;

@@ -28,14 +28,13 @@
 
 #include "omnicml/engine/cml_engine.h"
 #include "omnicml/evaluation/evaluation.h"
-#include "omnicml/run/engine_driver.h"
 #include "omnicml/geometry/pose.h"
+#include "omnicml/run/engine_driver.h"
 
 namespace omnicml {
 
 // Frame stamps and TUM stamps match when they differ by at most this. Seconds.
 inline constexpr double kSurveyStampToleranceS = 1e-6;
-
 
 // Survey mapping (docs/design.md "Survey mapping"): the first `days` days
 // build the map from trusted poses, CML runs on it afterwards.
@@ -77,11 +76,11 @@ class SurveyPoses {
   std::vector<Pose2> poses_;    // parallel to stamps_
 };
 
-// A FrameProcessor for RunEngineOverSource (run/engine_driver.h): frames of engine sessions < options.days go
-// to CmlEngine::ProcessSurveyFrame at their trusted pose, later ones to ProcessFrame.
-// `poses` (may be null) is used when options.poses_path is set. A survey frame without
-// a trusted pose is an omnicml::Error naming the frame (session, index, stamp) and the
-// TUM file, or saying that the input has no ground truth.
+// A FrameProcessor for RunEngineOverSource (run/engine_driver.h): frames of engine sessions <
+// options.days go to CmlEngine::ProcessSurveyFrame at their trusted pose, later ones to
+// ProcessFrame. `poses` (may be null) is used when options.poses_path is set. A survey frame
+// without a trusted pose is an omnicml::Error naming the frame (session, index, stamp) and the TUM
+// file, or saying that the input has no ground truth.
 FrameProcessor MakeSurveyFrameProcessor(const SurveyOptions& options,
                                         std::shared_ptr<const SurveyPoses> poses);
 

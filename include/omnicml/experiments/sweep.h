@@ -50,7 +50,7 @@ struct SweepInput {
 };
 
 struct SweepSpec {
-  std::string source;         // file name, for messages
+  std::string source;           // file name, for messages
   std::string command = "run";  // run | compare
   std::vector<SweepInput> inputs;
   std::vector<std::uint64_t> seeds = {1};
@@ -105,7 +105,7 @@ struct SweepDay {
 // One row of summary.csv: a run directory of the sweep.
 struct SweepRow {
   std::string job;
-  std::string mode;  // compare: the forgetting-mode subdirectory; run: ""
+  std::string mode;    // compare: the forgetting-mode subdirectory; run: ""
   std::string status;  // complete | incomplete (run files without sweep_job.json) | missing
   std::string input;
   std::uint64_t seed = 0;

@@ -18,10 +18,10 @@ namespace omnicml {
 // Odometry error model a1..a4 (docs/design.md "Motion model", Thrun et al.):
 // M = diag(a1 rot1^2 + a2 trans^2, a3 trans^2 + a4 (rot1^2 + rot2^2), a1 rot2^2 + a2 trans^2).
 struct MotionNoise {
-  double a1 = 0.05;  // rad^2 of rotation noise per rad^2 of rotation
-  double a2 = 0.01;  // rad^2 of rotation noise per m^2 of translation
-  double a3 = 0.05;  // m^2 of translation noise per m^2 of translation
-  double a4 = 0.01;  // m^2 of translation noise per rad^2 of rotation
+  double a1 = 0.05;       // rad^2 of rotation noise per rad^2 of rotation
+  double a2 = 0.01;       // rad^2 of rotation noise per m^2 of translation
+  double a3 = 0.05;       // m^2 of translation noise per m^2 of translation
+  double a4 = 0.01;       // m^2 of translation noise per rad^2 of rotation
   void Validate() const;  // throws omnicml::Error naming the field if negative/non-finite
 };
 

@@ -46,9 +46,9 @@
 #include <string>
 #include <vector>
 
-#include "omnicml/sensor/frame.h"
-#include "omnicml/geometry/pose.h"
 #include "omnicml/geometry/motion_model.h"
+#include "omnicml/geometry/pose.h"
+#include "omnicml/sensor/frame.h"
 
 namespace omnicml {
 

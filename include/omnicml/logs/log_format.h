@@ -146,7 +146,7 @@ class LogReader : public FrameSource {
   // Per session: where its images may lie (null when images outside the log are
   // allowed); log_format.cc.
   std::vector<std::shared_ptr<const LogReaderRoot>> session_roots_;
-  int session_ = -1;  // session being read; -1 before the first
+  int session_ = -1;                 // session being read; -1 before the first
   std::unique_ptr<LineReader> csv_;  // frames.csv of session_; null between sessions
   std::string csv_path_;
   std::int64_t line_number_ = 0;  // of the last line read from csv_

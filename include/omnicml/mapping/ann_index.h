@@ -40,9 +40,9 @@ namespace omnicml {
 class AnnIndex {
  public:
   struct Params {
-    int m = 16;                // graph degree M (links per node and layer; 2 M on layer 0)
+    int m = 16;                 // graph degree M (links per node and layer; 2 M on layer 0)
     int ef_construction = 128;  // candidate list while inserting
-    std::uint64_t seed = 19;   // level generator seed
+    std::uint64_t seed = 19;    // level generator seed
   };
 
   AnnIndex();
@@ -68,8 +68,8 @@ class AnnIndex {
                std::vector<std::pair<float, std::uint64_t>>* out) const;
 
   bool built() const { return impl_ != nullptr; }
-  std::size_t size() const;      // live vectors
-  std::size_t slots() const;     // graph nodes, live or deleted
+  std::size_t size() const;   // live vectors
+  std::size_t slots() const;  // graph nodes, live or deleted
   std::size_t dims() const { return dims_; }
   const Params& params() const { return params_; }
   void Clear();

@@ -295,8 +295,7 @@ void VisitFields(V& v, EnvironmentModelOptions& o) {
             o.forgetting.forget_by_matched_passes);
   v.Renamed("forget_unconfirmed_views", "forgetting.forget_unconfirmed_views",
             o.forgetting.forget_unconfirmed_views);
-  v.Renamed("log_component_events", "events.log_component_events",
-            o.events.log_component_events);
+  v.Renamed("log_component_events", "events.log_component_events", o.events.log_component_events);
   v.Renamed("max_events", "events.max_events", o.events.max_events);
   v.Renamed("index_min_views", "index.index_min_views", o.index.index_min_views);
   v.Renamed("index_max_bounded_fraction", "index.index_max_bounded_fraction",

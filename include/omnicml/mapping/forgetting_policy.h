@@ -54,9 +54,9 @@ struct WeightUpdate {
 struct WeightChanges {
   std::unordered_map<std::uint64_t, WeightRule> last_rule;  // by component id
   std::vector<std::uint64_t> touched_views;  // view ids, matching ones first, in order
-  int increased = 0;          // (16) applications
-  int passive_forgotten = 0;  // (17) applications
-  int active_forgotten = 0;   // (18)-(19) applications with b > 0
+  int increased = 0;                         // (16) applications
+  int passive_forgotten = 0;                 // (17) applications
+  int active_forgotten = 0;                  // (18)-(19) applications with b > 0
 };
 
 class ForgettingPolicy {
@@ -108,7 +108,8 @@ class StaticForgetting : public ForgettingPolicy {
 };
 
 // The policy of options.forgetting.mode.
-std::shared_ptr<const ForgettingPolicy> MakeForgettingPolicy(const EnvironmentModelOptions& options);
+std::shared_ptr<const ForgettingPolicy> MakeForgettingPolicy(
+    const EnvironmentModelOptions& options);
 
 }  // namespace omnicml
 

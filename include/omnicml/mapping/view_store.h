@@ -69,7 +69,9 @@ class ViewStore {
   ReferenceView& view(std::size_t row) { return views_[row]; }
   // size() rows of feature_size() floats.
   const std::vector<float>& features() const { return features_; }
-  const float* row_features(std::size_t row) const { return features_.data() + row * feature_size_; }
+  const float* row_features(std::size_t row) const {
+    return features_.data() + row * feature_size_;
+  }
   std::optional<std::size_t> Find(std::uint64_t view_id) const;
   // Row of a view known to be in the store (OMNICML_CHECK otherwise).
   std::size_t RowOf(std::uint64_t view_id) const;

@@ -43,8 +43,8 @@
 #include <opencv2/core.hpp>
 
 #include "omnicml/engine/cml_engine.h"
-#include "omnicml/mapping/environment_model.h"
 #include "omnicml/geometry/pose.h"
+#include "omnicml/mapping/environment_model.h"
 
 namespace omnicml {
 
@@ -86,9 +86,9 @@ struct FloorPlanShape {
   bool closed = true;                     // polygon (filled) or open polyline (a wall)
 };
 struct FloorPlan {
-  std::string name;                                   // e.g. the world name, for the legend
-  Eigen::Vector2d min_m = Eigen::Vector2d::Zero();    // the floor's extent
-  Eigen::Vector2d max_m = Eigen::Vector2d::Zero();    // (max <= min: from the shapes)
+  std::string name;                                 // e.g. the world name, for the legend
+  Eigen::Vector2d min_m = Eigen::Vector2d::Zero();  // the floor's extent
+  Eigen::Vector2d max_m = Eigen::Vector2d::Zero();  // (max <= min: from the shapes)
   std::vector<FloorPlanShape> shapes;
   bool empty() const { return shapes.empty(); }
 };
@@ -98,14 +98,14 @@ enum class MapColoring {
   kWeight,  // the component weight, pale (0) to dark blue (1)
   kHealth,  // the health of its area (ComputeMapHealth: ok, changed, new, stale)
 };
-std::string ToString(MapColoring coloring);                   // weight|health
+std::string ToString(MapColoring coloring);                  // weight|health
 MapColoring MapColoringFromString(const std::string& text);  // throws omnicml::Error
 
 struct MapPictureOptions {
-  int width_px = 900;          // picture width; height follows the map's aspect ratio
-  double ellipse_sigma = 2.0;  // ellipses drawn at this many standard deviations
-  std::string title;           // drawn at the top when not empty
-  FloorPlan floor_plan;        // drawn under everything when not empty
+  int width_px = 900;               // picture width; height follows the map's aspect ratio
+  double ellipse_sigma = 2.0;       // ellipses drawn at this many standard deviations
+  std::string title;                // drawn at the top when not empty
+  FloorPlan floor_plan;             // drawn under everything when not empty
   std::vector<Pose2> ground_truth;  // drawn under the estimate when not empty
   // Places where views were removed from the map (MapEvent positions of view_removed
   // events, metres), drawn as red crosses over the dots; empty = none drawn.

@@ -11,8 +11,8 @@
 #include <Eigen/Core>
 #include <opencv2/core.hpp>
 
-#include "omnicml/unwrap/omni_unwrapper.h"
 #include "omnicml/geometry/pose.h"
+#include "omnicml/unwrap/omni_unwrapper.h"
 
 namespace omnicml {
 
@@ -22,12 +22,12 @@ enum class SessionStartMode {
   kContinue,   // odometry and estimate go on from the previous session
   kGlobal,     // no prior: the first confident p(x|y) seeds the mixture
 };
-std::string ToString(SessionStartMode mode);                  // known|continue|global
+std::string ToString(SessionStartMode mode);                        // known|continue|global
 SessionStartMode SessionStartModeFromString(const std::string& s);  // throws omnicml::Error
 
 struct SessionStart {
   SessionStartMode mode = SessionStartMode::kKnownPose;
-  Pose2 map_T_robot = Pose2::Zero();                                   // kKnownPose only
+  Pose2 map_T_robot = Pose2::Zero();                                             // kKnownPose only
   Eigen::Matrix3d covariance = Eigen::Vector3d(0.01, 0.01, 0.001).asDiagonal();  // m^2, rad^2
 };
 
@@ -38,7 +38,7 @@ struct CameraModel {
   // kRawRing: a raw camera image of `calibration`'s model (ring, fisheye or
   // equirectangular; camera_model.h) that is unwrapped into the panorama.
   ImageKind kind = ImageKind::kPanorama;
-  int image_width = 0;   // pixels of the delivered image
+  int image_width = 0;  // pixels of the delivered image
   int image_height = 0;
   CameraCalibration calibration;  // meaningful for kRawRing only
   // Optional user mask (CV_8UC1, image size; kRawRing only): zero marks pixels that never
@@ -58,11 +58,11 @@ struct SessionInfo {
 };
 
 struct Frame {
-  int session_index = 0;           // 0-based index of the session (day)
+  int session_index = 0;  // 0-based index of the session (day)
   std::int64_t index_in_session = 0;
-  std::int64_t global_index = 0;   // 0-based over all sessions
-  double stamp_s = 0.0;            // strictly increasing within a session
-  cv::Mat image;                   // raw ring or panorama, CV_8UC1 or CV_8UC3 (BGR)
+  std::int64_t global_index = 0;  // 0-based over all sessions
+  double stamp_s = 0.0;           // strictly increasing within a session
+  cv::Mat image;                  // raw ring or panorama, CV_8UC1 or CV_8UC3 (BGR)
   Pose2 odom_T_robot = Pose2::Zero();
   std::optional<Pose2> map_T_robot_truth;  // ground truth, when known
 };

@@ -31,9 +31,9 @@
 #include <Eigen/Core>
 #include <opencv2/core.hpp>
 
-#include "omnicml/unwrap/omni_unwrapper.h"
 #include "omnicml/geometry/pose.h"
 #include "omnicml/sim/world.h"
+#include "omnicml/unwrap/omni_unwrapper.h"
 
 namespace omnicml {
 

@@ -30,12 +30,12 @@
 
 #include <opencv2/core.hpp>
 
+#include "omnicml/geometry/motion_model.h"
+#include "omnicml/geometry/pose.h"
 #include "omnicml/logs/antworld.h"
 #include "omnicml/sensor/frame.h"
-#include "omnicml/geometry/pose.h"
 #include "omnicml/sim/raw_camera.h"
 #include "omnicml/sim/renderer.h"
-#include "omnicml/geometry/motion_model.h"
 #include "omnicml/sim/world.h"
 
 namespace omnicml {

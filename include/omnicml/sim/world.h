@@ -178,9 +178,9 @@ struct WorldEvent {
 // simulate --change-report`; docs/results.md "Layout changes").
 // YAML: `changes: {layout_intensity: 0.1, seed: 0, display_spots: 0, route_clearance_m: 0.5}`.
 struct LayoutChanges {
-  double layout_intensity = 0.0;  // per-session change probability of each element, [0, 1]
-  std::uint64_t seed = 0;         // places the display spots (a property of the store)
-  int display_spots = 0;          // 0: one per 10 m of route; >= 0
+  double layout_intensity = 0.0;   // per-session change probability of each element, [0, 1]
+  std::uint64_t seed = 0;          // places the display spots (a property of the store)
+  int display_spots = 0;           // 0: one per 10 m of route; >= 0
   double route_clearance_m = 0.5;  // free distance kept between the robot's path and outlines
 };
 
@@ -267,8 +267,7 @@ WorldChange ApplyStepEvents(const World& world, int day, std::int64_t step, std:
 // day < 2 or layout_intensity 0). Random draws come from a stream of their own, a
 // function of (seed, day, element) only, so the events, odometry, people and sensor noise
 // draw the same numbers with and without it.
-WorldChange ApplyLayoutChanges(const World& world, int day, std::uint64_t seed,
-                               WorldState* state);
+WorldChange ApplyLayoutChanges(const World& world, int day, std::uint64_t seed, WorldState* state);
 
 // The state at the start of `day`: the initial state with, for each day 1..day in order,
 // that day's events and then its layout changes applied (step events do not carry over

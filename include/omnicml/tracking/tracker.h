@@ -91,9 +91,9 @@ void VisitFields(V& v, TrackerOptions& o) {
 Mixture Propagate(const Mixture& prior, const OdometryIncrement& u, const MotionNoise& noise);
 
 // Weighted covariance intersection of a and b with alpha as in (5):
-// alpha = w_b det(C_a) / (w_b det(C_a) + w_a det(C_b)); C = ((1-alpha) C_a^-1 + alpha C_b^-1)^-1 (3);
-// mu = C ((1-alpha) C_a^-1 mu_a + alpha C_b^-1 mu_b) (4) with mu_b's angle unwrapped next
-// to mu_a's. The returned weight is 0 (set by Fuse from (8)).
+// alpha = w_b det(C_a) / (w_b det(C_a) + w_a det(C_b)); C = ((1-alpha) C_a^-1 + alpha C_b^-1)^-1
+// (3); mu = C ((1-alpha) C_a^-1 mu_a + alpha C_b^-1 mu_b) (4) with mu_b's angle unwrapped next to
+// mu_a's. The returned weight is 0 (set by Fuse from (8)).
 double CovarianceIntersectionAlpha(const Gaussian& a, const Gaussian& b);
 Gaussian CovarianceIntersection(const Gaussian& a, const Gaussian& b, double alpha);
 
@@ -102,7 +102,8 @@ Gaussian CovarianceIntersection(const Gaussian& a, const Gaussian& b, double alp
 // the result of one fusion being the `a` side of the next, before the final
 // normalisation. Unmatched components of every side are copied. If every source is
 // empty the result is the (normalised, pruned, merged) p(x|u).
-Mixture Fuse(const Mixture& p_x_u, const std::vector<Mixture>& sources, const TrackerOptions& options);
+Mixture Fuse(const Mixture& p_x_u, const std::vector<Mixture>& sources,
+             const TrackerOptions& options);
 
 // One fusion step without the final clean-up (exposed for tests of (6)-(8)).
 Mixture FuseOnce(const Mixture& a_side, const Mixture& b_side, const TrackerOptions& options);

@@ -54,14 +54,14 @@ struct AutoCalibrationOptions {
 
 // Result of estimating the image circle(s).
 struct AutoCalibrationResult {
-  OmniCalibration calibration;    // the input template with centre and radii replaced
-  double inner_residual_px = 0;   // RMS distance of inner-boundary inliers to their circle
-  double outer_residual_px = 0;   // RMS distance of rim inliers to the fitted circle
+  OmniCalibration calibration;   // the input template with centre and radii replaced
+  double inner_residual_px = 0;  // RMS distance of inner-boundary inliers to their circle
+  double outer_residual_px = 0;  // RMS distance of rim inliers to the fitted circle
   int inner_inliers = 0;
   int outer_inliers = 0;
-  double confidence = 0;          // rim support after the fit, in [0, 1]
-  double inner_confidence = 0;    // inner boundary's search support, in [0, 1] (0: not searched)
-  double visible_fraction = 0;    // fraction of the rim's length inside the image
+  double confidence = 0;        // rim support after the fit, in [0, 1]
+  double inner_confidence = 0;  // inner boundary's search support, in [0, 1] (0: not searched)
+  double visible_fraction = 0;  // fraction of the rim's length inside the image
   int frames_used = 0;
 };
 

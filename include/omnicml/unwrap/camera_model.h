@@ -84,10 +84,10 @@ std::string ToString(FisheyeProjection projection);  // "equidistant", "equisoli
 // A circular fisheye image, optical axis up. The image circle (the edge of the field of
 // view) has radius circle_radius_px around the centre.
 struct FisheyeCalibration {
-  double center_x_px = 720.0;         // image position of the optical axis (zenith)
+  double center_x_px = 720.0;  // image position of the optical axis (zenith)
   double center_y_px = 720.0;
-  double circle_radius_px = 700.0;    // image radius of the field of view's edge, > 0
-  double field_of_view_deg = 180.0;   // full angle of the image circle, (0, 360)
+  double circle_radius_px = 700.0;   // image radius of the field of view's edge, > 0
+  double field_of_view_deg = 180.0;  // full angle of the image circle, (0, 360)
   FisheyeProjection projection = FisheyeProjection::kEquidistant;
   // Elevation band of the panorama (0 = horizontal, +90 = zenith), degrees; row 0 is
   // max_elevation_deg. The band must lie inside the field of view:
@@ -175,8 +175,8 @@ CameraCalibration ParseCameraCalibration(CameraModelType model, const std::strin
 // Raw-image position (x, y) sampled for panorama position (column, row) (continuous;
 // pixel centres at integers) in an image of image_width x image_height (the size matters
 // for the equirectangular model only). May lie outside the image (clipped ring).
-cv::Point2d PanoramaToImage(const CameraCalibration& c, double column, double row,
-                            int image_width, int image_height);
+cv::Point2d PanoramaToImage(const CameraCalibration& c, double column, double row, int image_width,
+                            int image_height);
 // Inverse: (column in [0, W), row) of a raw-image point, or std::nullopt when the point
 // lies outside the model's ring or elevation band widened by `margin_rows` rows.
 std::optional<cv::Point2d> ImageToPanorama(const CameraCalibration& c, cv::Point2d xy,
@@ -186,8 +186,8 @@ std::optional<cv::Point2d> ImageToPanorama(const CameraCalibration& c, cv::Point
 // alpha (counter-clockwise from forward) and elevation (up from horizontal), radians,
 // computed from the projection equations directly. Throws omnicml::Error for the ring
 // (which has no elevation model).
-cv::Point2d DirectionToImage(const CameraCalibration& c, double azimuth_rad,
-                             double elevation_rad, int image_width, int image_height);
+cv::Point2d DirectionToImage(const CameraCalibration& c, double azimuth_rad, double elevation_rad,
+                             int image_width, int image_height);
 // Panorama (column, row) of a direction by the convention alone: column = alpha W / 2 pi
 // (in [0, W)), row = (max_elev - elev) / (max_elev - min_elev) H - 0.5. Fisheye and
 // equirectangular only.

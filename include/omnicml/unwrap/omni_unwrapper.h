@@ -78,8 +78,8 @@ class OmniUnwrapper {
   int image_height_;
   // Sampling maps in OpenCV's fixed-point form (cv::convertMaps: CV_16SC2 positions in the
   // *_x_ member, CV_16UC1 interpolation indices in the *_y_ member; 1/32 pixel).
-  cv::Mat map_x_, map_y_;            // panorama pixel -> raw pixel
-  cv::Mat inv_map_x_, inv_map_y_;    // raw pixel -> panorama pixel (padded by one column)
+  cv::Mat map_x_, map_y_;          // panorama pixel -> raw pixel
+  cv::Mat inv_map_x_, inv_map_y_;  // raw pixel -> panorama pixel (padded by one column)
   // Rectangles of the raw image, together holding every pixel Render paints (bands of
   // rows, split around the hole); the pixels outside them keep the background.
   std::vector<cv::Rect> render_rects_;

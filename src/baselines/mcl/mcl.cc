@@ -73,7 +73,8 @@ void MclOptions::Validate() const {
   if (!FiniteNonNeg(visibility_radius_spacings)) {
     fail("visibility_radius_spacings", "must be >= 0");
   }
-  if (!(cluster_cell_m > 0) || !std::isfinite(cluster_cell_m)) fail("cluster_cell_m", "must be > 0");
+  if (!(cluster_cell_m > 0) || !std::isfinite(cluster_cell_m))
+    fail("cluster_cell_m", "must be > 0");
   if (!(cluster_radius_m > 0) || !std::isfinite(cluster_radius_m)) {
     fail("cluster_radius_m", "must be > 0");
   }
@@ -91,9 +92,8 @@ double MedianReferenceSpacing(const std::vector<MclReference>& references) {
   constexpr double kCoincidentM = 1e-3;
   std::vector<double> steps;
   for (std::size_t i = 1; i < references.size(); ++i) {
-    const double d = (references[i].map_T_robot.head<2>() -
-                      references[i - 1].map_T_robot.head<2>())
-                         .norm();
+    const double d =
+        (references[i].map_T_robot.head<2>() - references[i - 1].map_T_robot.head<2>()).norm();
     if (d >= kCoincidentM) steps.push_back(d);
   }
   if (steps.empty()) return 0.0;
@@ -120,8 +120,7 @@ double ComputeVisibilityAreas(const OccupancyGrid& grid, const MclOptions& optio
   for (MclReference& r : *references) {
     r.axis_rad = WrapAngle(r.map_T_robot.z() + options.axis_offset_rad);
     CellIndex lambda;
-    r.visibility =
-        VisibilityArea(grid, r.map_T_robot.head<2>(), r.axis_rad, visibility, &lambda);
+    r.visibility = VisibilityArea(grid, r.map_T_robot.head<2>(), r.axis_rad, visibility, &lambda);
     r.lambda.reset();
     if (!r.visibility.empty()) r.lambda = lambda;
   }
@@ -290,8 +289,9 @@ std::vector<double> MonteCarloLocalizer::Similarities(const Descriptor& query) c
   std::iota(order.begin(), order.end(), 0);
   const std::size_t k =
       options_.top_k == 0 ? m : std::min<std::size_t>(m, static_cast<std::size_t>(options_.top_k));
-  std::partial_sort(order.begin(), order.begin() + k, order.end(),
-                    [&](std::size_t a, std::size_t b) { return e[a] < e[b] || (e[a] == e[b] && a < b); });
+  std::partial_sort(
+      order.begin(), order.begin() + k, order.end(),
+      [&](std::size_t a, std::size_t b) { return e[a] < e[b] || (e[a] == e[b] && a < b); });
   for (std::size_t i = 0; i < k; ++i) xi[order[i]] = 1.0 - e[order[i]] / e_max;
   return xi;
 }
@@ -398,7 +398,8 @@ MclEstimate MonteCarloLocalizer::Estimate(const std::vector<Particle>& particles
       for (int dy = -1; dy <= 1; ++dy) {
         for (int dx = -1; dx <= 1; ++dx) {
           const int xx = x + dx, yy = y + dy;
-          if (xx >= 0 && yy >= 0 && xx < bw && yy < bh) s += hist[static_cast<std::size_t>(yy) * bw + xx];
+          if (xx >= 0 && yy >= 0 && xx < bw && yy < bh)
+            s += hist[static_cast<std::size_t>(yy) * bw + xx];
         }
       }
       if (s > best) {

@@ -11,8 +11,8 @@
 #include <yaml-cpp/yaml.h>
 
 #include "omnicml/common/common.h"
-#include "omnicml/common/yaml_io.h"
 #include "omnicml/common/file_io.h"
+#include "omnicml/common/yaml_io.h"
 
 namespace omnicml {
 namespace {
@@ -299,12 +299,19 @@ void SaveOccupancyGrid(const OccupancyGrid& grid, const std::string& yaml_path) 
       const int iy = grid.height() - 1 - r;
       for (int ix = 0; ix < grid.width(); ++ix) {
         switch (grid.At({ix, iy})) {
-          case CellState::kOccupied: row[ix] = 0; break;
-          case CellState::kFree: row[ix] = 254; break;
-          case CellState::kUnknown: row[ix] = 205; break;
+          case CellState::kOccupied:
+            row[ix] = 0;
+            break;
+          case CellState::kFree:
+            row[ix] = 254;
+            break;
+          case CellState::kUnknown:
+            row[ix] = 205;
+            break;
         }
       }
-      out.write(reinterpret_cast<const char*>(row.data()), static_cast<std::streamsize>(row.size()));
+      out.write(reinterpret_cast<const char*>(row.data()),
+                static_cast<std::streamsize>(row.size()));
     }
     file.Commit();  // throws "<path>: write error: ..."
   }
@@ -328,8 +335,8 @@ OccupancyGrid LoadOccupancyGrid(const std::string& yaml_path) {
     throw Error(StrCat(yaml_path, ":", e.mark.line + 1, ": YAML error: ", e.msg));
   }
   if (!root.IsMap()) throw Error(StrCat(yaml_path, ": expected a map of map_server keys"));
-  static const std::vector<std::string> kKeys = {"image",           "resolution", "origin", "negate",
-                                                 "occupied_thresh", "free_thresh", "mode"};
+  static const std::vector<std::string> kKeys = {
+      "image", "resolution", "origin", "negate", "occupied_thresh", "free_thresh", "mode"};
   for (const auto& kv : root) {
     const std::string key = kv.first.as<std::string>();
     if (std::find(kKeys.begin(), kKeys.end(), key) == kKeys.end()) {
@@ -400,8 +407,8 @@ void VisibilityOptions::Validate() const {
                        max_distance_from_reference_m));
   }
   if (!(max_view_angle_rad > 0) || max_view_angle_rad > kPi + 1e-12) {
-    throw Error(StrCat("visibility: max_view_angle_rad must be in (0, pi], got ",
-                       max_view_angle_rad));
+    throw Error(
+        StrCat("visibility: max_view_angle_rad must be in (0, pi], got ", max_view_angle_rad));
   }
 }
 

@@ -16,9 +16,9 @@
 #include <opencv2/imgproc.hpp>
 
 #include "omnicml/common/common.h"
-#include "omnicml/common/yaml_io.h"
 #include "omnicml/common/file_io.h"
 #include "omnicml/common/options.h"
+#include "omnicml/common/yaml_io.h"
 #include "omnicml/geometry/planar_geometry.h"
 #include "omnicml/logs/log_format.h"
 #include "omnicml/unwrap/omni_unwrapper.h"

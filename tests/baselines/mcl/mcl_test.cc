@@ -167,7 +167,9 @@ TEST(Mcl, LikelihoodNormalisationAndPriorFallback) {
   o.random_samples_per_step = 0;
   o.top_k = 0;
   o.prior_fraction = 0.5;
-  o.visibility = {.max_ray_range_m = 20, .max_distance_m = 20, .max_view_angle_rad = kPi / 4,
+  o.visibility = {.max_ray_range_m = 20,
+                  .max_distance_m = 20,
+                  .max_view_angle_rad = kPi / 4,
                   .max_distance_from_reference_m = 1.5};
   ComputeVisibilityAreas(g, o, &refs);
   ASSERT_FALSE(refs[0].visibility.empty());
@@ -550,7 +552,8 @@ TEST(Mcl, MaskedPixelsDoNotChangeTheDescriptors) {
   ASSERT_EQ(scrambled.size(), 3u);
   for (std::size_t i = 0; i < clean.size(); ++i) {
     EXPECT_EQ(clean[i].descriptor.features, scrambled[i].descriptor.features) << "frame " << i;
-    EXPECT_EQ(clean[i].heading_descriptor.coefficients, scrambled[i].heading_descriptor.coefficients)
+    EXPECT_EQ(clean[i].heading_descriptor.coefficients,
+              scrambled[i].heading_descriptor.coefficients)
         << "frame " << i;
     EXPECT_NE(unmasked_clean[i].descriptor.features, unmasked_scrambled[i].descriptor.features)
         << "frame " << i << ": the scrambled region is not seen at all";

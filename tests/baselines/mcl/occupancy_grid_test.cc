@@ -68,18 +68,18 @@ TEST(OccupancyGrid, VisibilityAreaIsTheFreeRegionSeeingTheWallPoint) {
   }
   EXPECT_EQ(std::set<int>(area.begin(), area.end()), expected);
   const std::set<int> got(area.begin(), area.end());
-  EXPECT_TRUE(got.count(g.Linear({30, 12})));  // the pose itself sees it
-  EXPECT_TRUE(got.count(g.Linear({25, 12})));  // in front of the pillar
+  EXPECT_TRUE(got.count(g.Linear({30, 12})));   // the pose itself sees it
+  EXPECT_TRUE(got.count(g.Linear({25, 12})));   // in front of the pillar
   EXPECT_FALSE(got.count(g.Linear({10, 12})));  // in the pillar's shadow
-  EXPECT_TRUE(got.count(g.Linear({10, 25})));  // past the pillar's end
+  EXPECT_TRUE(got.count(g.Linear({10, 25})));   // past the pillar's end
   EXPECT_FALSE(got.count(g.Linear({20, 12})));  // the pillar itself (occupied)
 }
 
 // The angular and distance constraints of the region growing remove the cells they should.
 TEST(OccupancyGrid, VisibilityAreaRespectsConstraints) {
   const OccupancyGrid g = CraftedRoom();
-  VisibilityOptions opt{.max_ray_range_m = 10, .max_distance_m = 1.0,
-                        .max_view_angle_rad = kPi / 4};
+  VisibilityOptions opt{
+      .max_ray_range_m = 10, .max_distance_m = 1.0, .max_view_angle_rad = kPi / 4};
   CellIndex lambda;
   const std::vector<int> area = VisibilityArea(g, g.CellCenter({30, 12}), 0.0, opt, &lambda);
   ASSERT_FALSE(area.empty());
@@ -150,15 +150,17 @@ TEST(OccupancyGrid, BadFilesNameFileAndField) {
       EXPECT_THAT(e.what(), HasSubstr("bad.yaml"));
     }
   };
-  const std::string ok_tail = "origin: [0, 0, 0]\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.2\n";
+  const std::string ok_tail =
+      "origin: [0, 0, 0]\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.2\n";
   expect_error("image: m.pgm\n" + ok_tail, "resolution");
   expect_error("image: m.pgm\nresolution: -1\n" + ok_tail, "resolution");
   expect_error("image: m.pgm\nresolution: abc\n" + ok_tail, "resolution");
   expect_error("resolution: 0.1\n" + ok_tail, "image");
   expect_error("image: m.pgm\nresolution: 0.1\nextra: 1\n" + ok_tail, "extra");
-  expect_error("image: m.pgm\nresolution: 0.1\norigin: [0, 0]\nnegate: 0\noccupied_thresh: 0.65\n"
-               "free_thresh: 0.2\n",
-               "origin");
+  expect_error(
+      "image: m.pgm\nresolution: 0.1\norigin: [0, 0]\nnegate: 0\noccupied_thresh: 0.65\n"
+      "free_thresh: 0.2\n",
+      "origin");
   expect_error("image: m.pgm\nresolution: 0.1\nmode: scale\n" + ok_tail, "mode");
   // A missing image names the image file.
   std::ofstream(dir / "noimg.yaml") << "image: nothere.pgm\nresolution: 0.1\n" << ok_tail;

@@ -66,13 +66,13 @@
 #include <string>
 #include <vector>
 
+#include "omnicml/baselines/mcl/occupancy_grid.h"
 #include "omnicml/common/common.h"
 #include "omnicml/descriptors/descriptor.h"
 #include "omnicml/descriptors/descriptor_factory.h"
-#include "omnicml/sensor/frame.h"
-#include "omnicml/baselines/mcl/occupancy_grid.h"
-#include "omnicml/geometry/pose.h"
 #include "omnicml/geometry/motion_model.h"
+#include "omnicml/geometry/pose.h"
+#include "omnicml/sensor/frame.h"
 
 namespace omnicml {
 
@@ -103,8 +103,8 @@ struct MclOptions {
   // kAugmented: w_slow and w_fast are exponential averages of the mean raw particle
   // likelihood with rates alpha_slow < alpha_fast. max_injection_fraction 0 gives a
   // filter that never injects (no jump to an aliased place, no kidnap recovery).
-  double alpha_slow = 0.05;  // in (0, 1), < alpha_fast
-  double alpha_fast = 0.5;   // in (0, 1]
+  double alpha_slow = 0.05;              // in (0, 1), < alpha_fast
+  double alpha_fast = 0.5;               // in (0, 1]
   double max_injection_fraction = 0.25;  // in [0, 0.5]
   // kWhenLost: the cloud is inconsistent at a step when its largest raw particle
   // likelihood is below lost_likelihood_ratio times the likelihood of a particle at the
@@ -227,9 +227,17 @@ void VisitFields(V& v, MclOptions& o) {
 // keep their defaults), validated. The inputs `omnicml mcl` writes next to the options in
 // its config.yaml (kMclRunKeys) are accepted and skipped, so that file loads back.
 // Throws omnicml::Error "<file>:<line>: ..." naming the key.
-inline const std::vector<std::string> kMclRunKeys = {
-    "input", "train_day", "test_day", "ref_every", "references", "panorama_width_px",
-    "panorama_height_px", "descriptor", "ifh_normalize_columns", "grid_resolution_m", "start"};
+inline const std::vector<std::string> kMclRunKeys = {"input",
+                                                     "train_day",
+                                                     "test_day",
+                                                     "ref_every",
+                                                     "references",
+                                                     "panorama_width_px",
+                                                     "panorama_height_px",
+                                                     "descriptor",
+                                                     "ifh_normalize_columns",
+                                                     "grid_resolution_m",
+                                                     "start"};
 MclOptions ParseMclOptionsYaml(const std::string& yaml_text, const std::string& source);
 MclOptions LoadMclOptions(const std::string& path);
 // Every field as YAML; LoadMclOptions reads it back to equal options.
@@ -275,9 +283,9 @@ struct Particle {
 };
 
 struct MclEstimate {
-  Pose2 mean = Pose2::Zero();         // weighted sample mean, circular mean for phi
-  Pose2 cluster = Pose2::Zero();      // weighted mean of the best cluster
-  double cluster_weight = 0.0;        // fraction of the total weight in that cluster
+  Pose2 mean = Pose2::Zero();     // weighted sample mean, circular mean for phi
+  Pose2 cluster = Pose2::Zero();  // weighted mean of the best cluster
+  double cluster_weight = 0.0;    // fraction of the total weight in that cluster
   Eigen::Vector2d spread_m = Eigen::Vector2d::Zero();  // weighted std. dev. of x and y
 };
 
@@ -436,7 +444,7 @@ struct MclStepRecord {
   std::optional<Pose2> truth;
   double position_error_m = -1;  // of the cluster estimate; -1 without truth
   double heading_error_rad = -1;
-  double time_us = 0.0;  // Predict + Correct
+  double time_us = 0.0;    // Predict + Correct
   bool kidnapped = false;  // the step right after a kidnapping
   MclStepStats stats;      // the localizer's last_step() after this step
 };

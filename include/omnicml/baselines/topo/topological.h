@@ -51,8 +51,8 @@
 #include "omnicml/descriptors/color_histogram.h"
 #include "omnicml/descriptors/descriptor.h"
 #include "omnicml/geometry/pose.h"
-#include "omnicml/sim/simulator.h"
 #include "omnicml/sensor/frame.h"
+#include "omnicml/sim/simulator.h"
 
 namespace omnicml {
 
@@ -357,7 +357,7 @@ struct CrossSequenceOptions {
 struct CrossSequenceResult {
   std::vector<TopologicalFrameResult> frames;
   TopologicalCounts counts;
-  int references = 0;           // reference images taken from the training session
+  int references = 0;  // reference images taken from the training session
   // The training frames that became reference images, in reference order (index =
   // BandVote::reference); stamp, index, truth and true_place set, decision unset.
   std::vector<TopologicalFrameResult> reference_frames;

@@ -10,9 +10,12 @@
 // and its jobs; a second signal sends SIGKILL), and `omnicml sweep` waits for them. Should
 // `omnicml sweep` itself be killed, Snakemake receives SIGKILL (PR_SET_PDEATHSIG) and its
 // jobs SIGTERM in turn (the Snakefile sets the same for them), so nothing runs on
-// unsupervised. On start, a Snakemake lock left in DIR/.snakemake/locks by such a crash
-// is removed (`snakemake --unlock`): holding the sweep directory's lock, no other
-// `omnicml sweep` can be using it. Incomplete jobs rerun (--rerun-incomplete).
+// unsupervised. `omnicml sweep` is a child subreaper (PR_SET_CHILD_SUBREAPER): a process
+// Snakemake started in a session or group of its own that outlives Snakemake is
+// re-parented to it, receives SIGTERM (SIGKILL after a grace period) and is waited for. On start, a
+// Snakemake lock left in DIR/.snakemake/locks by such a crash is removed (`snakemake --unlock`):
+// holding the sweep directory's lock, no other `omnicml sweep` can be using it. Incomplete jobs
+// rerun (--rerun-incomplete).
 #include <signal.h>
 #include <sys/prctl.h>
 #include <sys/wait.h>
@@ -23,10 +26,13 @@
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
 #include <iomanip>
 #include <iostream>
 #include <memory>
+#include <sstream>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include <CLI/CLI.hpp>
@@ -65,6 +71,45 @@ void ForwardSignal(int signal) {
   if (g_child_group > 0) ::kill(-g_child_group, g_signals > 1 ? SIGKILL : signal);
 }
 
+// The processes whose parent is this one (from /proc/PID/stat's fourth field).
+std::vector<pid_t> Children() {
+  std::vector<pid_t> children;
+  const pid_t self = ::getpid();
+  std::error_code ec;
+  for (const auto& entry : std::filesystem::directory_iterator("/proc", ec)) {
+    const std::string name = entry.path().filename().string();
+    if (name.empty() || name.find_first_not_of("0123456789") != std::string::npos) continue;
+    std::ifstream is(entry.path() / "stat");
+    std::string stat;
+    std::getline(is, stat);
+    // "pid (comm) state ppid ...": comm may hold spaces and parentheses; it ends at the last ')'.
+    const std::size_t close = stat.rfind(')');
+    if (close == std::string::npos) continue;
+    std::istringstream rest(stat.substr(close + 1));
+    std::string state;
+    long ppid = 0;
+    if (rest >> state >> ppid && ppid == self) children.push_back(std::stoi(name));
+  }
+  return children;
+}
+
+// Ends and waits for every process re-parented here after Snakemake exited (this process
+// is a child subreaper): SIGTERM, then SIGKILL after `grace`.
+void ReapOrphans(std::chrono::milliseconds grace) {
+  const auto start = std::chrono::steady_clock::now();
+  bool killed = false;
+  for (std::vector<pid_t> children = Children(); !children.empty(); children = Children()) {
+    const bool late = std::chrono::steady_clock::now() - start > grace;
+    if (!killed || late) {
+      for (const pid_t pid : children) ::kill(pid, late ? SIGKILL : SIGTERM);
+      killed = true;
+    }
+    while (::waitpid(-1, nullptr, WNOHANG) > 0) {
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+}
+
 // Runs argv in a new process group, forwarding SIGINT/SIGTERM/SIGHUP to the group, and
 // returns its wait status. *signal_received: the first signal forwarded (0: none).
 int RunSupervised(const std::vector<std::string>& argv, int* signal_received) {
@@ -80,6 +125,7 @@ int RunSupervised(const std::vector<std::string>& argv, int* signal_received) {
   ::sigaction(SIGTERM, &forward, &old_term);
   ::sigaction(SIGHUP, &forward, &old_hup);
   const pid_t parent = ::getpid();
+  ::prctl(PR_SET_CHILD_SUBREAPER, 1);
   std::cout.flush();
   const pid_t child = ::fork();
   if (child < 0) throw Error(StrCat("cannot start snakemake: fork failed: ", std::strerror(errno)));
@@ -101,6 +147,7 @@ int RunSupervised(const std::vector<std::string>& argv, int* signal_received) {
   while (::waitpid(child, &status, 0) < 0 && errno == EINTR) {
   }
   g_child_group = 0;
+  ReapOrphans(std::chrono::seconds(5));
   ::sigaction(SIGINT, &old_int, nullptr);
   ::sigaction(SIGTERM, &old_term, nullptr);
   ::sigaction(SIGHUP, &old_hup, nullptr);

@@ -200,27 +200,35 @@ fs::path StagingDirFor(const fs::path& target, pid_t pid) {
   return fs::path(StrCat(t.string(), ".partial-", static_cast<long>(pid)));
 }
 
-int RemoveStaleStagingDirs(const fs::path& target) {
-  fs::path t = target.lexically_normal();
-  if (!t.has_filename()) t = t.parent_path();
-  const std::string name = t.filename().string();
-  if (name.empty() || name == "." || name == "..") return 0;
-  // Every writer of `t` holds its lock: while we hold it, a staging directory of `t`
-  // belongs to nobody alive.
-  std::unique_ptr<OutputLock> lock;
-  if (!OutputLock::HeldByThisProcess(t)) {
-    try {
-      lock = std::make_unique<OutputLock>(t, "output");
-    } catch (const Error&) {
-      return 0;  // another process is writing it
-    }
+// For cleaning up after other writers of `target`: *t gets the target normalised (no
+// trailing separator) and *lock its lock unless this process holds it already. Every
+// writer of a target holds its lock, so while we hold it, what a writer left behind
+// belongs to nobody alive. False (nothing to do) for a target without a file name or one
+// another process is writing.
+bool LockForCleanup(const fs::path& target, fs::path* t, std::unique_ptr<OutputLock>* lock) {
+  *t = target.lexically_normal();
+  if (!t->has_filename()) *t = t->parent_path();
+  const std::string name = t->filename().string();
+  if (name.empty() || name == "." || name == "..") return false;
+  if (OutputLock::HeldByThisProcess(*t)) return true;
+  try {
+    *lock = std::make_unique<OutputLock>(*t, "output");
+  } catch (const Error&) {
+    return false;  // another process is writing it
   }
+  return true;
+}
+
+int RemoveStaleStagingDirs(const fs::path& target) {
+  fs::path t;
+  std::unique_ptr<OutputLock> lock;
+  if (!LockForCleanup(target, &t, &lock)) return 0;
   int removed = 0;
   std::error_code ec;
   for (fs::directory_iterator it(DirectoryOf(t), ec), end; !ec && it != end; it.increment(ec)) {
     const std::string entry = it->path().filename().string();
     for (const std::string_view suffix : {".partial-", ".old-"}) {
-      const std::string prefix = StrCat(name, suffix);
+      const std::string prefix = StrCat(t.filename().string(), suffix);
       if (entry.size() <= prefix.size() || entry.compare(0, prefix.size(), prefix) != 0) continue;
       const std::string pid_text = entry.substr(prefix.size());
       if (!AllDigits(pid_text) || pid_text.size() > 9) continue;
@@ -549,18 +557,9 @@ void TestKillPoint(std::string_view point) {
 }
 
 int RecoverInterruptedCommits(const fs::path& target) {
-  fs::path t = target.lexically_normal();
-  if (!t.has_filename()) t = t.parent_path();
-  const std::string name = t.filename().string();
-  if (name.empty() || name == "." || name == "..") return 0;
+  fs::path t;
   std::unique_ptr<OutputLock> lock;
-  if (!OutputLock::HeldByThisProcess(t)) {
-    try {
-      lock = std::make_unique<OutputLock>(t, "output");
-    } catch (const Error&) {
-      return 0;  // another process is writing it
-    }
-  }
+  if (!LockForCleanup(target, &t, &lock)) return 0;
   int settled = 0;
   std::vector<JournalEntry> entries;
   // Committed: the journal moved into the target with the directory.
@@ -572,7 +571,7 @@ int RecoverInterruptedCommits(const fs::path& target) {
   }
   // Not committed: the journal is still in a staging directory of a dead writer.
   std::error_code ec;
-  const std::string prefix = StrCat(name, ".partial-");
+  const std::string prefix = StrCat(t.filename().string(), ".partial-");
   for (fs::directory_iterator it(DirectoryOf(t), ec), end; !ec && it != end; it.increment(ec)) {
     const std::string entry = it->path().filename().string();
     if (entry.size() <= prefix.size() || entry.compare(0, prefix.size(), prefix) != 0) continue;

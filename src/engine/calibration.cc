@@ -50,7 +50,8 @@ std::vector<SessionLoopPair> FindLoopPairs(const DescriptorExtractor& extractor,
                                            const std::vector<Descriptor>& y,
                                            const std::vector<LoopFrame>& frames,
                                            const std::vector<OdometrySession>& sessions,
-                                           double min_path_m, double e_loop, int max_pairs) {
+                                           double min_path_m, double e_loop, int max_pairs,
+                                           bool use_heading) {
   std::vector<SessionLoopPair> pairs;
   const int n = static_cast<int>(y.size());
   for (int t = 1; t < n; ++t) {
@@ -73,8 +74,9 @@ std::vector<SessionLoopPair> FindLoopPairs(const DescriptorExtractor& extractor,
     // The descriptor's relative heading: the robot's heading at t minus at s (nullopt for
     // descriptors without rotation information; the pair then constrains x, y only).
     if (best >= 0) {
-      pairs.push_back(SessionLoopPair{frames[best].session, frames[best].index, ft.session,
-                                      ft.index, extractor.RelativeHeading(y[t], y[best])});
+      pairs.push_back(
+          SessionLoopPair{frames[best].session, frames[best].index, ft.session, ft.index,
+                          use_heading ? extractor.RelativeHeading(y[t], y[best]) : std::nullopt});
     }
   }
   if (static_cast<int>(pairs.size()) <= max_pairs) return pairs;
@@ -212,10 +214,10 @@ Calibration Calibrate(FrameSource& source, const CmlEngineOptions& options,
   c.spatial_cell_m = defaults.model.index.spatial_cell_m * c.scale;
 
   c.loop_e_max = DistanceAtPath(c.curve, 0.5 * c.match_length_m);
-  const std::vector<SessionLoopPair> pairs =
-      FindLoopPairs(*extractor, y, frames, sessions,
-                    calibration_options.loop_min_path_match_lengths * c.match_length_m,
-                    c.loop_e_max, calibration_options.max_loop_pairs);
+  const std::vector<SessionLoopPair> pairs = FindLoopPairs(
+      *extractor, y, frames, sessions,
+      calibration_options.loop_min_path_match_lengths * c.match_length_m, c.loop_e_max,
+      calibration_options.max_loop_pairs, calibration_options.use_relative_heading);
   // Prior centres of the offsets from the log: a pair is accepted within about L / 2 of
   // travel, i.e. a position offset of up to about L / 2 (per-axis variance (L / 4)^2 for
   // an offset uniform on that disc), and the relative heading resolves about one

@@ -50,6 +50,9 @@ struct CalibrationOptions {
   double loop_min_path_match_lengths = 20.0;
   // Largest number of loop pairs used (evenly subsampled by the later frame). >= 1.
   int max_loop_pairs = 2000;
+  // Give loop pairs the descriptor's relative heading (3-dof innovations) when the
+  // descriptor provides one; false: x, y only (2 dof).
+  bool use_relative_heading = true;
   MotionNoiseIdentificationOptions identification;
 
   // Throws omnicml::Error naming the first invalid field.

@@ -74,9 +74,9 @@ struct MotionNoiseIdentificationOptions {
   // the cross terms a fifth of them.
   MotionNoise shape_prior{0.05, 0.01, 0.05, 0.01};
   // Standard deviation of ln a_j about the prior shape (after removing the common scale),
-  // natural-log units: 1 lets a parameter depart from the shape by a factor e at one sd.
-  // > 0.
-  double shape_prior_log_sd = 1.0;
+  // natural-log units: 0.25 lets a parameter depart from the shape by a factor 1.28 at one
+  // sd, and loops that see it clearly move it much further (docs/design.md). > 0.
+  double shape_prior_log_sd = 0.25;
   // Prior centre of rho, m^2 (> 0): the offset between two frames that match. Calibrate
   // sets it to (L / 4)^2 for match length L (a pair is accepted within about L / 2).
   double appearance_variance_prior_m2 = 0.0045;

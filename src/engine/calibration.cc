@@ -225,6 +225,12 @@ Calibration Calibrate(FrameSource& source, const CmlEngineOptions& options,
   MotionNoiseIdentificationOptions identification = calibration_options.identification;
   if (c.match_length_m > 0) {
     identification.appearance_variance_prior_m2 = std::pow(0.25 * c.match_length_m, 2);
+    // Frames that match lie within about L / 2 of each other, so an offset sd beyond L is
+    // not an offset: it would absorb aliased pairs, which the gate must reject instead.
+    identification.max_appearance_variance_m2 =
+        std::min(identification.max_appearance_variance_m2,
+                 std::max(c.match_length_m * c.match_length_m,
+                          2.0 * identification.min_appearance_variance_m2));
   }
   if (panorama_columns > 0) {
     identification.heading_variance_prior_rad2 = std::pow(2.0 * kPi / panorama_columns, 2);

@@ -834,13 +834,15 @@ struct Renderer::Impl {
     double tmy = dir.y() != 0
                      ? std::max(0.0, ((cy + (step_y > 0 ? 1 : 0)) * kGridCellM - cam.y()) / dir.y())
                      : inf;
-    // Border cells extend to infinity (see Build): leaving the grid ends the ray.
+    // Border cells extend to infinity (see Build): leaving the grid ends the ray. A ray
+    // through a cell corner (tmx == tmy) crosses both borders at once; it leaves the grid
+    // if either step does (the step below is along y at a tie, which must stay inside).
     double t_enter = 0;
     while (true) {
       double t_exit = std::min(tmx, tmy);
-      const bool last_cell = ((t_exit == tmx) ? (cx + step_x < 0 || cx + step_x >= grid_w)
-                                              : (cy + step_y < 0 || cy + step_y >= grid_h)) ||
-                             t_exit > max_range;
+      const bool leaves_x = tmx <= tmy && (cx + step_x < 0 || cx + step_x >= grid_w);
+      const bool leaves_y = tmy <= tmx && (cy + step_y < 0 || cy + step_y >= grid_h);
+      const bool last_cell = leaves_x || leaves_y || t_exit > max_range;
       if (last_cell) t_exit = inf;
       cell_hits->clear();
       const std::size_t cell = static_cast<std::size_t>(cy) * grid_w + cx;

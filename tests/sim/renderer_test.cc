@@ -2,8 +2,10 @@
 // zones, occlusion with all hits kept, sensor noise.
 #include "omnicml/sim/renderer.h"
 
+#include <algorithm>
 #include <cmath>
 #include <string>
+#include <vector>
 
 #include <gtest/gtest.h>
 #include <opencv2/core.hpp>
@@ -250,6 +252,51 @@ TEST(Renderer, TallSurfacesBehindLowOnesStayVisible) {
   ASSERT_GT(above_rows, 10);
   EXPECT_EQ(box_rows_equal, box_rows);
   EXPECT_EQ(above_changed, above_rows);
+}
+
+// Rays through a corner of the renderer's 1 m segment grid on the grid's border (a wall
+// hit exactly where the x and y cell borders are crossed at once) still end on the wall:
+// from every point of a 0.2 m lattice in a closed 4 m x 2 m room, every column's horizon
+// rows show the red outer wall, never the green floor or blue ceiling behind it.
+TEST(Renderer, RaysThroughGridCornersOnTheBorderHitTheWall) {
+  const std::string yaml =
+      "name: corner_rays\nsize_m: [4, 2]\nceiling_height_m: 3\nambient_light: 1.0\n"
+      "floor: {kind: plain, color_rgb: [40, 160, 40]}\n"
+      "ceiling: {kind: plain, color_rgb: [40, 40, 160]}\n"
+      "walls:\n"
+      "  - {name: outer, polyline_m: [[0, 0], [4, 0], [4, 2], [0, 2], [0, 0]], height_m: 3,\n"
+      "     texture: {kind: plain, color_rgb: [220, 30, 30]}}\n"
+      "route:\n  waypoints_m: [[1, 1], [3, 1], [3, 1.5]]\n"
+      "camera: {panorama_width_px: 72, panorama_height_px: 24}\n";
+  const World world = ParseWorld(yaml, "corner_rays.yaml");
+  Renderer renderer(world);
+  std::vector<int> horizon_rows;
+  for (int r = 0; r < world.camera.panorama_height_px; ++r) {
+    if (std::abs(renderer.RowElevationRad(r)) < 3.0 * kPi / 180.0) horizon_rows.push_back(r);
+  }
+  ASSERT_FALSE(horizon_rows.empty());
+  int poses = 0, pixels = 0, wall_pixels = 0;
+  std::string first_miss;
+  for (int ix = 1; ix < 20; ++ix) {
+    for (int iy = 1; iy < 10; ++iy) {
+      const cv::Mat pano = renderer.RenderPanorama(MakePose(0.2 * ix, 0.2 * iy, 0.0));
+      ++poses;
+      for (int r : horizon_rows) {
+        for (int c = 0; c < pano.cols; ++c) {
+          const cv::Vec3b px = pano.at<cv::Vec3b>(r, c);
+          ++pixels;
+          const bool red = px[2] > 2 * std::max(px[0], px[1]);
+          wall_pixels += red;
+          if (!red && first_miss.empty()) {
+            first_miss = "camera (" + std::to_string(0.2 * ix) + ", " + std::to_string(0.2 * iy) +
+                         ") column " + std::to_string(c);
+          }
+        }
+      }
+    }
+  }
+  EXPECT_EQ(poses, 171);
+  EXPECT_EQ(wall_pixels, pixels) << "first pixel without the wall: " << first_miss;
 }
 
 // Sensor noise is zero-mean with the camera's sigma and a function of the frame seed.

@@ -49,6 +49,14 @@ const CommandRegistration kRegistration{
           ->capture_default_str();
       cmd->add_option("--max-lag", f->calibration.max_lag_frames, "Largest frame lag")
           ->capture_default_str();
+      cmd->add_flag("!--no-relative-heading", f->calibration.use_relative_heading,
+                    "Loop pairs without the descriptor's relative heading (x, y innovations only)");
+      cmd->add_option("--shape-prior-log-sd", f->calibration.identification.shape_prior_log_sd,
+                      "Motion noise prior: sd of ln a_j about the prior shape (> 0)")
+          ->capture_default_str();
+      cmd->add_option("--offset-prior-log-sd", f->calibration.identification.offset_prior_log_sd,
+                      "Motion noise prior: sd of ln rho and ln rho_phi about their centres (> 0)")
+          ->capture_default_str();
       cmd->callback([f] {
         f->input.Validate();
         OptionOverrides overrides;

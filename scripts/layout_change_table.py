@@ -12,7 +12,11 @@ markdown tables for docs/results.md "Layout changes":
    seeds); the lowest intensity where that ratio is >= 2; there active's mean error over
    the last three days against static's and passive's, and active's map against passive's.
 
-Usage: scripts/layout_change_table.py SWEEP_DIR
+With --curve-svg PATH it also writes the curve itself: static, passive and active mean
+error over days 2..N against the intensity (mean over seeds solid, worst seed dashed)
+beside the map size at the end (mean over seeds).
+
+Usage: scripts/layout_change_table.py SWEEP_DIR [--curve-svg PATH]
 """
 import csv
 import math
@@ -20,11 +24,73 @@ import sys
 from collections import defaultdict
 
 
+COLOURS = {"static": "#7f7f7f", "passive": "#1f77b4", "active": "#d62728"}
+
+
+def panel(title, y_label, xs, series, x0, width=460, height=300):
+    """One SVG panel (a <g> at x offset x0): lines over xs (intensities, placed evenly so
+    the fine grid near 0 stays readable), series = [(mode, values, dashed)]."""
+    left, top, pw, ph = x0 + 60, 34, width - 80, height - 80
+    ymax = max(v for _, vals, _ in series for v in vals if math.isfinite(v)) * 1.08
+    step = 10 ** math.floor(math.log10(ymax / 4))
+    step *= 5 if ymax / step > 20 else 2 if ymax / step > 8 else 1
+    px = lambda i: left + pw * i / max(len(xs) - 1, 1)
+    py = lambda v: top + ph * (1 - v / ymax)
+    out = [f'<text x="{left + pw / 2:.1f}" y="18" text-anchor="middle" font-size="13" '
+           f'font-weight="bold">{title}</text>',
+           f'<rect x="{left}" y="{top}" width="{pw}" height="{ph}" fill="none" stroke="black"/>']
+    tick = 0.0
+    while tick <= ymax:
+        out.append(f'<line x1="{left}" y1="{py(tick):.1f}" x2="{left + pw}" y2="{py(tick):.1f}" '
+                   f'stroke="#dddddd"/><text x="{left - 6}" y="{py(tick) + 4:.1f}" '
+                   f'text-anchor="end">{tick:g}</text>')
+        tick += step
+    for i, x in enumerate(xs):
+        out.append(f'<text x="{px(i):.1f}" y="{top + ph + 16}" text-anchor="middle">{x:g}</text>')
+    out.append(f'<text x="{left + pw / 2:.1f}" y="{top + ph + 34}" text-anchor="middle">'
+               f'layout_intensity p</text>')
+    out.append(f'<text x="{x0 + 14}" y="{top + ph / 2:.1f}" text-anchor="middle" '
+               f'transform="rotate(-90 {x0 + 14} {top + ph / 2:.1f})">{y_label}</text>')
+    for mode, vals, dashed in series:
+        pts = " ".join(f"{px(i):.1f},{py(v):.1f}" for i, v in enumerate(vals) if math.isfinite(v))
+        dash = ' stroke-dasharray="5,4"' if dashed else ""
+        out.append(f'<polyline points="{pts}" fill="none" stroke="{COLOURS[mode]}" '
+                   f'stroke-width="2"{dash}/>')
+    for k, mode in enumerate(COLOURS):
+        y = top + 14 + 16 * k
+        out.append(f'<line x1="{left + 10}" y1="{y - 4}" x2="{left + 30}" y2="{y - 4}" '
+                   f'stroke="{COLOURS[mode]}" stroke-width="2"/><text x="{left + 36}" y="{y}">'
+                   f'{mode}</text>')
+    return out
+
+
+def write_curve(path, inputs, summary):
+    xs = [float(i.lstrip("i")) for i in inputs]
+    err, views = [], []
+    for mode in COLOURS:
+        got = [summary.get((i, mode)) for i in inputs]
+        err.append((mode, [g["mean"] if g else math.nan for g in got], False))
+        err.append((mode, [g["worst"] if g else math.nan for g in got], True))
+        views.append((mode, [g["views"] if g else math.nan for g in got], False))
+    body = panel("mean error, days 2-N (solid: mean, dashed: worst seed)", "error (m)", xs, err, 0)
+    body += panel("views at the end (mean over seeds)", "views", xs, views, 480)
+    svg = ('<svg xmlns="http://www.w3.org/2000/svg" width="960" height="300" '
+           'font-family="sans-serif" font-size="11"><rect width="960" height="300" fill="white"/>'
+           + "\n".join(body) + "</svg>\n")
+    with open(path, "w") as f:
+        f.write(svg)
+
+
 def main() -> int:
-    if len(sys.argv) != 2:
+    args = sys.argv[1:]
+    curve = None
+    if len(args) == 3 and args[1] == "--curve-svg":
+        curve = args[2]
+        args = args[:1]
+    if len(args) != 1:
         print(__doc__.strip().splitlines()[-1], file=sys.stderr)
         return 2
-    path = sys.argv[1].rstrip("/") + "/summary_days.csv"
+    path = args[0].rstrip("/") + "/summary_days.csv"
     try:
         with open(path, newline="") as f:
             rows = list(csv.DictReader(f))
@@ -106,6 +172,8 @@ def main() -> int:
               f"{st['last3']:.3f} / {pa['last3']:.3f} / {ac['last3']:.3f} | "
               f"{ac['last3'] / st['last3']:.2f} | {ac['last3'] / pa['last3']:.2f} | "
               f"{ac['views']:.0f} / {pa['views']:.0f} = {ac['views'] / pa['views']:.2f} |")
+    if curve:
+        write_curve(curve, [i for i in inputs if (i, "active") in summary], summary)
     if lowest is None:
         print("\nNo intensity where static's last-day error reaches twice its day-2 error.")
     else:

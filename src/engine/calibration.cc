@@ -50,7 +50,8 @@ std::vector<SessionLoopPair> FindLoopPairs(const DescriptorExtractor& extractor,
                                            const std::vector<Descriptor>& y,
                                            const std::vector<LoopFrame>& frames,
                                            const std::vector<OdometrySession>& sessions,
-                                           double min_path_m, double e_loop, int max_pairs) {
+                                           double min_path_m, double e_loop, int max_pairs,
+                                           bool use_heading) {
   std::vector<SessionLoopPair> pairs;
   const int n = static_cast<int>(y.size());
   for (int t = 1; t < n; ++t) {
@@ -70,9 +71,13 @@ std::vector<SessionLoopPair> FindLoopPairs(const DescriptorExtractor& extractor,
         best = s;
       }
     }
-    if (best >= 0)
+    // The descriptor's relative heading: the robot's heading at t minus at s (nullopt for
+    // descriptors without rotation information; the pair then constrains x, y only).
+    if (best >= 0) {
       pairs.push_back(
-          SessionLoopPair{frames[best].session, frames[best].index, ft.session, ft.index});
+          SessionLoopPair{frames[best].session, frames[best].index, ft.session, ft.index,
+                          use_heading ? extractor.RelativeHeading(y[t], y[best]) : std::nullopt});
+    }
   }
   if (static_cast<int>(pairs.size()) <= max_pairs) return pairs;
   std::vector<SessionLoopPair> kept;
@@ -124,6 +129,7 @@ Calibration Calibrate(FrameSource& source, const CmlEngineOptions& options,
   std::vector<LoopFrame> frames;
   std::vector<OdometrySession> sessions;
   std::unique_ptr<OmniUnwrapper> unwrapper;
+  int panorama_columns = 0;
   Frame frame;
   Pose2 last_odom = Pose2::Zero();
   while (static_cast<int>(y.size()) < calibration_options.max_frames && source.Next(&frame)) {
@@ -149,6 +155,7 @@ Calibration Calibrate(FrameSource& source, const CmlEngineOptions& options,
         unwrapper ? PreparePanorama(unwrapper->Unwrap(frame.image), options.panorama_width,
                                     options.panorama_height)
                   : PreparePanorama(frame.image, options.panorama_width, options.panorama_height);
+    panorama_columns = panorama.cols;
     // Pixels outside a clipped ring or under the user mask do not count (descriptor.h).
     y.push_back(extractor->ComputeMasked(
         panorama, unwrapper ? unwrapper->MaskFor(panorama.cols, panorama.rows) : cv::Mat()));
@@ -216,11 +223,28 @@ Calibration Calibrate(FrameSource& source, const CmlEngineOptions& options,
   c.spatial_cell_m = defaults.model.index.spatial_cell_m * c.scale;
 
   c.loop_e_max = DistanceAtPath(c.curve, 0.5 * c.match_length_m);
-  const std::vector<SessionLoopPair> pairs =
-      FindLoopPairs(*extractor, y, frames, sessions,
-                    calibration_options.loop_min_path_match_lengths * c.match_length_m,
-                    c.loop_e_max, calibration_options.max_loop_pairs);
-  c.motion = IdentifyMotionNoise(sessions, pairs, calibration_options.identification);
+  const std::vector<SessionLoopPair> pairs = FindLoopPairs(
+      *extractor, y, frames, sessions,
+      calibration_options.loop_min_path_match_lengths * c.match_length_m, c.loop_e_max,
+      calibration_options.max_loop_pairs, calibration_options.use_relative_heading);
+  // Prior centres of the offsets from the log: a pair is accepted within about L / 2 of
+  // travel, i.e. a position offset of up to about L / 2 (per-axis variance (L / 4)^2 for
+  // an offset uniform on that disc), and the relative heading resolves about one
+  // panorama column.
+  MotionNoiseIdentificationOptions identification = calibration_options.identification;
+  if (c.match_length_m > 0) {
+    identification.appearance_variance_prior_m2 = std::pow(0.25 * c.match_length_m, 2);
+    // Frames that match lie within about L / 2 of each other, so an offset sd beyond L is
+    // not an offset: it would absorb aliased pairs, which the gate must reject instead.
+    identification.max_appearance_variance_m2 =
+        std::min(identification.max_appearance_variance_m2,
+                 std::max(c.match_length_m * c.match_length_m,
+                          2.0 * identification.min_appearance_variance_m2));
+  }
+  if (panorama_columns > 0) {
+    identification.heading_variance_prior_rad2 = std::pow(2.0 * kPi / panorama_columns, 2);
+  }
+  c.motion = IdentifyMotionNoise(sessions, pairs, identification);
   c.loop_frames = static_cast<int>(y.size());
   c.loop_sessions = static_cast<int>(sessions.size());
   return c;
@@ -270,8 +294,17 @@ std::string Calibration::ToYaml() const {
   if (m.identified) {
     s << "; motion noise identified: a1 " << m.noise.a1 << ", a2 " << m.noise.a2 << ", a3 "
       << m.noise.a3 << ", a4 " << m.noise.a4 << ", appearance offset sigma "
-      << std::sqrt(m.appearance_variance_m2) << " m; NIS median " << m.median_nis
-      << " (consistent 1.39), mean " << m.mean_nis << "\n";
+      << std::sqrt(m.appearance_variance_m2) << " m, heading offset sigma "
+      << std::sqrt(m.heading_variance_rad2) << " rad; " << m.pairs_with_heading
+      << " pairs with heading; NIS / chi-square median: median " << m.median_nis_ratio
+      << " (consistent 1), NIS / dof: mean " << m.mean_nis_per_dof << "\n";
+    // Which parameters the loops identified and which the prior holds.
+    const char* names[kIdentifiedParameters] = {"a1", "a2", "a3", "a4", "rho", "rho_phi"};
+    s << "#   posterior sd of ln(value) / share of curvature from the loops:";
+    for (int j = 0; j < kIdentifiedParameters; ++j) {
+      s << (j ? ", " : " ") << names[j] << " " << m.log_sd[j] << " / " << m.data_share[j];
+    }
+    s << "\n";
   } else {
     s << "; too few to identify the motion noise\n";
   }

@@ -142,8 +142,8 @@ CmlEngineOptions ResolveNewMapOptions(const OptionOverrides& overrides, const Ru
       add_note(StrCat("motion noise identified from ", c.motion.pairs_used, " loop pairs in ",
                       c.loop_frames, " frames of ", c.loop_sessions, " session(s): a1 ", m.a1,
                       ", a2 ", m.a2, ", a3 ", m.a3, ", a4 ", m.a4, ", appearance_sigma_m ",
-                      calibrated.appearance_sigma_m, " (loop NIS median ", c.motion.median_nis,
-                      ")"));
+                      calibrated.appearance_sigma_m, " (loop NIS / chi-square median: median ",
+                      c.motion.median_nis_ratio, ")"));
     } else {
       add_note(StrCat("motion noise not identified (", c.motion.pairs_used, " loop pairs in ",
                       c.loop_frames, " frames): configured values kept"));

@@ -4,7 +4,9 @@
 #include <cmath>
 #include <limits>
 
+#include <Eigen/Cholesky>
 #include <Eigen/LU>
+#include <Eigen/QR>
 
 #include "omnicml/common/common.h"
 #include "omnicml/geometry/chi_square.h"
@@ -12,12 +14,20 @@
 namespace omnicml {
 namespace {
 
-// Prefix sums over steps i <= t of the terms of
-//   B(s, t) = sum_{i in (s, t]} P_i + q_i h_i^T + h_i q_i^T + s_i h_i h_i^T,
+constexpr int kP = kIdentifiedParameters;
+using Vector6 = Eigen::Matrix<double, kP, 1>;
+using Matrix6 = Eigen::Matrix<double, kP, kP>;
+
+// Prefix sums over steps i <= t of the terms of the drift covariance from s to t
+// (docs/design.md "Motion noise identified from loop innovations"):
+//   B(s, t) = sum_{i in (s, t]} Phi_i W_i Phi_i^T,  Phi_i = [[I, h_i], [0, 1]],
+//   xy block    sum P_i + q_i h_i^T + h_i q_i^T + s_i h_i h_i^T,
+//   xy-phi      sum q_i + s_i h_i,
+//   phi-phi     sum s_i,
 //   h_i = R (p_t - p_i) = c - g_i,  c = R p_t,  g_i = R p_i,  R = rotation by +90 deg,
 // where W_i = V_i M_i V_i^T = [[P_i, q_i], [q_i^T, s_i]] is the noise injected by step i
-// (from pose i-1 to pose i) and [[I, h_i], [0, 1]] carries it from pose i to pose t
-// (the product of the state Jacobians G of the steps after i).
+// (from pose i-1 to pose i) and Phi_i (the product of the state Jacobians G of the steps
+// after i) carries it from pose i to pose t.
 struct Prefix {
   Eigen::Matrix2d p = Eigen::Matrix2d::Zero();
   Eigen::Vector2d q = Eigen::Vector2d::Zero();
@@ -27,8 +37,9 @@ struct Prefix {
   Eigen::Matrix2d sgg = Eigen::Matrix2d::Zero();  // s g g^T
 };
 
-// The median of the chi-square distribution with 2 degrees of freedom, 2 ln 2.
-constexpr double kChiSquare2Median = 1.3862943611198906;
+// Chi-square medians with 2 and 3 degrees of freedom.
+constexpr double kChiSquareMedian[4] = {0.0, 0.45493642311957, 1.3862943611198906,
+                                        2.3659738843753377};
 
 Eigen::Vector2d Rotate90(const Pose2& p) { return Eigen::Vector2d(-p.y(), p.x()); }
 
@@ -43,80 +54,256 @@ Prefix Minus(const Prefix& a, const Prefix& b) {
   return d;
 }
 
-Eigen::Matrix2d Evaluate(const Prefix& d, const Eigen::Vector2d& c) {
-  Eigen::Matrix2d b = d.p + d.q * c.transpose() + c * d.q.transpose() - d.qg - d.qg.transpose() +
-                      d.s * c * c.transpose() - c * d.sg.transpose() - d.sg * c.transpose() + d.sgg;
-  return 0.5 * (b + b.transpose());
+// The drift covariance of the prefix difference d at the pose whose R p_t is c.
+Eigen::Matrix3d Evaluate(const Prefix& d, const Eigen::Vector2d& c) {
+  Eigen::Matrix3d b;
+  const Eigen::Matrix2d xy = d.p + d.q * c.transpose() + c * d.q.transpose() - d.qg -
+                             d.qg.transpose() + d.s * c * c.transpose() - c * d.sg.transpose() -
+                             d.sg * c.transpose() + d.sgg;
+  b.block<2, 2>(0, 0) = 0.5 * (xy + xy.transpose());
+  const Eigen::Vector2d cross = d.q + d.s * c - d.sg;
+  b.block<2, 1>(0, 2) = cross;
+  b.block<1, 2>(2, 0) = cross.transpose();
+  b(2, 2) = d.s;
+  return b;
 }
 
-// One pair's innovation, its covariance bases and its fixed covariance (start poses).
+// One pair's innovation (x, y, phi; phi unused when dim is 2), its drift bases and its
+// fixed covariance (start poses).
 struct Term {
-  Eigen::Vector2d r;
-  std::array<Eigen::Matrix2d, 4> b;
-  Eigen::Matrix2d fixed = Eigen::Matrix2d::Zero();
+  Eigen::Vector3d r = Eigen::Vector3d::Zero();
+  int dim = 2;
+  std::array<Eigen::Matrix3d, 4> b;
+  Eigen::Matrix3d fixed = Eigen::Matrix3d::Zero();
 };
 
-// S = F + sum_j a_j B_j + rho I (theta = ln a_1..ln a_4, ln rho).
-Eigen::Matrix2d Covariance(const Term& t, const std::array<double, 5>& value) {
-  Eigen::Matrix2d s = t.fixed + value[4] * Eigen::Matrix2d::Identity();
-  for (int j = 0; j < 4; ++j) s += value[j] * t.b[j];
+// S = F + sum_j a_j B_j + diag(rho, rho, rho_phi) for parameter values v.
+Eigen::Matrix3d Covariance(const Term& t, const Vector6& v) {
+  Eigen::Matrix3d s = t.fixed;
+  for (int j = 0; j < 4; ++j) s += v[j] * t.b[j];
+  s(0, 0) += v[4];
+  s(1, 1) += v[4];
+  s(2, 2) += v[5];
   return s;
 }
 
-double Nis(const Term& t, const std::array<double, 5>& value) {
-  const Eigen::Matrix2d s = Covariance(t, value);
-  return t.r.dot(s.inverse() * t.r);
-}
-
-// Negative log-likelihood (up to constants) of the terms flagged in `use`.
-double NegLogLikelihood(const std::vector<Term>& terms, const std::vector<char>& use,
-                        const std::array<double, 5>& value) {
-  double sum = 0.0;
-  for (std::size_t k = 0; k < terms.size(); ++k) {
-    if (!use[k]) continue;
-    const Eigen::Matrix2d s = Covariance(terms[k], value);
-    const double det = s.determinant();
-    if (!(det > 0)) return std::numeric_limits<double>::infinity();
-    sum += std::log(det) + terms[k].r.dot(s.inverse() * terms[k].r);
+// Basis of parameter j in S (the offsets' are constant).
+Eigen::Matrix3d Basis(const Term& t, int j) {
+  if (j < 4) return t.b[j];
+  Eigen::Matrix3d a = Eigen::Matrix3d::Zero();
+  if (j == 4) {
+    a(0, 0) = a(1, 1) = 1.0;
+  } else {
+    a(2, 2) = 1.0;
   }
-  return sum;
+  return a;
 }
 
-// Cyclic coordinate search on ln(value), golden section within [lo, hi] per coordinate.
-void Fit(const std::vector<Term>& terms, const std::vector<char>& use,
-         const std::array<double, 5>& lo, const std::array<double, 5>& hi, int sweeps,
-         std::array<double, 5>* value) {
-  constexpr double kInvPhi = 0.6180339887498949;
-  for (int sweep = 0; sweep < sweeps; ++sweep) {
-    for (int j = 0; j < 5; ++j) {
-      double a = std::log(lo[j]), b = std::log(hi[j]);
-      auto f = [&](double x) {
-        std::array<double, 5> v = *value;
-        v[j] = std::exp(x);
-        return NegLogLikelihood(terms, use, v);
-      };
-      double x1 = b - kInvPhi * (b - a), x2 = a + kInvPhi * (b - a);
-      double f1 = f(x1), f2 = f(x2);
-      for (int it = 0; it < 60 && b - a > 1e-4; ++it) {
-        if (f1 <= f2) {
-          b = x2;
-          x2 = x1;
-          f2 = f1;
-          x1 = b - kInvPhi * (b - a);
-          f1 = f(x1);
-        } else {
-          a = x1;
-          x1 = x2;
-          f1 = f2;
-          x2 = a + kInvPhi * (b - a);
-          f2 = f(x2);
-        }
+template <int D>
+double NisOf(const Term& t, const Vector6& v) {
+  const Eigen::Matrix<double, D, D> s = Covariance(t, v).topLeftCorner<D, D>();
+  const Eigen::Matrix<double, D, 1> r = t.r.head<D>();
+  return r.dot(s.inverse() * r);
+}
+
+double Nis(const Term& t, const Vector6& v) { return t.dim == 3 ? NisOf<3>(t, v) : NisOf<2>(t, v); }
+
+// -2 ln L of one pair and, when wanted, its gradient and Fisher information in the log
+// parameters theta = ln v: g_j = v_j (tr(S^-1 A_j) - r^T S^-1 A_j S^-1 r),
+// F_jl = v_j v_l tr(S^-1 A_j S^-1 A_l).
+template <int D>
+double AddTerm(const Term& t, const Vector6& v, Vector6* g, Matrix6* f) {
+  const Eigen::Matrix<double, D, D> s = Covariance(t, v).topLeftCorner<D, D>();
+  const double det = s.determinant();
+  if (!(det > 0)) return std::numeric_limits<double>::infinity();
+  const Eigen::Matrix<double, D, D> si = s.inverse();
+  const Eigen::Matrix<double, D, 1> r = t.r.head<D>();
+  const Eigen::Matrix<double, D, 1> alpha = si * r;
+  if (g != nullptr) {
+    std::array<Eigen::Matrix<double, D, D>, kP> m;
+    for (int j = 0; j < kP; ++j) {
+      const Eigen::Matrix<double, D, D> a = Basis(t, j).topLeftCorner<D, D>();
+      m[j] = si * a;
+      (*g)[j] += v[j] * (m[j].trace() - alpha.dot(a * alpha));
+    }
+    for (int j = 0; j < kP; ++j) {
+      for (int l = j; l < kP; ++l) {
+        const double x = v[j] * v[l] * (m[j] * m[l]).trace();
+        (*f)(j, l) += x;
+        if (l != j) (*f)(l, j) += x;
       }
-      const double x = 0.5 * (a + b);
-      // Keep the current value unless the search found a better one.
-      if (f(x) <= f(std::log((*value)[j]))) (*value)[j] = std::exp(x);
     }
   }
+  return std::log(det) + r.dot(alpha);
+}
+
+// The objective: -2 ln posterior (up to constants) of the pairs flagged in `use`, its
+// gradient in theta, and the Fisher information of the pairs (`data`) and the prior's
+// Hessian (`prior`), both in -2 ln units.
+struct Objective {
+  const std::vector<Term>& terms;
+  const std::vector<char>& use;
+  const MotionNoiseIdentificationOptions& options;
+
+  double operator()(const Vector6& theta, Vector6* g = nullptr, Matrix6* data = nullptr,
+                    Matrix6* prior = nullptr) const {
+    const Vector6 v = theta.array().exp();
+    if (g != nullptr) {
+      g->setZero();
+      data->setZero();
+      prior->setZero();
+    }
+    double sum = 0.0;
+    for (std::size_t k = 0; k < terms.size(); ++k) {
+      if (!use[k]) continue;
+      sum +=
+          terms[k].dim == 3 ? AddTerm<3>(terms[k], v, g, data) : AddTerm<2>(terms[k], v, g, data);
+      if (!std::isfinite(sum)) return sum;
+    }
+    // Shape prior: d_j = ln(a_j / c_j), sum_j (d_j - mean d)^2 / sd^2.
+    const MotionNoise& c = options.shape_prior;
+    const std::array<double, 4> shape{c.a1, c.a2, c.a3, c.a4};
+    std::array<double, 4> d;
+    double mean = 0.0;
+    for (int j = 0; j < 4; ++j) {
+      d[j] = theta[j] - std::log(shape[j]);
+      mean += 0.25 * d[j];
+    }
+    const double w = 1.0 / (options.shape_prior_log_sd * options.shape_prior_log_sd);
+    for (int j = 0; j < 4; ++j) {
+      sum += w * (d[j] - mean) * (d[j] - mean);
+      if (g != nullptr) {
+        (*g)[j] += 2.0 * w * (d[j] - mean);
+        for (int l = 0; l < 4; ++l) (*prior)(j, l) += 2.0 * w * ((j == l ? 1.0 : 0.0) - 0.25);
+      }
+    }
+    // Offset priors: ln(rho / rho_0) ~ N(0, sd^2), and the same for rho_phi.
+    const double wo = 1.0 / (options.offset_prior_log_sd * options.offset_prior_log_sd);
+    const double centre[2] = {std::log(options.appearance_variance_prior_m2),
+                              std::log(options.heading_variance_prior_rad2)};
+    for (int j = 4; j < kP; ++j) {
+      const double e = theta[j] - centre[j - 4];
+      sum += wo * e * e;
+      if (g != nullptr) {
+        (*g)[j] += 2.0 * wo * e;
+        (*prior)(j, j) += 2.0 * wo;
+      }
+    }
+    return sum;
+  }
+};
+
+// Bounds of theta.
+struct Box {
+  Vector6 lo, hi;
+};
+
+Box Bounds(const MotionNoiseIdentificationOptions& o) {
+  Box b;
+  for (int j = 0; j < 4; ++j) {
+    b.lo[j] = std::log(o.min_parameter);
+    b.hi[j] = std::log(o.max_parameter);
+  }
+  b.lo[4] = std::log(o.min_appearance_variance_m2);
+  b.hi[4] = std::log(o.max_appearance_variance_m2);
+  b.lo[5] = std::log(o.min_heading_variance_rad2);
+  b.hi[5] = std::log(o.max_heading_variance_rad2);
+  return b;
+}
+
+Vector6 Clamp(const Vector6& x, const Box& box) { return x.cwiseMax(box.lo).cwiseMin(box.hi); }
+
+// The starting point: a1..a4 in the prior shape at the common scale that minimises the
+// objective (golden section on the log scale), the offsets at their prior centres.
+Vector6 Start(const Objective& f, const Box& box) {
+  const MotionNoise& c = f.options.shape_prior;
+  const std::array<double, 4> shape{std::log(c.a1), std::log(c.a2), std::log(c.a3), std::log(c.a4)};
+  Vector6 x;
+  x[4] = std::log(f.options.appearance_variance_prior_m2);
+  x[5] = std::log(f.options.heading_variance_prior_rad2);
+  auto at = [&](double scale) {
+    Vector6 y = x;
+    for (int j = 0; j < 4; ++j) y[j] = shape[j] + scale;
+    return Clamp(y, box);
+  };
+  const double smallest = *std::min_element(shape.begin(), shape.end());
+  const double largest = *std::max_element(shape.begin(), shape.end());
+  double a = box.lo[0] - largest, b = box.hi[0] - smallest;
+  constexpr double kInvPhi = 0.6180339887498949;
+  double x1 = b - kInvPhi * (b - a), x2 = a + kInvPhi * (b - a);
+  double f1 = f(at(x1)), f2 = f(at(x2));
+  while (b - a > 1e-3) {
+    if (f1 <= f2) {
+      b = x2;
+      x2 = x1;
+      f2 = f1;
+      x1 = b - kInvPhi * (b - a);
+      f1 = f(at(x1));
+    } else {
+      a = x1;
+      x1 = x2;
+      f1 = f2;
+      x2 = a + kInvPhi * (b - a);
+      f2 = f(at(x2));
+    }
+  }
+  return at(0.5 * (a + b));
+}
+
+// Fisher scoring on theta within the box, with a Levenberg-Marquardt damping that grows
+// until a step lowers the objective; coordinates at a bound whose gradient points out of
+// the box are held. Returns the estimate; `data` and `prior` are the curvatures there.
+Vector6 Fit(const Objective& f, const Box& box, int max_iterations, Matrix6* data, Matrix6* prior) {
+  Vector6 x = Start(f, box);
+  Vector6 g;
+  double fx = f(x, &g, data, prior);
+  double lambda = 1e-3;
+  for (int it = 0; it < max_iterations && std::isfinite(fx); ++it) {
+    const Matrix6 h = *data + *prior;
+    std::array<bool, kP> free;
+    for (int j = 0; j < kP; ++j) {
+      free[j] = !((x[j] <= box.lo[j] && g[j] > 0) || (x[j] >= box.hi[j] && g[j] < 0));
+    }
+    bool accepted = false;
+    Vector6 step = Vector6::Zero();
+    for (int attempt = 0; attempt < 12 && !accepted; ++attempt) {
+      Matrix6 a = Matrix6::Identity();
+      Vector6 rhs = Vector6::Zero();
+      for (int j = 0; j < kP; ++j) {
+        if (!free[j]) continue;
+        rhs[j] = -g[j];
+        for (int l = 0; l < kP; ++l) {
+          if (free[l]) a(j, l) = h(j, l);
+        }
+        a(j, j) += lambda * std::max(h(j, j), 1e-12) + 1e-12;
+      }
+      step = a.ldlt().solve(rhs);
+      const Vector6 y = Clamp(x + step, box);
+      Vector6 gy;
+      Matrix6 dy, py;
+      const double fy = f(y, &gy, &dy, &py);
+      if (std::isfinite(fy) && fy < fx) {
+        step = y - x;
+        x = y;
+        fx = fy;
+        g = gy;
+        *data = dy;
+        *prior = py;
+        lambda = std::max(lambda / 4.0, 1e-9);
+        accepted = true;
+      } else {
+        lambda *= 8.0;
+      }
+    }
+    if (!accepted || step.cwiseAbs().maxCoeff() < 1e-7) break;
+  }
+  return x;
+}
+
+double Median(std::vector<double> v) {
+  const std::size_t mid = v.size() / 2;
+  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(mid), v.end());
+  return v[mid];
 }
 
 }  // namespace
@@ -132,9 +319,28 @@ void MotionNoiseIdentificationOptions::Validate() const {
         std::isfinite(max_appearance_variance_m2))) {
     fail("min_appearance_variance_m2/max_appearance_variance_m2", "0 < min < max");
   }
+  if (!(min_heading_variance_rad2 > 0 && min_heading_variance_rad2 < max_heading_variance_rad2 &&
+        std::isfinite(max_heading_variance_rad2))) {
+    fail("min_heading_variance_rad2/max_heading_variance_rad2", "0 < min < max");
+  }
+  for (double a : {shape_prior.a1, shape_prior.a2, shape_prior.a3, shape_prior.a4}) {
+    if (!(a > 0 && std::isfinite(a))) fail("shape_prior", "a1..a4 > 0 and finite");
+  }
+  if (!(shape_prior_log_sd > 0 && std::isfinite(shape_prior_log_sd))) {
+    fail("shape_prior_log_sd", "> 0");
+  }
+  if (!(appearance_variance_prior_m2 > 0 && std::isfinite(appearance_variance_prior_m2))) {
+    fail("appearance_variance_prior_m2", "> 0");
+  }
+  if (!(heading_variance_prior_rad2 > 0 && std::isfinite(heading_variance_prior_rad2))) {
+    fail("heading_variance_prior_rad2", "> 0");
+  }
+  if (!(offset_prior_log_sd > 0 && std::isfinite(offset_prior_log_sd))) {
+    fail("offset_prior_log_sd", "> 0");
+  }
   if (!(outlier_confidence > 0 && outlier_confidence < 1)) fail("outlier_confidence", "in (0, 1)");
   if (min_pairs < 1) fail("min_pairs", ">= 1");
-  if (sweeps < 1) fail("sweeps", ">= 1");
+  if (max_iterations < 1) fail("max_iterations", ">= 1");
   if (max_rounds < 1) fail("max_rounds", ">= 1");
 }
 
@@ -171,20 +377,19 @@ Prefixes BuildPrefixes(const std::vector<Pose2>& odometry) {
 }
 
 // B_j(s, t) for a session's prefixes.
-std::array<Eigen::Matrix2d, 4> Bases(const Prefixes& prefix, const std::vector<Pose2>& odometry,
+std::array<Eigen::Matrix3d, 4> Bases(const Prefixes& prefix, const std::vector<Pose2>& odometry,
                                      int s, int t) {
-  std::array<Eigen::Matrix2d, 4> b;
+  std::array<Eigen::Matrix3d, 4> b;
   const Eigen::Vector2d c = Rotate90(odometry[t]);
   for (int j = 0; j < 4; ++j) b[j] = Evaluate(Minus(prefix[j][t], prefix[j][s]), c);
   return b;
 }
 
-// The xy covariance at pose t of a start error with covariance c0 at pose 0.
-Eigen::Matrix2d StartCovarianceAt(const std::vector<Pose2>& poses, int t,
+// The covariance at pose t of a start error with covariance c0 at pose 0.
+Eigen::Matrix3d StartCovarianceAt(const std::vector<Pose2>& poses, int t,
                                   const Eigen::Matrix3d& c0) {
-  Eigen::Matrix<double, 2, 3> phi;
-  const Eigen::Vector2d lever = Rotate90(poses[t]) - Rotate90(poses[0]);
-  phi << 1.0, 0.0, lever.x(), 0.0, 1.0, lever.y();
+  Eigen::Matrix3d phi = Eigen::Matrix3d::Identity();
+  phi.block<2, 1>(0, 2) = Rotate90(poses[t]) - Rotate90(poses[0]);
   return phi * c0 * phi.transpose();
 }
 
@@ -193,7 +398,7 @@ MotionNoiseIdentification Identify(const std::vector<Term>& terms,
 
 }  // namespace
 
-std::vector<std::array<Eigen::Matrix2d, 4>> LoopDriftBases(const std::vector<Pose2>& odometry,
+std::vector<std::array<Eigen::Matrix3d, 4>> LoopDriftBases(const std::vector<Pose2>& odometry,
                                                            const std::vector<LoopPair>& pairs) {
   const int n = static_cast<int>(odometry.size());
   for (const LoopPair& p : pairs) {
@@ -203,7 +408,7 @@ std::vector<std::array<Eigen::Matrix2d, 4>> LoopDriftBases(const std::vector<Pos
     }
   }
   const Prefixes prefix = BuildPrefixes(odometry);
-  std::vector<std::array<Eigen::Matrix2d, 4>> out(pairs.size());
+  std::vector<std::array<Eigen::Matrix3d, 4>> out(pairs.size());
   for (std::size_t k = 0; k < pairs.size(); ++k) {
     out[k] = Bases(prefix, odometry, pairs[k].first, pairs[k].second);
   }
@@ -231,6 +436,10 @@ MotionNoiseIdentification IdentifyMotionNoise(const std::vector<OdometrySession>
       throw Error(StrCat("loop pair (", p.first_session, ":", p.first, ", ", p.second_session, ":",
                          p.second, ") across sessions needs both starts known"));
     }
+    if (p.heading_rad && !std::isfinite(*p.heading_rad)) {
+      throw Error(StrCat("loop pair (", p.first_session, ":", p.first, ", ", p.second_session, ":",
+                         p.second, ") has a non-finite heading"));
+    }
   }
   std::vector<Prefixes> prefixes;
   for (const OdometrySession& s : sessions) prefixes.push_back(BuildPrefixes(s.poses));
@@ -241,15 +450,20 @@ MotionNoiseIdentification IdentifyMotionNoise(const std::vector<OdometrySession>
     const OdometrySession& b = sessions[p.second_session];
     const Pose2& pa = a.poses[p.first];
     const Pose2& pb = b.poses[p.second];
-    terms[k].r = Eigen::Vector2d(pb.x() - pa.x(), pb.y() - pa.y());
+    Term& term = terms[k];
+    term.r.head<2>() = Eigen::Vector2d(pb.x() - pa.x(), pb.y() - pa.y());
+    if (p.heading_rad) {
+      term.dim = 3;
+      term.r[2] = WrapAngle(pb.z() - pa.z() - *p.heading_rad);
+    }
     if (p.first_session == p.second_session) {
-      terms[k].b = Bases(prefixes[p.first_session], a.poses, p.first, p.second);
+      term.b = Bases(prefixes[p.first_session], a.poses, p.first, p.second);
     } else {
       const auto ba = Bases(prefixes[p.first_session], a.poses, 0, p.first);
       const auto bb = Bases(prefixes[p.second_session], b.poses, 0, p.second);
-      for (int j = 0; j < 4; ++j) terms[k].b[j] = ba[j] + bb[j];
-      terms[k].fixed = StartCovarianceAt(a.poses, p.first, a.start_covariance) +
-                       StartCovarianceAt(b.poses, p.second, b.start_covariance);
+      for (int j = 0; j < 4; ++j) term.b[j] = ba[j] + bb[j];
+      term.fixed = StartCovarianceAt(a.poses, p.first, a.start_covariance) +
+                   StartCovarianceAt(b.poses, p.second, b.start_covariance);
     }
   }
   return Identify(terms, options);
@@ -261,7 +475,9 @@ MotionNoiseIdentification IdentifyMotionNoise(const std::vector<Pose2>& odometry
   OdometrySession session;
   session.poses = odometry;
   std::vector<SessionLoopPair> session_pairs;
-  for (const LoopPair& p : pairs) session_pairs.push_back(SessionLoopPair{0, p.first, 0, p.second});
+  for (const LoopPair& p : pairs) {
+    session_pairs.push_back(SessionLoopPair{0, p.first, 0, p.second, p.heading_rad});
+  }
   return IdentifyMotionNoise({session}, session_pairs, options);
 }
 
@@ -273,56 +489,61 @@ MotionNoiseIdentification Identify(const std::vector<Term>& terms,
   result.pairs = static_cast<int>(terms.size());
   if (result.pairs < options.min_pairs) return result;
 
-  const std::array<double, 5> lo{options.min_parameter, options.min_parameter,
-                                 options.min_parameter, options.min_parameter,
-                                 options.min_appearance_variance_m2};
-  const std::array<double, 5> hi{options.max_parameter, options.max_parameter,
-                                 options.max_parameter, options.max_parameter,
-                                 options.max_appearance_variance_m2};
-  // Start from the geometric middle of the bounds.
-  std::array<double, 5> value;
-  for (int j = 0; j < 5; ++j) value[j] = std::sqrt(lo[j] * hi[j]);
-  const double gate = ChiSquareQuantile(options.outlier_confidence, 2);
+  const Box box = Bounds(options);
   std::vector<char> use(terms.size(), 1);
+  const Objective objective{terms, use, options};
+  Matrix6 data, prior;
+  std::array<double, 4> gate;
+  for (int dim = 2; dim <= 3; ++dim) gate[dim] = ChiSquareQuantile(options.outlier_confidence, dim);
   for (int round = 0; round < options.max_rounds; ++round) {
-    Fit(terms, use, lo, hi, options.sweeps, &value);
-    // The NIS scaled so that the median of the pairs in use is the chi-square median:
-    // while aliases inflate the fit, the inliers' NIS are uniformly too small, and the
-    // scaling (robust to a minority of aliases) restores the gate's meaning.
-    std::vector<double> nis_used;
+    const Vector6 v = Fit(objective, box, options.max_iterations, &data, &prior).array().exp();
+    // Each NIS relative to the chi-square median of its dof, scaled so that the median of
+    // the pairs in use is 1: while aliases inflate the fit, the inliers' NIS are uniformly
+    // too small, and the scaling (robust to a minority of aliases) restores the gate's
+    // meaning.
+    std::vector<double> ratio;
     for (std::size_t k = 0; k < terms.size(); ++k) {
-      if (use[k]) nis_used.push_back(Nis(terms[k], value));
+      if (use[k]) ratio.push_back(Nis(terms[k], v) / kChiSquareMedian[terms[k].dim]);
     }
-    if (nis_used.empty()) break;
-    std::nth_element(nis_used.begin(),
-                     nis_used.begin() + static_cast<std::ptrdiff_t>(nis_used.size() / 2),
-                     nis_used.end());
-    const double median = nis_used[nis_used.size() / 2];
-    const double scale = median > 0 ? kChiSquare2Median / median : 1.0;
+    if (ratio.empty()) break;
+    const double median = Median(ratio);
+    const double scale = median > 0 ? 1.0 / median : 1.0;
     std::vector<char> next(terms.size(), 0);
-    for (std::size_t k = 0; k < terms.size(); ++k) next[k] = scale * Nis(terms[k], value) <= gate;
+    for (std::size_t k = 0; k < terms.size(); ++k) {
+      next[k] = scale * Nis(terms[k], v) <= gate[terms[k].dim];
+    }
     if (next == use) break;
     use = std::move(next);
   }
-  // The final fit starts from the same point as the first, so the estimate depends on the
+  // The final fit starts from the same point as every fit, so the estimate depends on the
   // inlier set only, not on the path of the rejection rounds.
-  for (int j = 0; j < 5; ++j) value[j] = std::sqrt(lo[j] * hi[j]);
-  Fit(terms, use, lo, hi, options.sweeps, &value);
-  std::vector<double> nis;
+  const Vector6 theta = Fit(objective, box, options.max_iterations, &data, &prior);
+  const Vector6 v = theta.array().exp();
+  std::vector<double> ratio;
+  double per_dof = 0.0;
   for (std::size_t k = 0; k < terms.size(); ++k) {
-    if (use[k]) nis.push_back(Nis(terms[k], value));
+    if (!use[k]) continue;
+    const double nis = Nis(terms[k], v);
+    ratio.push_back(nis / kChiSquareMedian[terms[k].dim]);
+    per_dof += nis / terms[k].dim;
+    if (terms[k].dim == 3) ++result.pairs_with_heading;
   }
-  result.pairs_used = static_cast<int>(nis.size());
+  result.pairs_used = static_cast<int>(ratio.size());
   if (result.pairs_used < options.min_pairs) return result;
   result.identified = true;
-  result.noise = MotionNoise{value[0], value[1], value[2], value[3]};
-  result.appearance_variance_m2 = value[4];
-  double sum = 0.0;
-  for (double x : nis) sum += x;
-  result.mean_nis = sum / static_cast<double>(nis.size());
-  std::nth_element(nis.begin(), nis.begin() + static_cast<std::ptrdiff_t>(nis.size() / 2),
-                   nis.end());
-  result.median_nis = nis[nis.size() / 2];
+  result.noise = MotionNoise{v[0], v[1], v[2], v[3]};
+  result.appearance_variance_m2 = v[4];
+  result.heading_variance_rad2 = v[5];
+  result.median_nis_ratio = Median(ratio);
+  result.mean_nis_per_dof = per_dof / static_cast<double>(ratio.size());
+  // Posterior covariance of theta: the inverse of half the -2 ln posterior's curvature.
+  const Matrix6 covariance =
+      (0.5 * (data + prior)).completeOrthogonalDecomposition().pseudoInverse();
+  for (int j = 0; j < kP; ++j) {
+    result.log_sd[j] = std::sqrt(std::max(covariance(j, j), 0.0));
+    const double total = data(j, j) + prior(j, j);
+    result.data_share[j] = total > 0 ? data(j, j) / total : 0.0;
+  }
   return result;
 }
 

@@ -20,8 +20,12 @@
 // the earlier frames of its session more than loop_min_path_match_lengths * L of odometry
 // path back, or of an earlier session when both sessions start at a known pose, form a
 // loop pair when closer than E(L / 2) (the curve's median distance at half the match
-// length); a1..a4 and the appearance offset variance rho are their maximum-likelihood
-// values. Their innovations need no ground truth. The curve and L use the first session.
+// length), with the descriptor's relative heading when it has one (use_relative_heading);
+// a1..a4 and the appearance offset variance rho are their MAP values
+// (tracking/motion_noise_identification.h), with the prior centres of rho and of the
+// heading offset variance set from L ((L / 4)^2) and the panorama width (one column
+// squared), and rho bounded by L^2. Their innovations need no ground truth. The curve and L
+// use the first session.
 //
 // Pure function of the log and the options; not thread-safe per FrameSource.
 #ifndef OMNICML_ENGINE_CALIBRATION_H_
@@ -56,6 +60,9 @@ struct CalibrationOptions {
   double loop_min_path_match_lengths = 20.0;
   // Largest number of loop pairs used (evenly subsampled by the later frame). >= 1.
   int max_loop_pairs = 2000;
+  // Give loop pairs the descriptor's relative heading (3-dof innovations) when the
+  // descriptor provides one; false: x, y only (2 dof).
+  bool use_relative_heading = true;
   MotionNoiseIdentificationOptions identification;
 
   // Throws omnicml::Error naming the first invalid field.

@@ -269,7 +269,18 @@ void BindExperiments(py::module_& m) {
         {
           py::gil_scoped_release release;
           input.Validate();
-          r = RunCml(MakeRunEngine(overrides, map_in, base.value_or(CmlEngineOptions{})), input, s);
+          // A new map's options: spatial thresholds and motion noise derived from the input
+          // first when the options ask, as `omnicml run` does (ResolveNewMapOptions).
+          std::unique_ptr<CmlEngine> engine;
+          if (map_in.empty()) {
+            std::string note;
+            engine = std::make_unique<CmlEngine>(
+                ResolveNewMapOptions(overrides, input, &note, base.value_or(CmlEngineOptions{})));
+            if (!note.empty()) s.outputs.input_description += "; " + note;
+          } else {
+            engine = MakeRunEngine(overrides, map_in, base.value_or(CmlEngineOptions{}));
+          }
+          r = RunCml(std::move(engine), input, s);
         }
         RunResult out;
         out.label = "run";
@@ -316,8 +327,8 @@ void BindExperiments(py::module_& m) {
           py::gil_scoped_release release;
           // The command's engine options: the value under the threads override (modes
           // set forgetting).
-          r = RunCompare(ResolveEngineOptions(MakeOverrides(base, threads, std::nullopt),
-                                              base.value_or(CmlEngineOptions{})),
+          r = RunCompare(ResolveNewMapOptions(MakeOverrides(base, threads, std::nullopt), input,
+                                              &s.input_note, base.value_or(CmlEngineOptions{})),
                          input, s);
         }
         CompareResult result;

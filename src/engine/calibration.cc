@@ -103,6 +103,10 @@ void CalibrationOptions::Validate() const {
   if (!(min_scale > 0 && min_scale <= max_scale && std::isfinite(max_scale))) {
     throw Error("CalibrationOptions.min_scale/max_scale must satisfy 0 < min <= max");
   }
+  if (scale_steps_per_octave < 0) {
+    throw Error(StrCat("CalibrationOptions.scale_steps_per_octave must be >= 0, got ",
+                       scale_steps_per_octave));
+  }
   if (!(std::isfinite(loop_min_path_match_lengths) && loop_min_path_match_lengths > 0)) {
     throw Error(StrCat("CalibrationOptions.loop_min_path_match_lengths must be > 0, got ",
                        loop_min_path_match_lengths));
@@ -205,8 +209,13 @@ Calibration Calibrate(FrameSource& source, const CmlEngineOptions& options,
     c.saturated = true;
     c.match_length_m = c.curve.back().median_path_m;
   }
-  c.scale = std::clamp(c.match_length_m / calibration_options.reference_match_length_m,
-                       calibration_options.min_scale, calibration_options.max_scale);
+  c.measured_scale = c.match_length_m / calibration_options.reference_match_length_m;
+  c.scale =
+      std::clamp(c.measured_scale, calibration_options.min_scale, calibration_options.max_scale);
+  if (calibration_options.scale_steps_per_octave > 0) {
+    const double steps = calibration_options.scale_steps_per_octave;
+    c.scale = std::exp2(std::round(std::log2(c.scale) * steps) / steps);
+  }
   const CmlEngineOptions defaults;
   c.appearance_sigma_m = defaults.appearance_sigma_m * c.scale;
   c.anchor_max_sigma_m = defaults.anchor_max_sigma_m * c.scale;
@@ -248,6 +257,15 @@ void ApplyCalibration(const Calibration& calibration, CmlEngineOptions* options)
   options->model.index.spatial_cell_m = calibration.spatial_cell_m;
 }
 
+bool ScaleSpatialThresholds(const Calibration& calibration, CmlEngineOptions* options) {
+  if (calibration.saturated || !(calibration.match_length_m > 0)) return false;
+  options->appearance_sigma_m *= calibration.scale;
+  options->anchor_max_sigma_m *= calibration.scale;
+  options->model.forgetting.d_for_m *= calibration.scale;
+  options->model.index.spatial_cell_m *= calibration.scale;
+  return true;
+}
+
 bool ApplyMotionCalibration(const Calibration& calibration, CmlEngineOptions* options) {
   if (!calibration.motion.identified) return false;
   options->tracker.motion = calibration.motion.noise;
@@ -263,7 +281,7 @@ std::string Calibration::ToYaml() const {
     << median_step_m << " m\n";
   s << "# descriptor distance E reaches e_max " << e_max << " after " << match_length_m
     << " m of travel" << (saturated ? " (not reached: largest lag measured)" : "") << "; scale "
-    << scale << "\n";
+    << scale << " (measured " << measured_scale << ", clamped and rounded)\n";
   s << "# lag_frames, median path m, median E\n";
   for (std::size_t i = 0; i < curve.size(); ++i) {
     if (i >= 20 && (i + 1) % 20 != 0 && i + 1 != curve.size()) continue;

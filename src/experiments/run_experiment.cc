@@ -70,8 +70,8 @@ RunExperimentResult RunExperiment(const RunExperimentOptions& o) {
   // Read the survey trajectory before the first frame (a bad line fails at once).
   if (f.survey.enabled()) run.process = MakeSurveyFrameProcessor(f.survey, nullptr);
   run.evaluate_from_session = f.survey.days;
-  // A new map's options: when they say motion_noise_source: identified, the motion noise
-  // is identified from the input first (run_config.h ResolveNewMapOptions).
+  // A new map's options: the spatial thresholds and the motion noise, when the options
+  // ask, are derived from the input first (run_config.h ResolveNewMapOptions).
   std::unique_ptr<CmlEngine> engine;
   if (o.map_in.empty()) {
     std::string calibration_note;

@@ -1,6 +1,7 @@
 #include "omnicml/geometry/motion_model.h"
 
 #include <cmath>
+#include <string>
 
 #include "omnicml/common/common.h"
 
@@ -8,19 +9,31 @@ namespace omnicml {
 namespace {
 
 // Throws naming `prefix.field` unless value is finite and >= 0.
-void CheckNonNegative(const char* prefix, const char* field, double value) {
+void CheckNonNegative(const std::string& prefix, const char* field, double value) {
   if (!(std::isfinite(value) && value >= 0)) {
     throw Error(StrCat(prefix, field, " must be finite and >= 0, got ", value));
   }
 }
 
+// A uniform double in (0, 1) from 53 random bits (never 0, so log() is finite).
+double UniformOpen(std::mt19937_64& rng) {
+  return (static_cast<double>(rng() >> 11) + 0.5) * (1.0 / 9007199254740992.0);
+}
+
+// A standard normal sample by Box-Muller (one sample per call, two uniforms).
+double StandardNormal(std::mt19937_64& rng) {
+  const double u1 = UniformOpen(rng);
+  const double u2 = UniformOpen(rng);
+  return std::sqrt(-2.0 * std::log(u1)) * std::cos(kTwoPi * u2);
+}
+
 }  // namespace
 
-void MotionNoise::Validate() const {
-  CheckNonNegative("MotionNoise.", "a1", a1);
-  CheckNonNegative("MotionNoise.", "a2", a2);
-  CheckNonNegative("MotionNoise.", "a3", a3);
-  CheckNonNegative("MotionNoise.", "a4", a4);
+void MotionNoise::Validate(const std::string& prefix) const {
+  CheckNonNegative(prefix, "a1", a1);
+  CheckNonNegative(prefix, "a2", a2);
+  CheckNonNegative(prefix, "a3", a3);
+  CheckNonNegative(prefix, "a4", a4);
 }
 
 // g(mu, u) = (x + t cos(phi + r1), y + t sin(phi + r1), phi + r1 + r2).
@@ -51,6 +64,21 @@ Eigen::Matrix3d MotionNoiseCovariance(const OdometryIncrement& u, const MotionNo
   return Eigen::Vector3d(noise.a1 * r1 + noise.a2 * t2, noise.a3 * t2 + noise.a4 * (r1 + r2),
                          noise.a1 * r2 + noise.a2 * t2)
       .asDiagonal();
+}
+
+OdometryIncrement SampleOdometryIncrement(const OdometryIncrement& u, const MotionNoise& noise,
+                                          std::mt19937_64& rng) {
+  const double r1 = u.rot1_rad * u.rot1_rad, r2 = u.rot2_rad * u.rot2_rad,
+               t = u.trans_m * u.trans_m;
+  // Thrun et al., sample_motion_model_odometry; variances as M of docs/design.md "Motion model".
+  const double sd_rot1 = std::sqrt(noise.a1 * r1 + noise.a2 * t);
+  const double sd_trans = std::sqrt(noise.a3 * t + noise.a4 * (r1 + r2));
+  const double sd_rot2 = std::sqrt(noise.a1 * r2 + noise.a2 * t);
+  OdometryIncrement out;
+  out.rot1_rad = u.rot1_rad + sd_rot1 * StandardNormal(rng);
+  out.trans_m = u.trans_m + sd_trans * StandardNormal(rng);
+  out.rot2_rad = u.rot2_rad + sd_rot2 * StandardNormal(rng);
+  return out;
 }
 
 }  // namespace omnicml

@@ -18,18 +18,6 @@ namespace {
 
 constexpr double kDegToRad = kPi / 180.0;
 
-// A uniform double in (0, 1) from 53 random bits (never 0, so log() is finite).
-double UniformOpen(std::mt19937_64& rng) {
-  return (static_cast<double>(rng() >> 11) + 0.5) * (1.0 / 9007199254740992.0);
-}
-
-// A standard normal sample by Box-Muller (one sample per call, two uniforms).
-double StandardNormal(std::mt19937_64& rng) {
-  const double u1 = UniformOpen(rng);
-  const double u2 = UniformOpen(rng);
-  return std::sqrt(-2.0 * std::log(u1)) * std::cos(kTwoPi * u2);
-}
-
 // Lower-case, spaces removed: "X [mm]" -> "x[mm]".
 std::string NormalizeHeader(std::string_view s) {
   std::string out;
@@ -43,15 +31,7 @@ std::string NormalizeHeader(std::string_view s) {
 }  // namespace
 
 void AntWorldOptions::Validate() const {
-  const MotionNoise& n = odometry_noise;
-  const std::pair<const char*, double> coefficients[] = {{"odometry_noise.a1", n.a1},
-                                                         {"odometry_noise.a2", n.a2},
-                                                         {"odometry_noise.a3", n.a3},
-                                                         {"odometry_noise.a4", n.a4}};
-  for (const auto& [name, value] : coefficients) {
-    if (!std::isfinite(value) || value < 0.0)
-      throw Error(StrCat("AntWorldOptions.", name, " = ", value, " must be >= 0"));
-  }
+  odometry_noise.Validate("AntWorldOptions.odometry_noise.");
   if (stride < 1) throw Error(StrCat("AntWorldOptions.stride = ", stride, " must be >= 1"));
   if (!std::isfinite(row_period_s) || row_period_s <= 0.0) {
     throw Error(StrCat("AntWorldOptions.row_period_s = ", row_period_s, " must be > 0"));
@@ -86,21 +66,6 @@ cv::Mat AntWorldToOurPanorama(const cv::Mat& antworld_panorama) {
   // Columns [0, W - shift) come from flipped [shift, W), the rest from [0, shift).
   flipped.colRange(shift, width).copyTo(out.colRange(0, width - shift));
   if (shift > 0) flipped.colRange(0, shift).copyTo(out.colRange(width - shift, width));
-  return out;
-}
-
-OdometryIncrement SampleOdometryIncrement(const OdometryIncrement& u, const MotionNoise& noise,
-                                          std::mt19937_64& rng) {
-  const double r1 = u.rot1_rad * u.rot1_rad, r2 = u.rot2_rad * u.rot2_rad,
-               t = u.trans_m * u.trans_m;
-  // Thrun et al., sample_motion_model_odometry; variances as M of docs/design.md "Motion model".
-  const double sd_rot1 = std::sqrt(noise.a1 * r1 + noise.a2 * t);
-  const double sd_trans = std::sqrt(noise.a3 * t + noise.a4 * (r1 + r2));
-  const double sd_rot2 = std::sqrt(noise.a1 * r2 + noise.a2 * t);
-  OdometryIncrement out;
-  out.rot1_rad = u.rot1_rad + sd_rot1 * StandardNormal(rng);
-  out.trans_m = u.trans_m + sd_trans * StandardNormal(rng);
-  out.rot2_rad = u.rot2_rad + sd_rot2 * StandardNormal(rng);
   return out;
 }
 

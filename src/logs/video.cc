@@ -144,15 +144,7 @@ cv::Mat VideoReader::Read(std::int64_t index) {
 // import video
 
 void VideoImportOptions::Validate() const {
-  const MotionNoise& n = odometry_noise;
-  const std::pair<const char*, double> coefficients[] = {{"odometry_noise.a1", n.a1},
-                                                         {"odometry_noise.a2", n.a2},
-                                                         {"odometry_noise.a3", n.a3},
-                                                         {"odometry_noise.a4", n.a4}};
-  for (const auto& [name, value] : coefficients) {
-    if (!std::isfinite(value) || value < 0.0)
-      throw Error(StrCat("VideoImportOptions.", name, " = ", value, " must be >= 0"));
-  }
+  odometry_noise.Validate("VideoImportOptions.odometry_noise.");
   if (!std::isfinite(fps) || fps < 0.0 || fps > 1e4)
     throw Error(StrCat("--fps ", fps, " must lie in [0, 10000] (0 = the video's)"));
   if (!std::isfinite(start_time_s)) throw Error("--start-time must be finite");

@@ -111,26 +111,46 @@ CmlEngineOptions ResolveNewMapOptions(const OptionOverrides& overrides, const Ru
                                       std::string* note, const CmlEngineOptions& base) {
   if (note != nullptr) note->clear();
   const CmlEngineOptions resolved = ResolveEngineOptions(overrides, base);
-  if (resolved.motion_noise_source != MotionNoiseSource::kIdentified) return resolved;
+  const bool scale = resolved.spatial_scale_source == SpatialScaleSource::kCalibrated;
+  const bool identify = resolved.motion_noise_source == MotionNoiseSource::kIdentified;
+  if (!scale && !identify) return resolved;
   const std::unique_ptr<FrameSource> source = OpenFrameSource(input);
-  const Calibration c = Calibrate(*source, resolved);
-  CmlEngineOptions calibrated = base;  // with the identified values
-  if (!ApplyMotionCalibration(c, &calibrated)) {
-    if (note != nullptr) {
-      *note = StrCat("motion noise not identified (", c.motion.pairs_used, " loop pairs in ",
-                     c.loop_frames, " frames): configured values kept");
+  // The match length's median over a few hundred frames is stable; the motion noise needs
+  // the whole first session's loops.
+  CalibrationOptions calibration;
+  if (!identify) calibration.max_frames = 600;
+  const Calibration c = Calibrate(*source, resolved, calibration);
+  CmlEngineOptions calibrated = base;  // with the derived values
+  std::string joined;                  // "; "-separated notes
+  const auto add_note = [&joined](const std::string& line) {
+    joined += (joined.empty() ? "" : "; ") + line;
+  };
+  if (scale) {
+    if (ScaleSpatialThresholds(c, &calibrated)) {
+      add_note(StrCat("spatial scale ", c.scale, " (match length ", c.match_length_m, " m over ",
+                      c.frames_used, " frames of the first session)"));
+    } else {
+      add_note(
+          StrCat("spatial scale not measured (appearance changed by less than e_max "
+                 "over ",
+                 c.match_length_m, " m): configured thresholds kept"));
     }
-    return resolved;
   }
-  if (note != nullptr) {
-    const MotionNoise& m = c.motion.noise;
-    *note = StrCat("motion noise identified from ", c.motion.pairs_used, " loop pairs in ",
-                   c.loop_frames, " frames of ", c.loop_sessions, " session(s): a1 ", m.a1, ", a2 ",
-                   m.a2, ", a3 ", m.a3, ", a4 ", m.a4, ", appearance_sigma_m ",
-                   calibrated.appearance_sigma_m, " (loop NIS / chi-square median: median ",
-                   c.motion.median_nis_ratio, ")");
+  if (identify) {
+    if (ApplyMotionCalibration(c, &calibrated)) {
+      const MotionNoise& m = c.motion.noise;
+      add_note(StrCat("motion noise identified from ", c.motion.pairs_used, " loop pairs in ",
+                      c.loop_frames, " frames of ", c.loop_sessions, " session(s): a1 ", m.a1,
+                      ", a2 ", m.a2, ", a3 ", m.a3, ", a4 ", m.a4, ", appearance_sigma_m ",
+                      calibrated.appearance_sigma_m, " (loop NIS / chi-square median: median ",
+                      c.motion.median_nis_ratio, ")"));
+    } else {
+      add_note(StrCat("motion noise not identified (", c.motion.pairs_used, " loop pairs in ",
+                      c.loop_frames, " frames): configured values kept"));
+    }
   }
-  // Explicit values of the configuration file and the flags win over the identified ones.
+  if (note != nullptr) *note = joined;
+  // Explicit values of the configuration file and the flags win over the derived ones.
   return ResolveEngineOptions(overrides, calibrated);
 }
 

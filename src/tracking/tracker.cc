@@ -15,13 +15,6 @@
 namespace omnicml {
 namespace {
 
-// Throws naming `prefix.field` unless value is finite and >= 0.
-void CheckNonNegative(const char* prefix, const char* field, double value) {
-  if (!(std::isfinite(value) && value >= 0)) {
-    throw Error(StrCat(prefix, field, " must be finite and >= 0, got ", value));
-  }
-}
-
 void CheckWeights(const Mixture& m, const char* where) {
   for (std::size_t i = 0; i < m.size(); ++i) {
     const double w = m[i].weight;
@@ -178,10 +171,7 @@ void TrackerOptions::Validate() const {
   if (!(std::isfinite(min_covariance_eigenvalue) && min_covariance_eigenvalue > 0)) {
     fail("min_covariance_eigenvalue", "finite and > 0", min_covariance_eigenvalue);
   }
-  CheckNonNegative("TrackerOptions.motion.", "a1", motion.a1);
-  CheckNonNegative("TrackerOptions.motion.", "a2", motion.a2);
-  CheckNonNegative("TrackerOptions.motion.", "a3", motion.a3);
-  CheckNonNegative("TrackerOptions.motion.", "a4", motion.a4);
+  motion.Validate("TrackerOptions.motion.");
 }
 
 double TrackerOptions::Gate() const {

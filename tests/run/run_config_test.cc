@@ -191,11 +191,57 @@ TEST(RunConfig, IdentifiedMotionNoiseUnderExplicitValues) {
   const MotionNoise defaults;
   EXPECT_NE(o.tracker.motion.a3, defaults.a3);  // identified
   EXPECT_NE(o.appearance_sigma_m, CmlEngineOptions{}.appearance_sigma_m);
-  // The configured source leaves the options as resolved.
+  // The configured sources leave the options as resolved.
   OptionOverrides plain;
   const CmlEngineOptions p = ResolveNewMapOptions(plain, input, &note);
-  EXPECT_TRUE(note.empty());
+  EXPECT_TRUE(note.empty()) << note;
   EXPECT_TRUE(SameEngineOptions(p, CmlEngineOptions{}));
+}
+
+// spatial_scale_source: calibrated multiplies the spatial thresholds by the scale measured
+// on the input: 1 on home_store, where the defaults were measured; 2 on home_store with
+// every length doubled. Explicit values win.
+TEST(RunConfig, CalibratedSpatialThresholdsFollowTheWorldsScale) {
+  const std::filesystem::path path =
+      std::filesystem::temp_directory_path() /
+      ("omnicml_spatial_test_" + std::to_string(::getpid()) + ".yaml");
+  const auto write = [&path](const std::string& yaml) {
+    std::ofstream os(path);
+    os << yaml;
+  };
+  OptionOverrides file;
+  file.config_path = path.string();
+  RunInput input;
+  input.days = 1;
+  input.frames_per_day = 200;
+  input.sim_image = ImageKind::kPanorama;
+  std::string note;
+  const CmlEngineOptions defaults;
+
+  write("spatial_scale_source: calibrated\n");
+  input.world = "home_store";
+  const CmlEngineOptions same = ResolveNewMapOptions(file, input, &note);
+  EXPECT_NE(note.find("spatial scale 1 "), std::string::npos) << note;
+  CmlEngineOptions calibrated = defaults;
+  calibrated.spatial_scale_source = SpatialScaleSource::kCalibrated;
+  EXPECT_TRUE(SameEngineOptions(same, calibrated));
+
+  input.world = (std::filesystem::path(OMNICML_SOURCE_DIR) / "datasets" / "sweeps" / "worlds" /
+                 "home_store_x2.yaml")
+                    .string();
+  const CmlEngineOptions o = ResolveNewMapOptions(file, input, &note);
+  EXPECT_NE(note.find("spatial scale 2 "), std::string::npos) << note;
+  EXPECT_DOUBLE_EQ(o.appearance_sigma_m, 2 * defaults.appearance_sigma_m);
+  EXPECT_DOUBLE_EQ(o.anchor_max_sigma_m, 2 * defaults.anchor_max_sigma_m);
+  EXPECT_DOUBLE_EQ(o.model.forgetting.d_for_m, 2 * defaults.model.forgetting.d_for_m);
+  EXPECT_DOUBLE_EQ(o.model.index.spatial_cell_m, 2 * defaults.model.index.spatial_cell_m);
+  EXPECT_EQ(o.tracker.motion.a3, defaults.tracker.motion.a3);  // not asked to identify
+
+  write("spatial_scale_source: calibrated\nmodel: {forgetting: {d_for_m: 0.7}}\n");
+  const CmlEngineOptions f = ResolveNewMapOptions(file, input, &note);
+  std::filesystem::remove(path);
+  EXPECT_DOUBLE_EQ(f.model.forgetting.d_for_m, 0.7);  // explicit
+  EXPECT_DOUBLE_EQ(f.appearance_sigma_m, 2 * defaults.appearance_sigma_m);
 }
 
 TEST(RunInput, ValidatesTheInput) {

@@ -585,8 +585,9 @@ TEST(TrackerOptions, GateConfidenceIsTheChiSquareQuantile) {
   EXPECT_THROW(o.Validate(), Error);
 }
 
-// One step of odometry noise: Thrun's sample_motion_model_odometry (the simulator's
-// SampleOdometryIncrement, which lives above this module), from `n` ~ N(0, 1).
+// One step of odometry noise: Thrun's sample_motion_model_odometry, as
+// SampleOdometryIncrement (geometry/motion_model.h) but drawn with std::normal_distribution:
+// the identification tests' stated factors were measured on these draws.
 OdometryIncrement SampleIncrement(const OdometryIncrement& u, const MotionNoise& noise,
                                   std::normal_distribution<double>& n, std::mt19937_64& rng) {
   const Eigen::Matrix3d m = MotionNoiseCovariance(u, noise);

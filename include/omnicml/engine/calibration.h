@@ -9,7 +9,10 @@
 // the median E between frames t and t + lag against the median odometry path length
 // between them. The match length L is the path length at which the median E first
 // reaches e_max (linear interpolation between lags). Each spatial threshold is then its
-// default times s = L / reference_match_length_m (clamped to [min_scale, max_scale]).
+// default times s = L / reference_match_length_m, clamped to [min_scale, max_scale] and
+// rounded to the nearest 1 / scale_steps_per_octave of an octave (logs of one place differ
+// in L by a few percent; rounding gives them the same thresholds, and the worlds the
+// defaults were measured on s = 1 exactly).
 // Descriptor thresholds (e_max) stay: they are in descriptor units, not the world's.
 //
 // Motion noise (tracking/motion_noise_identification.h): the log is read on (every
@@ -48,7 +51,10 @@ struct CalibrationOptions {
   double reference_match_length_m = 0.27;
   // Clamp of the scale factor s.
   double min_scale = 0.02;
-  double max_scale = 1.0;
+  double max_scale = 16.0;
+  // Steps per octave s is rounded to (2: s in [0.841, 1.189) gives 1); 0 leaves s unrounded.
+  // >= 0.
+  int scale_steps_per_octave = 2;
   // Loop pairs: the earlier frame lies at least this many match lengths L of odometry path
   // back (so that odometry drift, not the appearance offset, dominates). > 0.
   double loop_min_path_match_lengths = 20.0;
@@ -77,7 +83,8 @@ struct Calibration {
   double median_step_m = 0.0;   // median odometry step between consecutive frames
   double match_length_m = 0.0;  // L; the largest measured path if E never reaches e_max
   bool saturated = false;       // E stayed below e_max up to max_lag_frames
-  double scale = 1.0;           // s = clamp(L / reference_match_length_m)
+  double measured_scale = 1.0;  // L / reference_match_length_m, before clamping and rounding
+  double scale = 1.0;           // s: measured_scale clamped and rounded (CalibrationOptions)
   std::vector<CalibrationPoint> curve;
   // Derived values (defaults of CmlEngineOptions times s).
   double appearance_sigma_m = 0.0;
@@ -102,6 +109,11 @@ Calibration Calibrate(FrameSource& source, const CmlEngineOptions& options,
 
 // Writes the derived spatial values into `options`.
 void ApplyCalibration(const Calibration& calibration, CmlEngineOptions* options);
+
+// Multiplies the spatial thresholds of `options` (appearance_sigma_m, anchor_max_sigma_m,
+// model.forgetting.d_for_m, model.index.spatial_cell_m) by calibration.scale; returns
+// false and leaves them when the match length was not measured (saturated).
+bool ScaleSpatialThresholds(const Calibration& calibration, CmlEngineOptions* options);
 
 // Writes the identified motion noise into options->tracker.motion (and
 // reconstruction.motion), and rho as appearance_sigma_m = sqrt(rho), when identified;

@@ -110,6 +110,18 @@ void VisitFields(V& v, GatedMatchingOptions& o) {
 // configuration file still win. A run that loads a map keeps the map's values.
 enum class MotionNoiseSource { kConfigured, kIdentified };
 
+// kCalibrated: at the start of a new map, the run first reads the log's first session,
+// measures the match length L (the odometry path over which the descriptor distance to a
+// frame reaches e_max, engine/calibration.h) and multiplies the spatial thresholds
+// (appearance_sigma_m, anchor_max_sigma_m, model.forgetting.d_for_m,
+// model.index.spatial_cell_m) by s = L / L_ref rounded to a half octave (docs/design.md
+// "Spatial thresholds scaled to the log"; on the simulated worlds the defaults were
+// measured on, s rounds to 1). A first session whose appearance never changes by e_max
+// keeps the configured values. Values given explicitly in the configuration file or by
+// flags still win; a run that loads a map keeps the map's. kConfigured (the default):
+// the thresholds as configured.
+enum class SpatialScaleSource { kConfigured, kCalibrated };
+
 struct CmlEngineOptions {
   // Which descriptor and its parameters (descriptor_factory.h).
   DescriptorOptions descriptor;
@@ -194,6 +206,9 @@ struct CmlEngineOptions {
   // Where tracker.motion (and appearance_sigma_m) come from when a run starts a new map
   // (MotionNoiseSource); read by the run layer, which calibrates before the first frame.
   MotionNoiseSource motion_noise_source = MotionNoiseSource::kConfigured;
+  // Where the spatial thresholds come from when a run starts a new map
+  // (SpatialScaleSource); read by the run layer with the motion noise above.
+  SpatialScaleSource spatial_scale_source = SpatialScaleSource::kConfigured;
 
   // Throws omnicml::Error naming the first invalid field (including nested options,
   // prefixed "descriptor.", "tracker.", "model.", "reconstruction.").
@@ -230,6 +245,9 @@ void VisitFields(V& v, CmlEngineOptions& o) {
     w.NamedEnum("motion_noise_source", o.motion_noise_source,
                 {{MotionNoiseSource::kConfigured, "configured"},
                  {MotionNoiseSource::kIdentified, "identified"}});
+    w.NamedEnum("spatial_scale_source", o.spatial_scale_source,
+                {{SpatialScaleSource::kConfigured, "configured"},
+                 {SpatialScaleSource::kCalibrated, "calibrated"}});
   });
 }
 

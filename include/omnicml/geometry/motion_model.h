@@ -9,6 +9,9 @@
 #ifndef OMNICML_GEOMETRY_MOTION_MODEL_H_
 #define OMNICML_GEOMETRY_MOTION_MODEL_H_
 
+#include <random>
+#include <string>
+
 #include <Eigen/Core>
 
 #include "omnicml/geometry/pose.h"
@@ -18,11 +21,12 @@ namespace omnicml {
 // Odometry error model a1..a4 (docs/design.md "Motion model", Thrun et al.):
 // M = diag(a1 rot1^2 + a2 trans^2, a3 trans^2 + a4 (rot1^2 + rot2^2), a1 rot2^2 + a2 trans^2).
 struct MotionNoise {
-  double a1 = 0.05;       // rad^2 of rotation noise per rad^2 of rotation
-  double a2 = 0.01;       // rad^2 of rotation noise per m^2 of translation
-  double a3 = 0.05;       // m^2 of translation noise per m^2 of translation
-  double a4 = 0.01;       // m^2 of translation noise per rad^2 of rotation
-  void Validate() const;  // throws omnicml::Error naming the field if negative/non-finite
+  double a1 = 0.05;  // rad^2 of rotation noise per rad^2 of rotation
+  double a2 = 0.01;  // rad^2 of rotation noise per m^2 of translation
+  double a3 = 0.05;  // m^2 of translation noise per m^2 of translation
+  double a4 = 0.01;  // m^2 of translation noise per rad^2 of rotation
+  // Throws omnicml::Error naming `prefix` + the field if one is negative or not finite.
+  void Validate(const std::string& prefix = "MotionNoise.") const;
 };
 
 // The options schema (common/options.h): YAML keys, dump, binary codec.
@@ -41,6 +45,13 @@ Eigen::Matrix3d MotionJacobianControl(const Pose2& mu, const OdometryIncrement& 
 
 // The control noise M of the model above for increment u.
 Eigen::Matrix3d MotionNoiseCovariance(const OdometryIncrement& u, const MotionNoise& noise);
+
+// Thrun's sample_motion_model_odometry: returns u perturbed by zero-mean Gaussian noise
+// with the variances M of `noise` (above). Gaussian samples come from Box-Muller on the
+// engine's raw output, so the result is the same with any standard library. Used by the
+// simulator, the AntWorld and video importers and MCL.
+OdometryIncrement SampleOdometryIncrement(const OdometryIncrement& u, const MotionNoise& noise,
+                                          std::mt19937_64& rng);
 
 }  // namespace omnicml
 

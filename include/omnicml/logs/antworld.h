@@ -36,8 +36,8 @@
 // ground-truth poses with seeded noise: the increment between two delivered frames is
 // ComputeIncrement(truth_prev, truth_curr) and the odometry pose is advanced by that
 // increment perturbed as in Thrun et al.'s sample_motion_model_odometry with the
-// variances of docs/design.md "Motion model" (SampleOdometryIncrement below). The odometry
-// frame starts at the first frame's ground truth pose.
+// variances of docs/design.md "Motion model" (SampleOdometryIncrement, geometry/motion_model.h).
+// The odometry frame starts at the first frame's ground truth pose.
 #ifndef OMNICML_LOGS_ANTWORLD_H_
 #define OMNICML_LOGS_ANTWORLD_H_
 
@@ -100,13 +100,6 @@ cv::Mat AntWorldToOurPanorama(const cv::Mat& antworld_panorama);
 // Converts an AntWorld heading (degrees, compass: clockwise from world +y) to our phi
 // (radians, counter-clockwise from world +x), wrapped to (-pi, pi].
 double AntWorldHeadingToPhi(double heading_deg);
-
-// Thrun's sample_motion_model_odometry: returns u perturbed by zero-mean Gaussian noise
-// with the variances of `noise` (see AntWorldOptions::odometry_noise). Gaussian samples
-// come from Box-Muller on the engine's raw output, so the result is the same with any
-// standard library.
-OdometryIncrement SampleOdometryIncrement(const OdometryIncrement& u, const MotionNoise& noise,
-                                          std::mt19937_64& rng);
 
 // A FrameSource over one AntWorld CSV: one session, ground truth on every frame, images
 // read lazily in Next() and converted to our panorama convention (BGR, CV_8UC3). The CSV

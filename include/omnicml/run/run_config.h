@@ -95,13 +95,14 @@ std::string ReadRunForgetting(const std::filesystem::path& run_dir);
 
 struct RunInput;  // frame_sources.h
 
-// The options of a run that starts a new map: ResolveEngineOptions(overrides, base), and
-// when they say motion_noise_source: identified, the motion noise and appearance_sigma_m
-// identified from the first session of `input` (engine/calibration.h
-// ApplyMotionCalibration) under the configuration file and the flags (explicit values
-// win). *note (if not null) gets one line on what was identified, or "" with configured
-// motion noise. Reads the first session once more (a second FrameSource). Throws
-// omnicml::Error.
+// The options of a run that starts a new map: ResolveEngineOptions(overrides, base), with
+// the values derived from the first session of `input` (engine/calibration.h Calibrate)
+// under the configuration file and the flags (explicit values win): when they say
+// spatial_scale_source: calibrated, base's spatial thresholds times the
+// calibrated scale (ScaleSpatialThresholds); when they say motion_noise_source:
+// identified, the identified motion noise and appearance_sigma_m (ApplyMotionCalibration).
+// *note (if not null) gets one line on what was derived, or "" when nothing was asked.
+// Reads the first session once more (a second FrameSource). Throws omnicml::Error.
 CmlEngineOptions ResolveNewMapOptions(const OptionOverrides& overrides, const RunInput& input,
                                       std::string* note, const CmlEngineOptions& base = {});
 

@@ -135,9 +135,9 @@ class RoutePath {
   double length_m_ = 0;
 };
 
-// Noisy odometry for a true increment: SampleOdometryIncrement (omnicml/antworld.h, module
-// logs) implements the sample_motion_model_odometry of the file comment; the simulator
-// calls it with a generator seeded per frame.
+// Noisy odometry for a true increment: SampleOdometryIncrement (geometry/motion_model.h) implements
+// the sample_motion_model_odometry of the file comment; the simulator calls it with a generator
+// seeded per frame.
 
 // FrameSource over simulated days. Not thread-safe; one consumer.
 class SimulatedFrameSource : public FrameSource {

@@ -250,13 +250,6 @@ Calibration Calibrate(FrameSource& source, const CmlEngineOptions& options,
   return c;
 }
 
-void ApplyCalibration(const Calibration& calibration, CmlEngineOptions* options) {
-  options->appearance_sigma_m = calibration.appearance_sigma_m;
-  options->anchor_max_sigma_m = calibration.anchor_max_sigma_m;
-  options->model.forgetting.d_for_m = calibration.d_for_m;
-  options->model.index.spatial_cell_m = calibration.spatial_cell_m;
-}
-
 bool ScaleSpatialThresholds(const Calibration& calibration, CmlEngineOptions* options) {
   if (calibration.saturated || !(calibration.match_length_m > 0)) return false;
   options->appearance_sigma_m *= calibration.scale;

@@ -107,9 +107,6 @@ struct Calibration {
 Calibration Calibrate(FrameSource& source, const CmlEngineOptions& options,
                       const CalibrationOptions& calibration_options = {});
 
-// Writes the derived spatial values into `options`.
-void ApplyCalibration(const Calibration& calibration, CmlEngineOptions* options);
-
 // Multiplies the spatial thresholds of `options` (appearance_sigma_m, anchor_max_sigma_m,
 // model.forgetting.d_for_m, model.index.spatial_cell_m) by calibration.scale; returns
 // false and leaves them when the match length was not measured (saturated).

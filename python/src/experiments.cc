@@ -271,15 +271,10 @@ void BindExperiments(py::module_& m) {
           input.Validate();
           // A new map's options: spatial thresholds and motion noise derived from the input
           // first when the options ask, as `omnicml run` does (ResolveNewMapOptions).
-          std::unique_ptr<CmlEngine> engine;
-          if (map_in.empty()) {
-            std::string note;
-            engine = std::make_unique<CmlEngine>(
-                ResolveNewMapOptions(overrides, input, &note, base.value_or(CmlEngineOptions{})));
-            if (!note.empty()) s.outputs.input_description += "; " + note;
-          } else {
-            engine = MakeRunEngine(overrides, map_in, base.value_or(CmlEngineOptions{}));
-          }
+          std::string note;
+          std::unique_ptr<CmlEngine> engine =
+              MakeRunEngine(overrides, map_in, input, &note, base.value_or(CmlEngineOptions{}));
+          if (!note.empty()) s.outputs.input_description += "; " + note;
           r = RunCml(std::move(engine), input, s);
         }
         RunResult out;

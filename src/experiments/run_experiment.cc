@@ -72,18 +72,11 @@ RunExperimentResult RunExperiment(const RunExperimentOptions& o) {
   run.evaluate_from_session = f.survey.days;
   // A new map's options: the spatial thresholds and the motion noise, when the options
   // ask, are derived from the input first (run_config.h ResolveNewMapOptions).
-  std::unique_ptr<CmlEngine> engine;
-  if (o.map_in.empty()) {
-    std::string calibration_note;
-    engine = std::make_unique<CmlEngine>(
-        ResolveNewMapOptions(WithDefaultThreads(f.overrides), f.input, &calibration_note,
-                             f.base_options.value_or(CmlEngineOptions{})));
-    if (!calibration_note.empty()) {
-      run.outputs.input_description += "; " + calibration_note;
-    }
-  } else {
-    engine = MakeRunEngine(f.overrides, o.map_in, f.base_options.value_or(CmlEngineOptions{}));
-  }
+  std::string calibration_note;
+  std::unique_ptr<CmlEngine> engine =
+      MakeRunEngine(o.map_in.empty() ? WithDefaultThreads(f.overrides) : f.overrides, o.map_in,
+                    f.input, &calibration_note, f.base_options.value_or(CmlEngineOptions{}));
+  if (!calibration_note.empty()) run.outputs.input_description += "; " + calibration_note;
   // Survey with static forgetting: the survey builds the map (active forgetting), which is
   // frozen after the last survey day ([G]'s static "old" map).
   if (f.survey.enabled() && engine->options().model.forgetting.mode == ForgettingMode::kStatic &&

@@ -40,8 +40,12 @@ std::vector<std::unique_ptr<OutputLock>> CheckRunOutputs(const RunOutputs& o) {
 }
 
 std::unique_ptr<CmlEngine> MakeRunEngine(const OptionOverrides& overrides,
-                                         const std::string& map_in, const CmlEngineOptions& base) {
-  if (map_in.empty()) return std::make_unique<CmlEngine>(ResolveEngineOptions(overrides, base));
+                                         const std::string& map_in, const RunInput& input,
+                                         std::string* note, const CmlEngineOptions& base) {
+  if (map_in.empty()) {
+    return std::make_unique<CmlEngine>(ResolveNewMapOptions(overrides, input, note, base));
+  }
+  if (note != nullptr) note->clear();
   if (!overrides.OnlyThreadsAndForgetting()) {
     throw Error(StrCat("--map-in '", map_in,
                        "': the saved engine's options are used; only --threads and "

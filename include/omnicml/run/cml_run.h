@@ -90,14 +90,15 @@ struct CmlRunResult {
   std::vector<MapEvent> events;
 };
 
-// The engine of a run: a new one with ResolveEngineOptions(overrides, base), or with
-// `map_in` the engine saved there with only overrides.threads and .forgetting applied
-// (CmlEngine::SetThreads, SetForgettingMode; both parsed before either changes).
-// Throws omnicml::Error naming --map-in when other overrides are set or the file
-// cannot be read, and what ResolveEngineOptions throws.
+// The engine of a run over `input`: a new one with ResolveNewMapOptions(overrides, input,
+// note, base) (run_config.h: the values the options ask to derive from the input, *note
+// saying what was derived, "" otherwise), or with `map_in` the engine saved there with only
+// overrides.threads and .forgetting applied (CmlEngine::SetThreads, SetForgettingMode; both
+// parsed before either changes; *note ""). Throws omnicml::Error naming --map-in when other
+// overrides are set or the file cannot be read, and what ResolveNewMapOptions throws.
 std::unique_ptr<CmlEngine> MakeRunEngine(const OptionOverrides& overrides,
-                                         const std::string& map_in,
-                                         const CmlEngineOptions& base = {});
+                                         const std::string& map_in, const RunInput& input,
+                                         std::string* note, const CmlEngineOptions& base = {});
 
 // Runs a new engine with `options` (validated; omnicml::Error naming the field) over
 // every frame of `input`, then Finish, and writes what settings.outputs asks, committed

@@ -801,19 +801,22 @@ AtomicFile::AtomicFile(fs::path target, FileSync sync)
 
 AtomicFile::~AtomicFile() { Discard(); }
 
+void AtomicFile::Close() {
+  if (closed_) return;
+  out_.flush();
+  bool ok = static_cast<bool>(out_);
+  out_.close();
+  ok = ok && !out_.fail();
+  closed_ = true;
+  if (!ok) {
+    Discard();
+    Fail("write error", target_, "the data could not be written (disk full?)");
+  }
+}
+
 void AtomicFile::Sync() {
   if (done_ || synced_) return;
-  if (!closed_) {
-    out_.flush();
-    bool ok = static_cast<bool>(out_);
-    out_.close();
-    ok = ok && !out_.fail();
-    closed_ = true;
-    if (!ok) {
-      Discard();
-      Fail("write error", target_, "the data could not be written (disk full?)");
-    }
-  }
+  Close();
   if (::fsync(fd_) != 0) {
     const int err = errno;
     Discard();
@@ -827,16 +830,8 @@ void AtomicFile::Commit() {
   // Make the data durable before the rename makes it visible under the target name.
   if (sync_ == FileSync::kFsync) {
     Sync();
-  } else if (!closed_) {
-    out_.flush();
-    bool ok = static_cast<bool>(out_);
-    out_.close();
-    ok = ok && !out_.fail();
-    closed_ = true;
-    if (!ok) {
-      Discard();
-      Fail("write error", target_, "the data could not be written (disk full?)");
-    }
+  } else {
+    Close();
   }
   // The target may have been replaced by a device, FIFO or link since the start.
   if (const std::string problem = OutputNodeProblem(target_, false); !problem.empty()) {

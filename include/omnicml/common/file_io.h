@@ -119,6 +119,9 @@ class AtomicFile {
   void Discard();
 
  private:
+  // Flushes and closes the stream once; on a write error discards the temporary and throws.
+  void Close();
+
   std::filesystem::path target_;
   std::filesystem::path temp_;
   std::ofstream out_;

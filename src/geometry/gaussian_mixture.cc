@@ -102,6 +102,35 @@ Gaussian MomentMatch(std::span<const Gaussian> components, HeadingMean heading) 
   return out;
 }
 
+Gaussian CombineInformation(const Gaussian& a, const Eigen::Matrix3d& info_a, double share_a,
+                            const Gaussian& b, const Eigen::Matrix3d& info_b, double share_b,
+                            double min_eigenvalue, const std::string& what) {
+  const Eigen::Matrix3d information = share_a * info_a + share_b * info_b;
+  const Eigen::LLT<Eigen::Matrix3d> llt(information);
+  if (llt.info() != Eigen::Success) {
+    throw Error(StrCat(what, ": the fused information matrix is not positive definite (shares ",
+                       share_a, ", ", share_b, ")"));
+  }
+  Gaussian out;
+  out.covariance = RepairCovariance(llt.solve(Eigen::Matrix3d::Identity()), min_eigenvalue,
+                                    StrCat(what, ": fused covariance"));
+  // C (share_a I_a mu_a + share_b I_b (mu_a + d)) = mu_a + C share_b I_b d.
+  const Eigen::Vector3d d = PoseDifference(b.mean, a.mean);
+  const Eigen::Vector3d shift = llt.solve(share_b * (info_b * d));
+  out.mean = MakePose(a.mean.x() + shift.x(), a.mean.y() + shift.y(), a.mean.z() + shift.z());
+  out.weight = 0.0;
+  return out;
+}
+
+Gaussian CovarianceIntersection(const Gaussian& a, const Gaussian& b, double omega) {
+  if (!(omega >= 0 && omega <= 1))
+    throw Error(StrCat("CovarianceIntersection: omega must be in [0, 1], got ", omega));
+  const Eigen::Matrix3d ca = RepairCovariance(a.covariance, 1e-12, "CovarianceIntersection: C_a");
+  const Eigen::Matrix3d cb = RepairCovariance(b.covariance, 1e-12, "CovarianceIntersection: C_b");
+  return CombineInformation(a, ca.inverse(), 1.0 - omega, b, cb.inverse(), omega, 1e-12,
+                            "CovarianceIntersection");
+}
+
 double TotalWeight(const Mixture& m) {
   double total = 0.0;
   for (const Gaussian& g : m) total += g.weight;

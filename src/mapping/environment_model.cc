@@ -12,26 +12,32 @@
 namespace omnicml {
 namespace {
 
-// [G] eqs. (13)-(14): merges `other` into `keep` by MomentMatch; the heading mean is
-// anchored at `keep`'s (the wrapped difference, not the circular mean). The pair's
-// weights are eta_n and eta_m ([G]; shares eta_n / (eta_n + eta_m)), or with
-// `precision_weighted` eta / sqrt(det C_xy), the share times the xy precision
-// (EnvironmentModelOptions::Update::merge_precision_weighted). eta and w are summed (w
-// clamped to 1 to stay a weight).
+// [G] eqs. (12)-(14): merges `other` into `keep`. The pair's weights are eta_n and eta_m
+// ([G]; shares eta_n / (eta_n + eta_m)), or with `precision_weighted` eta / sqrt(det C_xy),
+// the share times the xy precision (EnvironmentModelOptions::Update::merge_precision_weighted).
+// kMomentMatching: MomentMatch with the heading mean anchored at `keep`'s (the wrapped
+// difference, not the circular mean). kCovarianceIntersection: CovarianceIntersection
+// with omega = `other`'s share. eta and w are summed (w clamped to 1 to stay a weight).
 ViewComponent Merged(const ViewComponent& keep, const ViewComponent& other,
-                     bool precision_weighted) {
+                     const EnvironmentModelOptions::Update& options) {
   double weight_keep = keep.eta, weight_other = other.eta;
-  if (precision_weighted) {
+  if (options.merge_precision_weighted) {
     // Covariances are SPD (checked on insertion and load), so the determinants are > 0.
     weight_keep /= std::sqrt(keep.covariance.topLeftCorner<2, 2>().determinant());
     weight_other /= std::sqrt(other.covariance.topLeftCorner<2, 2>().determinant());
   }
   const Gaussian pair[2] = {Gaussian{keep.mean, keep.covariance, weight_keep},
                             Gaussian{other.mean, other.covariance, weight_other}};
-  const Gaussian moments = MomentMatch(pair, HeadingMean::kAnchored);
+  Gaussian merged;
+  if (options.merge_fusion == MergeFusion::kCovarianceIntersection) {
+    const double total = weight_keep + weight_other;
+    merged = CovarianceIntersection(pair[0], pair[1], total > 0 ? weight_other / total : 0.5);
+  } else {
+    merged = MomentMatch(pair, HeadingMean::kAnchored);
+  }
   ViewComponent out = keep;
-  out.covariance = moments.covariance;
-  out.mean = moments.mean;
+  out.covariance = merged.covariance;
+  out.mean = merged.mean;
   out.eta += other.eta;
   out.weight = std::min(1.0, keep.weight + other.weight);
   return out;
@@ -399,7 +405,6 @@ std::vector<std::uint64_t> EnvironmentModel::AddObservations(const std::vector<V
 
 void EnvironmentModel::MergeObservation(std::size_t row, std::size_t k, const ViewComponent& added,
                                         const UpdateContext& context) {
-  const bool precision_weighted = options_.update.merge_precision_weighted;
   const std::vector<ViewComponent>& comps = store_.view(row).components;
   const std::uint64_t view_id = store_.view(row).id;
   auto log_merge = [&](const ViewComponent& c) {
@@ -410,13 +415,13 @@ void EnvironmentModel::MergeObservation(std::size_t row, std::size_t k, const Vi
   // [G] (12)-(14): the new component merges into component k; the moved result may now
   // be within delta of another one, which is merged in turn (the earlier one in storage
   // order survives), until no pair involving it is closer than delta.
-  store_.ReplaceComponent(row, k, Merged(comps[k], added, precision_weighted));
+  store_.ReplaceComponent(row, k, Merged(comps[k], added, options_.update));
   log_merge(comps[k]);
   for (;;) {
     const std::size_t j = ClosestWithinDelta(comps, comps[k], k, options_.update.merge_delta);
     if (j == comps.size()) break;
     const std::size_t keep = std::min(j, k), drop = std::max(j, k);
-    const ViewComponent merged = Merged(comps[keep], comps[drop], precision_weighted);
+    const ViewComponent merged = Merged(comps[keep], comps[drop], options_.update);
     store_.EraseComponent(row, drop);
     store_.ReplaceComponent(row, keep, merged);
     log_merge(comps[keep]);

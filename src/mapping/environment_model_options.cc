@@ -91,6 +91,11 @@ void EnvironmentModelOptions::Validate() const {
   if (!(u.w_min >= 0 && u.w_min < 1)) fail("update.w_min", "in [0, 1)", u.w_min);
   finite_above("update.merge_delta", u.merge_delta, true);
   if (u.look_back_frames < 0) fail("update.look_back_frames", ">= 0", u.look_back_frames);
+  if (u.merge_fusion != MergeFusion::kMomentMatching &&
+      u.merge_fusion != MergeFusion::kCovarianceIntersection) {
+    fail("update.merge_fusion", "moment_matching or covariance_intersection",
+         static_cast<int>(u.merge_fusion));
+  }
   const Forgetting& f = forgetting;
   if (f.mode != ForgettingMode::kActive && f.mode != ForgettingMode::kPassive &&
       f.mode != ForgettingMode::kStatic) {

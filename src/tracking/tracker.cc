@@ -59,29 +59,12 @@ double Alpha(double w_a, double det_a, double w_b, double det_b) {
   return num / den;
 }
 
-// (3)-(4) in information form around mu_a, with mu_b's angle unwrapped next to mu_a's:
-// C((1-alpha) I_a mu_a + alpha I_b (mu_a + d)) = mu_a + C alpha I_b d, d = mu_b - mu_a wrapped.
-// `independent` replaces the weights (1 - alpha, alpha) by (1, 1): the Kalman update.
+// (3)-(4) in information form around mu_a (CombineInformation). `independent` replaces
+// the weights (1 - alpha, alpha) by (1, 1): the Kalman update.
 Gaussian Intersect(const Gaussian& a, const Prepared& pa, const Gaussian& b, const Prepared& pb,
                    double alpha, double min_eigenvalue, bool independent = false) {
-  const double share_a = independent ? 1.0 : 1.0 - alpha;
-  const double share_b = independent ? 1.0 : alpha;
-  const Eigen::Matrix3d information = share_a * pa.information + share_b * pb.information;
-  const Eigen::LLT<Eigen::Matrix3d> llt(information);
-  if (llt.info() != Eigen::Success) {
-    throw Error(StrCat(
-        "CovarianceIntersection: the fused information matrix is not positive definite (alpha ",
-        alpha, ")"));
-  }
-  Gaussian out;
-  const Eigen::Matrix3d c = llt.solve(Eigen::Matrix3d::Identity());
-  static const std::string kWhat = "CovarianceIntersection: fused covariance";
-  out.covariance = RepairCovariance(c, min_eigenvalue, kWhat);
-  const Eigen::Vector3d d = PoseDifference(b.mean, a.mean);
-  const Eigen::Vector3d shift = llt.solve(share_b * (pb.information * d));
-  out.mean = MakePose(a.mean.x() + shift.x(), a.mean.y() + shift.y(), a.mean.z() + shift.z());
-  out.weight = 0.0;
-  return out;
+  return CombineInformation(a, pa.information, independent ? 1.0 : 1.0 - alpha, b, pb.information,
+                            independent ? 1.0 : alpha, min_eigenvalue, "CovarianceIntersection");
 }
 
 // a - b with the heading wrapped; the common case of two wrapped headings needs no fmod.
@@ -210,15 +193,6 @@ Mixture Propagate(const Mixture& prior, const OdometryIncrement& u, const Motion
 
 double CovarianceIntersectionAlpha(const Gaussian& a, const Gaussian& b) {
   return Alpha(a.weight, a.covariance.determinant(), b.weight, b.covariance.determinant());
-}
-
-Gaussian CovarianceIntersection(const Gaussian& a, const Gaussian& b, double alpha) {
-  if (!(alpha >= 0 && alpha <= 1))
-    throw Error(StrCat("CovarianceIntersection: alpha must be in [0, 1], got ", alpha));
-  Gaussian ra = a, rb = b;
-  ra.covariance = RepairCovariance(a.covariance, 1e-12, "CovarianceIntersection: C_a");
-  rb.covariance = RepairCovariance(b.covariance, 1e-12, "CovarianceIntersection: C_b");
-  return Intersect(ra, Prepare(ra), rb, Prepare(rb), alpha, 1e-12);
 }
 
 Mixture FuseOnce(const Mixture& a_side, const Mixture& b_side, const TrackerOptions& options) {

@@ -8,6 +8,7 @@
 #include <vector>
 
 #include <gtest/gtest.h>
+#include <Eigen/Eigenvalues>
 #include <Eigen/LU>
 
 #include "testing/fake_descriptor.h"
@@ -123,6 +124,14 @@ TEST(EnvironmentModelOptions, FlatTreeGroupsBackToTheSameOptions) {
   const OptionValue flat = FlatModelOptionsValue(OptionsToValue(o));
   std::vector<std::string> keys;
   for (const auto& [k, v] : flat.members) {
+    if (v.kind == OptionValue::Kind::kMap) {
+      // Options added after the flat layout (Since) have no flat key; they stay in their
+      // section, and the section merges back into the grouped one.
+      EXPECT_EQ(k, "update");
+      ASSERT_EQ(v.members.size(), 1u);
+      EXPECT_EQ(v.members[0].first, "merge_fusion");
+      continue;
+    }
     EXPECT_EQ(v.kind, OptionValue::Kind::kScalar) << k;
     keys.push_back(k);
   }
@@ -483,6 +492,41 @@ TEST(EnvironmentModel, PreciseComponentIsNotDraggedByUncertainMatches) {
   EXPECT_GT(moved[0], 0.15);  // eta shares: about the estimates' mean
   EXPECT_LT(moved[1], 0.1);   // precision weights: the precise component holds
   EXPECT_LT(moved[1], 0.4 * moved[0]) << moved[0] << " " << moved[1];
+}
+
+// A view confirmed again and again by estimates that scatter about its place: [G]'s
+// moment matching (13)-(14) adds the scatter to the component's covariance at every merge,
+// so the component ends up wider than any estimate it was built from; covariance
+// intersection of estimates with equal covariances keeps that covariance exactly, and its
+// mean is still the estimates' weighted mean.
+TEST(EnvironmentModel, CovarianceIntersectionMergeDoesNotWidenWithScatter) {
+  auto fx = MakeFakeExtractor(2);
+  const Descriptor y = fx->Make({0, 0});
+  const double sigma = 0.1;  // every estimate's standard deviation, metres
+  double variance[2], offset[2];
+  for (const MergeFusion fusion :
+       {MergeFusion::kMomentMatching, MergeFusion::kCovarianceIntersection}) {
+    EnvironmentModelOptions o = TestOptions();
+    o.update.merge_delta = 25.0;  // every estimate below merges
+    o.update.merge_fusion = fusion;
+    EnvironmentModel m(o, fx);
+    std::mt19937 rng(11);
+    std::normal_distribution<double> noise(0.0, sigma);
+    for (std::int64_t t = 0; t < 40; ++t) {
+      m.Update(y, Est(noise(rng), noise(rng), 0, sigma, sigma, 0.05), {t, 0});
+    }
+    ASSERT_EQ(m.views()[0].components.size(), 1u);
+    const ViewComponent& c = m.views()[0].components[0];
+    const int i = fusion == MergeFusion::kCovarianceIntersection;
+    variance[i] = c.covariance.topLeftCorner<2, 2>().eigenvalues().real().maxCoeff();
+    offset[i] = c.mean.head<2>().norm();
+    m.CheckInvariants();
+  }
+  EXPECT_GT(variance[0], 1.5 * sigma * sigma);                    // scatter added
+  EXPECT_NEAR(variance[1], sigma * sigma, 1e-9 * sigma * sigma);  // (3) with C_n = C_m
+  // Both means average the 40 draws (standard deviation of the mean 0.016 m).
+  EXPECT_LT(offset[0], 0.06);
+  EXPECT_LT(offset[1], 0.06);
 }
 
 // A component created below w_min survives the Update that created it and is removed

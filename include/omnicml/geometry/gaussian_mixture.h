@@ -61,6 +61,24 @@ enum class HeadingMean {
 Gaussian MomentMatch(std::span<const Gaussian> components,
                      HeadingMean heading = HeadingMean::kCircular);
 
+// Convex combination of information (Julier & Uhlmann's covariance intersection; [G]
+// (3)-(4)): C = (share_a C_a^-1 + share_b C_b^-1)^-1 and mu = mu_a + C share_b C_b^-1 d
+// with d = PoseDifference(mu_b, mu_a), i.e. (4) with mu_b's heading unwrapped next to
+// mu_a's. share_a + share_b = 1 is covariance intersection, consistent whatever the
+// correlation of a and b; share_a = share_b = 1 is the information-filter (Kalman) update
+// for independent a and b. info_a, info_b are C_a^-1, C_b^-1 (callers that fuse one
+// component with many pass them precomputed). Throws omnicml::Error naming `what` when
+// the combined information is not positive definite. The result's weight is 0; its
+// covariance is repaired with min_eigenvalue.
+Gaussian CombineInformation(const Gaussian& a, const Eigen::Matrix3d& info_a, double share_a,
+                            const Gaussian& b, const Eigen::Matrix3d& info_b, double share_b,
+                            double min_eigenvalue, const std::string& what);
+
+// Covariance intersection of a and b with weight omega on b (share_a = 1 - omega,
+// share_b = omega; CombineInformation). Both covariances are repaired first; omega must
+// be in [0, 1].
+Gaussian CovarianceIntersection(const Gaussian& a, const Gaussian& b, double omega);
+
 // Sum of weights.
 double TotalWeight(const Mixture& m);
 

@@ -28,6 +28,17 @@ enum class ForgettingMode : std::uint8_t {
 };
 // "active", "passive", "static".
 std::string ToString(ForgettingMode mode);
+
+// How two components of one view are merged ([G] (12)-(14); docs/design.md "Environment
+// model").
+enum class MergeFusion : std::uint8_t {
+  // [G] (13)-(14): the pair as a two-component mixture, moment matched: the weighted mean
+  // of the covariances plus the spread of the means.
+  kMomentMatching = 0,
+  // The pair as two estimates of one place with unknown correlation: covariance
+  // intersection (Julier & Uhlmann 1997) with the merge weights as the shares.
+  kCovarianceIntersection = 1,
+};
 // Throws omnicml::Error on any other name.
 ForgettingMode ForgettingModeFromString(const std::string& name);
 
@@ -82,6 +93,16 @@ struct EnvironmentModelOptions {
     // matches) is not dragged by one uncertain estimate the way an eta-share drags it.
     // eta is summed either way.
     bool merge_precision_weighted = true;
+    // How a merge combines the pair's means and covariances. kMomentMatching is [G]
+    // (13)-(14): the merged covariance is the weighted mean of the two plus the spread of
+    // the means, so a component that keeps being confirmed by estimates that scatter
+    // around it widens with every merge, and the estimates localized against it, stored
+    // back into the map, widen the next ones. kCovarianceIntersection reads the two as
+    // estimates of the same place whose errors are correlated (both come from poses
+    // localized against this map): C = (s_n C_n^-1 + s_m C_m^-1)^-1 and the matching
+    // mean, s_n, s_m the merge weights normalised to sum 1. It is consistent for any
+    // correlation and never wider than the wider of the two.
+    MergeFusion merge_fusion = MergeFusion::kMomentMatching;
     // Look-back (an addition to [G 2.3], docs/design.md "Environment model"): a view made
     // at frame t is also given a component at each of the preceding updates of the same
     // session, newest first, whose descriptor matches it (E < e_max), stopping at the
@@ -227,6 +248,12 @@ void VisitFields(V& v, EnvironmentModelOptions::Update& o) {
   v("merge_delta", o.merge_delta);
   v("merge_precision_weighted", o.merge_precision_weighted);
   v("look_back_frames", o.look_back_frames);
+  // After engine file format 14 (engine_io.h): stored only when not the default.
+  v.Since(15, [&](auto& w) {
+    w.NamedEnum("merge_fusion", o.merge_fusion,
+                {{MergeFusion::kMomentMatching, "moment_matching"},
+                 {MergeFusion::kCovarianceIntersection, "covariance_intersection"}});
+  });
 }
 
 template <class V>

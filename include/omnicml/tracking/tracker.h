@@ -95,7 +95,7 @@ Mixture Propagate(const Mixture& prior, const OdometryIncrement& u, const Motion
 // (3); mu = C ((1-alpha) C_a^-1 mu_a + alpha C_b^-1 mu_b) (4) with mu_b's angle unwrapped next to
 // mu_a's. The returned weight is 0 (set by Fuse from (8)).
 double CovarianceIntersectionAlpha(const Gaussian& a, const Gaussian& b);
-Gaussian CovarianceIntersection(const Gaussian& a, const Gaussian& b, double alpha);
+// The fusion itself: CovarianceIntersection(a, b, alpha) (geometry/gaussian_mixture.h).
 
 // Fusion of p(x|u) with one or more other sources [G 2.1, (2)-(8)] followed by
 // normalisation, pruning, merging and capping. Sources are fused one after the other,

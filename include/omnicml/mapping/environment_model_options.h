@@ -28,6 +28,8 @@ enum class ForgettingMode : std::uint8_t {
 };
 // "active", "passive", "static".
 std::string ToString(ForgettingMode mode);
+// Throws omnicml::Error on any other name.
+ForgettingMode ForgettingModeFromString(const std::string& name);
 
 // How two components of one view are merged ([G] (12)-(14); docs/design.md "Environment
 // model").
@@ -39,8 +41,6 @@ enum class MergeFusion : std::uint8_t {
   // intersection (Julier & Uhlmann 1997) with the merge weights as the shares.
   kCovarianceIntersection = 1,
 };
-// Throws omnicml::Error on any other name.
-ForgettingMode ForgettingModeFromString(const std::string& name);
 
 struct EnvironmentModelOptions {
   // Which views match a descriptor, and how their components form p(x|y).

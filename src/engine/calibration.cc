@@ -88,6 +88,14 @@ std::vector<SessionLoopPair> FindLoopPairs(const DescriptorExtractor& extractor,
   return kept;
 }
 
+// The spatial thresholds a match length scales (ScaleSpatialThresholds), times s.
+void MultiplySpatialThresholds(double s, CmlEngineOptions* options) {
+  options->appearance_sigma_m *= s;
+  options->anchor_max_sigma_m *= s;
+  options->model.forgetting.d_for_m *= s;
+  options->model.index.spatial_cell_m *= s;
+}
+
 }  // namespace
 
 void CalibrationOptions::Validate() const {
@@ -216,11 +224,6 @@ Calibration Calibrate(FrameSource& source, const CmlEngineOptions& options,
     const double steps = calibration_options.scale_steps_per_octave;
     c.scale = std::exp2(std::round(std::log2(c.scale) * steps) / steps);
   }
-  const CmlEngineOptions defaults;
-  c.appearance_sigma_m = defaults.appearance_sigma_m * c.scale;
-  c.anchor_max_sigma_m = defaults.anchor_max_sigma_m * c.scale;
-  c.d_for_m = defaults.model.forgetting.d_for_m * c.scale;
-  c.spatial_cell_m = defaults.model.index.spatial_cell_m * c.scale;
 
   c.loop_e_max = DistanceAtPath(c.curve, 0.5 * c.match_length_m);
   const std::vector<SessionLoopPair> pairs = FindLoopPairs(
@@ -252,10 +255,7 @@ Calibration Calibrate(FrameSource& source, const CmlEngineOptions& options,
 
 bool ScaleSpatialThresholds(const Calibration& calibration, CmlEngineOptions* options) {
   if (calibration.saturated || !(calibration.match_length_m > 0)) return false;
-  options->appearance_sigma_m *= calibration.scale;
-  options->anchor_max_sigma_m *= calibration.scale;
-  options->model.forgetting.d_for_m *= calibration.scale;
-  options->model.index.spatial_cell_m *= calibration.scale;
+  MultiplySpatialThresholds(calibration.scale, options);
   return true;
 }
 
@@ -301,15 +301,17 @@ std::string Calibration::ToYaml() const {
   } else {
     s << "; too few to identify the motion noise\n";
   }
-  s << "appearance_sigma_m: " << appearance_sigma_m << "\n";
-  s << "anchor_max_sigma_m: " << anchor_max_sigma_m << "\n";
+  CmlEngineOptions scaled;  // the defaults' spatial thresholds times s
+  MultiplySpatialThresholds(scale, &scaled);
+  s << "appearance_sigma_m: " << scaled.appearance_sigma_m << "\n";
+  s << "anchor_max_sigma_m: " << scaled.anchor_max_sigma_m << "\n";
   if (m.identified) {
     s << "tracker:\n  motion: {a1: " << m.noise.a1 << ", a2: " << m.noise.a2
       << ", a3: " << m.noise.a3 << ", a4: " << m.noise.a4 << "}\n";
   }
   s << "model:\n";
-  s << "  d_for_m: " << d_for_m << "\n";
-  s << "  spatial_cell_m: " << spatial_cell_m << "\n";
+  s << "  d_for_m: " << scaled.model.forgetting.d_for_m << "\n";
+  s << "  spatial_cell_m: " << scaled.model.index.spatial_cell_m << "\n";
   return s.str();
 }
 

@@ -104,7 +104,7 @@ Gaussian MomentMatch(std::span<const Gaussian> components, HeadingMean heading) 
 
 Gaussian CombineInformation(const Gaussian& a, const Eigen::Matrix3d& info_a, double share_a,
                             const Gaussian& b, const Eigen::Matrix3d& info_b, double share_b,
-                            double min_eigenvalue, const std::string& what) {
+                            double min_eigenvalue, const char* what) {
   const Eigen::Matrix3d information = share_a * info_a + share_b * info_b;
   const Eigen::LLT<Eigen::Matrix3d> llt(information);
   if (llt.info() != Eigen::Success) {
@@ -112,8 +112,14 @@ Gaussian CombineInformation(const Gaussian& a, const Eigen::Matrix3d& info_a, do
                        share_a, ", ", share_b, ")"));
   }
   Gaussian out;
-  out.covariance = RepairCovariance(llt.solve(Eigen::Matrix3d::Identity()), min_eigenvalue,
-                                    StrCat(what, ": fused covariance"));
+  // The tracker fuses many pairs per frame: the message is composed only on failure.
+  static const std::string kFused = "fused covariance";
+  try {
+    out.covariance =
+        RepairCovariance(llt.solve(Eigen::Matrix3d::Identity()), min_eigenvalue, kFused);
+  } catch (const Error& e) {
+    throw Error(StrCat(what, ": ", e.what()));
+  }
   // C (share_a I_a mu_a + share_b I_b (mu_a + d)) = mu_a + C share_b I_b d.
   const Eigen::Vector3d d = PoseDifference(b.mean, a.mean);
   const Eigen::Vector3d shift = llt.solve(share_b * (info_b * d));
@@ -125,8 +131,9 @@ Gaussian CombineInformation(const Gaussian& a, const Eigen::Matrix3d& info_a, do
 Gaussian CovarianceIntersection(const Gaussian& a, const Gaussian& b, double omega) {
   if (!(omega >= 0 && omega <= 1))
     throw Error(StrCat("CovarianceIntersection: omega must be in [0, 1], got ", omega));
-  const Eigen::Matrix3d ca = RepairCovariance(a.covariance, 1e-12, "CovarianceIntersection: C_a");
-  const Eigen::Matrix3d cb = RepairCovariance(b.covariance, 1e-12, "CovarianceIntersection: C_b");
+  static const std::string kA = "CovarianceIntersection: C_a", kB = "CovarianceIntersection: C_b";
+  const Eigen::Matrix3d ca = RepairCovariance(a.covariance, 1e-12, kA);
+  const Eigen::Matrix3d cb = RepairCovariance(b.covariance, 1e-12, kB);
   return CombineInformation(a, ca.inverse(), 1.0 - omega, b, cb.inverse(), omega, 1e-12,
                             "CovarianceIntersection");
 }

@@ -86,19 +86,15 @@ struct Calibration {
   double measured_scale = 1.0;  // L / reference_match_length_m, before clamping and rounding
   double scale = 1.0;           // s: measured_scale clamped and rounded (CalibrationOptions)
   std::vector<CalibrationPoint> curve;
-  // Derived values (defaults of CmlEngineOptions times s).
-  double appearance_sigma_m = 0.0;
-  double anchor_max_sigma_m = 0.0;
-  double d_for_m = 0.0;
-  double spatial_cell_m = 0.0;
   // Loop pairs and the motion noise identified from them.
   double loop_e_max = 0.0;  // E(L / 2): the descriptor distance a loop pair is below
   int loop_frames = 0;      // frames searched for loop pairs (every session read)
   int loop_sessions = 0;
   MotionNoiseIdentification motion;
 
-  // The derived values as an engine configuration (YAML, loadable with --config), the
-  // measurements as comments above them.
+  // The derived values as an engine configuration (YAML, loadable with --config): the
+  // spatial thresholds of the default CmlEngineOptions times s, and the identified motion
+  // noise; the measurements as comments above them.
   std::string ToYaml() const;
 };
 

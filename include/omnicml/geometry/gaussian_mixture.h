@@ -72,7 +72,7 @@ Gaussian MomentMatch(std::span<const Gaussian> components,
 // covariance is repaired with min_eigenvalue.
 Gaussian CombineInformation(const Gaussian& a, const Eigen::Matrix3d& info_a, double share_a,
                             const Gaussian& b, const Eigen::Matrix3d& info_b, double share_b,
-                            double min_eigenvalue, const std::string& what);
+                            double min_eigenvalue, const char* what);
 
 // Covariance intersection of a and b with weight omega on b (share_a = 1 - omega,
 // share_b = omega; CombineInformation). Both covariances are repaired first; omega must

@@ -152,9 +152,16 @@ std::vector<NodeCorrection> PoseGraph::Optimize(std::int64_t frame) {
   last_optimized_frame_ = frame;
   std::vector<NodeCorrection> out;
   if (nodes_.size() < 2) return out;
-  const std::size_t first = nodes_.size() > static_cast<std::size_t>(options_.window_nodes)
-                                ? nodes_.size() - static_cast<std::size_t>(options_.window_nodes)
-                                : 0;
+  std::size_t first = nodes_.size() > static_cast<std::size_t>(options_.window_nodes)
+                          ? nodes_.size() - static_cast<std::size_t>(options_.window_nodes)
+                          : 0;
+  if (options_.hold_earlier_sessions && nodes_.back().segment >= 0) {
+    // The latest odometry segment's nodes only: earlier sessions' poses are constants
+    // that its closures and its start prior tie it to.
+    std::size_t own = nodes_.size() - 1;
+    while (own > first && nodes_[own - 1].segment == nodes_.back().segment) --own;
+    first = std::max(first, own);
+  }
   // Parameter blocks: the window's poses, plus copies of older nodes a factor touches
   // (held constant).
   std::vector<std::array<double, 3>> x(nodes_.size() - first);

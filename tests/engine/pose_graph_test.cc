@@ -174,6 +174,52 @@ TEST(PoseGraph, TwoDaysOverOnePathMeetHalfWay) {
       0.1 * day2_disagreement);
 }
 
+// The same two days with hold_earlier_sessions: day 1's nodes are constants, so day 1's
+// map stays exactly where it was, and day 2's nodes come to the day-1 places its closures
+// name (all of the disagreement instead of half). A lap within day 2 still closes: a
+// drifted day-2 loop is corrected as without the option.
+TEST(PoseGraph, HoldEarlierSessionsKeepsTheOlderMapAndCorrectsTheCurrentDay) {
+  constexpr int kDayNodes = 100;
+  PoseGraphOptions o = LoopOptions();
+  o.closure_every_frames = 10;
+  o.hold_earlier_sessions = true;
+  PoseGraph graph(o, MotionNoise{}, 1e-6, 1e-6, 1000);
+  const auto truth = [](int i) { return MakePose(0.2 * i, 0.0, 0.0); };
+  const std::vector<Pose2> day1 = FeedSession(&graph, 0, kDayNodes, truth, 0.0);
+  const std::vector<Pose2> day2_dead_reckoned =
+      FeedSession(&graph, kDayNodes, kDayNodes, truth, 0.002);
+  const double day2_disagreement = (day2_dead_reckoned[90].head<2>() - truth(90).head<2>()).norm();
+  ASSERT_GT(day2_disagreement, 0.5);
+  for (int i = 10; i < kDayNodes; i += 10) {
+    ASSERT_TRUE(graph.AddClosure(i, kDayNodes + i, graph.FindNode(i)->pose,
+                                 Eigen::Vector3d(1e-4, 1e-4, 1e-6).asDiagonal()));
+  }
+  const std::vector<NodeCorrection> moved = graph.Optimize(2 * kDayNodes - 1);
+  ASSERT_FALSE(moved.empty());
+  for (const NodeCorrection& c : moved) EXPECT_GE(c.frame, kDayNodes) << "a day-1 node moved";
+  for (int i = 0; i < kDayNodes; ++i) {
+    EXPECT_EQ(graph.FindNode(i)->pose, day1[static_cast<std::size_t>(i)]);
+  }
+  EXPECT_LT((graph.FindNode(kDayNodes + 90)->pose.head<2>() - truth(90).head<2>()).norm(),
+            0.1 * day2_disagreement);
+
+  // Within one session the option changes nothing: the drifted lap closes as in
+  // DriftedLoopClosesTowardsTruth.
+  PoseGraph held(o, MotionNoise{}, 1e-6, 1e-6, 1000);
+  PoseGraphOptions free_options = o;
+  free_options.hold_earlier_sessions = false;
+  PoseGraph free(free_options, MotionNoise{}, 1e-6, 1e-6, 1000);
+  const Loop loop = FeedLoop(&held, 0.004);
+  FeedLoop(&free, 0.004);
+  const int last = kLoopNodes - 1;
+  for (PoseGraph* g : {&held, &free}) {
+    ASSERT_TRUE(
+        g->AddClosure(0, last, loop.truth[last], Eigen::Vector3d(0.01, 0.01, 1e-4).asDiagonal()));
+    g->Optimize(last);
+  }
+  for (int i = 0; i < kLoopNodes; ++i) EXPECT_EQ(held.FindNode(i)->pose, free.FindNode(i)->pose);
+}
+
 // Closures need min_loop_frames between the nodes, closure_every_frames between closures
 // and both nodes.
 TEST(PoseGraph, ClosureConditions) {

@@ -90,6 +90,15 @@ struct PoseGraphOptions {
   // residual exceeds this is removed as inconsistent (aliasing) and the window solved
   // again. Dimensionless (chi-square, 3 degrees of freedom), > 0; 25 = 5 sigma.
   double reject_chi2 = 25.0;
+  // Optimise the nodes of the latest odometry segment (the current session, or the
+  // sessions joined to it by kContinue) only, holding every earlier node constant: a
+  // session's closures correct its own poses and the views it made (its first lap's
+  // drift), and tie it to the earlier map without moving that map. Two days' chains over
+  // one corridor then never pull the older map towards the newer day's odometry, which
+  // the graph cannot tell apart from the older day's when both carry the same modelled
+  // noise (a biased odometry day bent AntWorld's day-1 map). false: every node in the
+  // window is free.
+  bool hold_earlier_sessions = false;
 
   // Throws omnicml::Error naming the first invalid field ("PoseGraphOptions.<field>").
   void Validate() const;
@@ -107,6 +116,8 @@ void VisitFields(V& v, PoseGraphOptions& o) {
   v("loss_scale", o.loss_scale);
   v("max_iterations", o.max_iterations);
   v("reject_chi2", o.reject_chi2);
+  // After engine file format 14 (engine_io.h): stored only when not the default.
+  v.Since(15, [&](auto& w) { w("hold_earlier_sessions", o.hold_earlier_sessions); });
 }
 
 // One node: the pose of a map update.

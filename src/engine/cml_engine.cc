@@ -276,10 +276,16 @@ void CmlEngine::BeginSession(const SessionInfo& info) {
   if (options_.pose_graph.enabled) {
     // Global pose graph: kContinue goes on with the odometry segment; a known start pose
     // is a prior on the session's first node.
+    const bool continues = info.start.mode == SessionStartMode::kContinue && !first;
+    if (options_.pose_graph.hold_earlier_sessions && !continues &&
+        pose_graph_->HasUnoptimizedClosures()) {
+      // The ending session's last closures, solved while its nodes are still free: from
+      // the new session on they are held.
+      ApplyPoseGraphCorrections(pose_graph_->Optimize(next_frame_ - 1), nullptr);
+    }
     std::optional<Gaussian> known;
     if (info.start.mode == SessionStartMode::kKnownPose) known = tracker_.state().front();
-    pose_graph_->BeginSession(info.start.mode == SessionStartMode::kContinue && !first, next_frame_,
-                              known);
+    pose_graph_->BeginSession(continues, next_frame_, known);
   }
 }
 

@@ -330,6 +330,37 @@ TEST(PoseGraphEngine, DeterministicWithOneOrTwoThreads) {
   }
 }
 
+// With hold_earlier_sessions, closures of a session's last frames that were not optimised
+// yet are solved when the next session begins, while that session's nodes are still free
+// (afterwards they are held and its last lap would never close); the views it made move.
+// Without the option the next optimisation solves them with the new session, so the
+// session start leaves the graph alone.
+TEST(PoseGraphEngine, HoldEarlierSessionsSolvesTheEndingSessionsClosuresFirst) {
+  for (const bool hold : {true, false}) {
+    CmlEngineOptions o = GraphEngineOptions(1);
+    o.pose_graph.hold_earlier_sessions = hold;
+    o.pose_graph.optimize_every_frames = 1000;  // one optimisation in day 1: its first closure
+    CmlEngine engine(o);
+    RunOutput day1;
+    Feed(&engine, TwoDays(), 0, 0, &day1);
+    ASSERT_TRUE(engine.pose_graph().HasUnoptimizedClosures()) << "day 1 closes its lap";
+    const std::int64_t optimizations = engine.pose_graph().optimizations();
+    engine.Finish();
+    const std::vector<std::uint8_t> before = ModelBytes(engine);
+    engine.BeginSession(SimulatedFrameSource(TwoDays()).Session(1));
+    engine.Finish();
+    if (hold) {
+      EXPECT_EQ(engine.pose_graph().optimizations(), optimizations + 1);
+      EXPECT_FALSE(engine.pose_graph().HasUnoptimizedClosures());
+      EXPECT_NE(ModelBytes(engine), before) << "day 1's views did not move";
+    } else {
+      EXPECT_EQ(engine.pose_graph().optimizations(), optimizations);
+      EXPECT_TRUE(engine.pose_graph().HasUnoptimizedClosures());
+      EXPECT_EQ(ModelBytes(engine), before);
+    }
+  }
+}
+
 // Saving after day 1 and loading gives the same graph, and day 2 then gives exactly the
 // map and graph of one uninterrupted run.
 TEST(PoseGraphEngine, SaveLoadRoundTrip) {

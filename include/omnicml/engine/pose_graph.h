@@ -97,7 +97,9 @@ struct PoseGraphOptions {
   // one corridor then never pull the older map towards the newer day's odometry, which
   // the graph cannot tell apart from the older day's when both carry the same modelled
   // noise (a biased odometry day bent AntWorld's day-1 map). false: every node in the
-  // window is free.
+  // window is free. With it, the engine solves a session's closures that no
+  // optimisation has solved yet when the next session begins (CmlEngine::BeginSession),
+  // while that session's nodes are still free.
   bool hold_earlier_sessions = false;
 
   // Throws omnicml::Error naming the first invalid field ("PoseGraphOptions.<field>").
@@ -180,6 +182,8 @@ class PoseGraph {
   // Whether Optimize should run at `frame` (a closure since the last optimisation, and
   // optimize_every_frames passed).
   bool ShouldOptimize(std::int64_t frame) const;
+  // A closure was added since the last optimisation.
+  bool HasUnoptimizedClosures() const { return closure_since_optimize_; }
   // Optimises the window (file comment) and returns the nodes whose pose changed.
   std::vector<NodeCorrection> Optimize(std::int64_t frame);
 

@@ -57,6 +57,10 @@ const CommandRegistration kRegistration{
       cmd->add_option("--offset-prior-log-sd", f->calibration.identification.offset_prior_log_sd,
                       "Motion noise prior: sd of ln rho and ln rho_phi about their centres (> 0)")
           ->capture_default_str();
+      cmd->add_option("--offset-dof", f->calibration.identification.offset_dof,
+                      "Appearance offset from a Student t fit with this many degrees of "
+                      "freedom (0: from the Gaussian fit with a1..a4)")
+          ->capture_default_str();
       cmd->callback([f] {
         f->input.Validate();
         OptionOverrides overrides;

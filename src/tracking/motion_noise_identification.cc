@@ -109,32 +109,42 @@ double NisOf(const Term& t, const Vector6& v) {
 double Nis(const Term& t, const Vector6& v) { return t.dim == 3 ? NisOf<3>(t, v) : NisOf<2>(t, v); }
 
 // -2 ln L of one pair and, when wanted, its gradient and Fisher information in the log
-// parameters theta = ln v: g_j = v_j (tr(S^-1 A_j) - r^T S^-1 A_j S^-1 r),
+// parameters theta = ln v, with q = r^T S^-1 r.
+// Gaussian (nu = 0): -2 ln L = ln det S + q, g_j = v_j (tr(S^-1 A_j) - r^T S^-1 A_j S^-1 r),
 // F_jl = v_j v_l tr(S^-1 A_j S^-1 A_l).
+// Student t (nu > 0; Lange, Little & Taylor, "Robust statistical modeling using the t
+// distribution", JASA 1989): -2 ln L = ln det S + (nu + D) ln(1 + q / nu) (+ const), the
+// gradient as above with the quadratic term weighted by w = (nu + D) / (nu + q), and the
+// expected information F_jl = v_j v_l ((nu + D) tr(S^-1 A_j S^-1 A_l) - tr(S^-1 A_j)
+// tr(S^-1 A_l)) / (nu + D + 2).
 template <int D>
-double AddTerm(const Term& t, const Vector6& v, Vector6* g, Matrix6* f) {
+double AddTerm(const Term& t, const Vector6& v, double nu, Vector6* g, Matrix6* f) {
   const Eigen::Matrix<double, D, D> s = Covariance(t, v).topLeftCorner<D, D>();
   const double det = s.determinant();
   if (!(det > 0)) return std::numeric_limits<double>::infinity();
   const Eigen::Matrix<double, D, D> si = s.inverse();
   const Eigen::Matrix<double, D, 1> r = t.r.head<D>();
   const Eigen::Matrix<double, D, 1> alpha = si * r;
+  const double q = r.dot(alpha);
+  const double w = nu > 0 ? (nu + D) / (nu + q) : 1.0;
   if (g != nullptr) {
     std::array<Eigen::Matrix<double, D, D>, kP> m;
     for (int j = 0; j < kP; ++j) {
       const Eigen::Matrix<double, D, D> a = Basis(t, j).topLeftCorner<D, D>();
       m[j] = si * a;
-      (*g)[j] += v[j] * (m[j].trace() - alpha.dot(a * alpha));
+      (*g)[j] += v[j] * (m[j].trace() - w * alpha.dot(a * alpha));
     }
     for (int j = 0; j < kP; ++j) {
       for (int l = j; l < kP; ++l) {
-        const double x = v[j] * v[l] * (m[j] * m[l]).trace();
+        double x = (m[j] * m[l]).trace();
+        if (nu > 0) x = ((nu + D) * x - m[j].trace() * m[l].trace()) / (nu + D + 2);
+        x *= v[j] * v[l];
         (*f)(j, l) += x;
         if (l != j) (*f)(l, j) += x;
       }
     }
   }
-  return std::log(det) + r.dot(alpha);
+  return std::log(det) + (nu > 0 ? (nu + D) * std::log1p(q / nu) : q);
 }
 
 // The objective: -2 ln posterior (up to constants) of the pairs flagged in `use`, its
@@ -144,6 +154,8 @@ struct Objective {
   const std::vector<Term>& terms;
   const std::vector<char>& use;
   const MotionNoiseIdentificationOptions& options;
+  // Degrees of freedom of the pairs' likelihood: 0 Gaussian, > 0 Student t.
+  double nu = 0.0;
 
   double operator()(const Vector6& theta, Vector6* g = nullptr, Matrix6* data = nullptr,
                     Matrix6* prior = nullptr) const {
@@ -156,8 +168,8 @@ struct Objective {
     double sum = 0.0;
     for (std::size_t k = 0; k < terms.size(); ++k) {
       if (!use[k]) continue;
-      sum +=
-          terms[k].dim == 3 ? AddTerm<3>(terms[k], v, g, data) : AddTerm<2>(terms[k], v, g, data);
+      sum += terms[k].dim == 3 ? AddTerm<3>(terms[k], v, nu, g, data)
+                               : AddTerm<2>(terms[k], v, nu, g, data);
       if (!std::isfinite(sum)) return sum;
     }
     // Shape prior: d_j = ln(a_j / c_j), sum_j (d_j - mean d)^2 / sd^2.
@@ -337,6 +349,9 @@ void MotionNoiseIdentificationOptions::Validate() const {
   }
   if (!(offset_prior_log_sd > 0 && std::isfinite(offset_prior_log_sd))) {
     fail("offset_prior_log_sd", "> 0");
+  }
+  if (!(offset_dof == 0 || (offset_dof >= 1 && std::isfinite(offset_dof)))) {
+    fail("offset_dof", "0 (Gaussian) or finite and >= 1");
   }
   if (!(outlier_confidence > 0 && outlier_confidence < 1)) fail("outlier_confidence", "in (0, 1)");
   if (min_pairs < 1) fail("min_pairs", ">= 1");
@@ -543,6 +558,20 @@ MotionNoiseIdentification Identify(const std::vector<Term>& terms,
     result.log_sd[j] = std::sqrt(std::max(covariance(j, j), 0.0));
     const double total = data(j, j) + prior(j, j);
     result.data_share[j] = total > 0 ? data(j, j) / total : 0.0;
+  }
+  if (options.offset_dof > 0) {
+    // The offset from the same inliers under the Student t: the core of the offsets, not
+    // their second moment (the header; docs/design.md).
+    const Objective robust{terms, use, options, options.offset_dof};
+    Matrix6 robust_data, robust_prior;
+    constexpr int kRho = static_cast<int>(IdentifiedParameter::kAppearanceVariance);
+    const Vector6 theta_t = Fit(robust, box, options.max_iterations, &robust_data, &robust_prior);
+    result.appearance_variance_m2 = std::exp(theta_t[kRho]);
+    const Matrix6 robust_covariance =
+        (0.5 * (robust_data + robust_prior)).completeOrthogonalDecomposition().pseudoInverse();
+    result.log_sd[kRho] = std::sqrt(std::max(robust_covariance(kRho, kRho), 0.0));
+    const double total = robust_data(kRho, kRho) + robust_prior(kRho, kRho);
+    result.data_share[kRho] = total > 0 ? robust_data(kRho, kRho) / total : 0.0;
   }
   return result;
 }

@@ -844,6 +844,41 @@ TEST(MotionNoiseIdentification, RejectsAliasedPairs) {
   }
 }
 
+// Pairs matched a few steps along the path (a corridor whose view changes slowly: the
+// right place up to an offset of 0.4-0.8 m, not an alias far away) are too many and too
+// mild for the NIS rejection. Under the Gaussian likelihood they widen the appearance
+// offset of every pair about fourfold; from the Student t refit (offset_dof 4) it widens
+// by clearly less (a quarter less at least). a1..a4 stay the Gaussian fit's, bit for bit.
+TEST(MotionNoiseIdentification, StudentTOffsetKeepsTheCoreUnderAlongPathMatches) {
+  std::mt19937_64 rng(7);
+  const LapLog log = DriveLaps(RoundedSquare(), MotionNoise{0.01, 0.002, 0.005, 0.001}, 60, rng);
+  std::vector<LoopPair> pairs = LapPairs(log, 4, 0.01, rng);
+  MotionNoiseIdentificationOptions gaussian, t4;
+  gaussian.offset_dof = 0.0;
+  t4.offset_dof = 4.0;
+  const MotionNoiseIdentification clean_g = IdentifyMotionNoise(log.odometry, pairs, gaussian);
+  const MotionNoiseIdentification clean_t = IdentifyMotionNoise(log.odometry, pairs, t4);
+  // 20 % of the pairs: the first frame 2-4 steps (0.4-0.8 m) earlier or later on its lap.
+  const std::size_t good = pairs.size();
+  for (std::size_t k = 0; k < good; k += 5) {
+    const int shift = (k % 2 == 0 ? 1 : -1) * (2 + static_cast<int>(k % 3));
+    LoopPair& p = pairs[k];
+    p.first = std::clamp(p.first + shift, 0, p.second - 1);
+    p.heading_rad = WrapAngle(log.truth[p.second].z() - log.truth[p.first].z());
+  }
+  const MotionNoiseIdentification g = IdentifyMotionNoise(log.odometry, pairs, gaussian);
+  const MotionNoiseIdentification t = IdentifyMotionNoise(log.odometry, pairs, t4);
+  ASSERT_TRUE(clean_g.identified && clean_t.identified && g.identified && t.identified);
+  EXPECT_GT(g.pairs_used, static_cast<int>(0.95 * good));  // mild: the rejection keeps them
+  const double widen_g = std::sqrt(g.appearance_variance_m2 / clean_g.appearance_variance_m2);
+  const double widen_t = std::sqrt(t.appearance_variance_m2 / clean_t.appearance_variance_m2);
+  EXPECT_GT(widen_g, 3.0);
+  EXPECT_LT(widen_t, 0.75 * widen_g);
+  EXPECT_EQ(Parameters(t.noise), Parameters(g.noise));
+  EXPECT_EQ(t.heading_variance_rad2, g.heading_variance_rad2);
+  EXPECT_EQ(t.pairs_used, g.pairs_used);
+}
+
 // The estimate is a function of the input only: the same pairs give the same bits.
 TEST(MotionNoiseIdentification, IsDeterministic) {
   std::mt19937_64 rng(41);
@@ -866,6 +901,9 @@ TEST(MotionNoiseIdentification, RefusesTooLittleDataAndBadInput) {
   MotionNoiseIdentificationOptions bad;
   bad.outlier_confidence = 1.0;
   EXPECT_THROW(IdentifyMotionNoise(odometry, {}, bad), Error);
+  MotionNoiseIdentificationOptions bad_dof;
+  bad_dof.offset_dof = 0.5;
+  EXPECT_THROW(IdentifyMotionNoise(odometry, {}, bad_dof), Error);
   MotionNoiseIdentificationOptions no_shape;
   no_shape.shape_prior.a3 = 0.0;
   EXPECT_THROW(no_shape.Validate(), Error);

@@ -27,7 +27,9 @@
 // data alone set it); on each offset variance, ln(rho / rho_0) ~ N(0, sd_offset^2). The
 // estimate minimises -2 ln posterior = sum_k (ln det S_k + r_k^T S_k^-1 r_k) - 2 ln p over
 // the logarithms of the six parameters in bounds (Fisher scoring with a damped step from
-// the prior shape at its best common scale). Pairs whose NIS exceeds the chi-square
+// the prior shape at its best common scale). With offset_dof nu > 0, rho comes from a
+// second fit whose pair terms are the Student t's, ln det S_k + (nu + d) ln(1 + r_k^T
+// S_k^-1 r_k / nu). Pairs whose NIS exceeds the chi-square
 // quantile of `outlier_confidence` (2 or 3 dof) at the current estimate are perceptual
 // aliases and are dropped, and the fit repeated until the set is stable.
 //
@@ -85,6 +87,16 @@ struct MotionNoiseIdentificationOptions {
   double heading_variance_prior_rad2 = 0.0025;
   // Standard deviation of ln rho and ln rho_phi about their centres, natural-log units. > 0.
   double offset_prior_log_sd = 1.5;
+  // The appearance offset rho as the core of the pairs' offsets: 0 takes rho from the
+  // Gaussian fit with a1..a4 (the second moment of everything a1..a4 leave unexplained);
+  // nu >= 1 refits the same inliers under a multivariate Student t likelihood with nu
+  // degrees of freedom and takes rho from that fit. A minority of pairs matched with a
+  // large offset (a corridor whose view changes slowly, matched a few metres along itself)
+  // then weighs less instead of widening rho for every pair. a1..a4 and rho_phi stay the
+  // Gaussian fit's: the prior's covariance must cover the drift's full spread, or a
+  // confidence gate rejects the true fix after a long stretch of dead reckoning
+  // (docs/design.md "Motion noise identified from loop innovations"). 0 or >= 1.
+  double offset_dof = 4.0;
   // Pairs whose NIS exceeds the chi-square quantile (2 or 3 dof) of this confidence at the
   // current estimate are rejected as aliases. In (0, 1).
   double outlier_confidence = 0.999;
@@ -104,7 +116,7 @@ inline constexpr int kIdentifiedParameters = 6;
 struct MotionNoiseIdentification {
   bool identified = false;  // false: too few pairs; the values below are then meaningless
   MotionNoise noise;
-  double appearance_variance_m2 = 0.0;  // rho
+  double appearance_variance_m2 = 0.0;  // rho (the Student t fit's when offset_dof > 0)
   double heading_variance_rad2 = 0.0;   // rho_phi (prior centre when no pair has heading)
   int pairs = 0;                        // pairs given
   int pairs_used = 0;                   // after alias rejection

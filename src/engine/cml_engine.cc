@@ -91,6 +91,10 @@ void CmlEngineOptions::Validate() const {
     throw Error(StrCat("CmlEngineOptions.hypothesis_weight_scale must be in (0, 1], got ",
                        hypothesis_weight_scale));
   }
+  if (!(motion_noise_offset_dof >= 0.0 && std::isfinite(motion_noise_offset_dof))) {
+    throw Error(StrCat("CmlEngineOptions.motion_noise_offset_dof must be finite and >= 0, got ",
+                       motion_noise_offset_dof));
+  }
   if (!(appearance_sigma_m >= 0.0) || !std::isfinite(appearance_sigma_m)) {
     throw Error(StrCat("CmlEngineOptions.appearance_sigma_m must be finite and >= 0, got ",
                        appearance_sigma_m));

@@ -350,9 +350,7 @@ void MotionNoiseIdentificationOptions::Validate() const {
   if (!(offset_prior_log_sd > 0 && std::isfinite(offset_prior_log_sd))) {
     fail("offset_prior_log_sd", "> 0");
   }
-  if (!(offset_dof == 0 || (offset_dof >= 1 && std::isfinite(offset_dof)))) {
-    fail("offset_dof", "0 (Gaussian) or finite and >= 1");
-  }
+  if (!(offset_dof >= 0 && std::isfinite(offset_dof))) fail("offset_dof", "finite and >= 0");
   if (!(outlier_confidence > 0 && outlier_confidence < 1)) fail("outlier_confidence", "in (0, 1)");
   if (min_pairs < 1) fail("min_pairs", ">= 1");
   if (max_iterations < 1) fail("max_iterations", ">= 1");

@@ -902,7 +902,7 @@ TEST(MotionNoiseIdentification, RefusesTooLittleDataAndBadInput) {
   bad.outlier_confidence = 1.0;
   EXPECT_THROW(IdentifyMotionNoise(odometry, {}, bad), Error);
   MotionNoiseIdentificationOptions bad_dof;
-  bad_dof.offset_dof = 0.5;
+  bad_dof.offset_dof = -1.0;
   EXPECT_THROW(IdentifyMotionNoise(odometry, {}, bad_dof), Error);
   MotionNoiseIdentificationOptions no_shape;
   no_shape.shape_prior.a3 = 0.0;

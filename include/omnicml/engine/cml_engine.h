@@ -65,6 +65,7 @@
 #include "omnicml/geometry/pose.h"
 #include "omnicml/mapping/environment_model.h"
 #include "omnicml/sensor/frame.h"
+#include "omnicml/tracking/motion_noise_identification.h"
 #include "omnicml/tracking/tracker.h"
 #include "omnicml/unwrap/omni_unwrapper.h"
 
@@ -209,6 +210,10 @@ struct CmlEngineOptions {
   // Where the spatial thresholds come from when a run starts a new map
   // (SpatialScaleSource); read by the run layer with the motion noise above.
   SpatialScaleSource spatial_scale_source = SpatialScaleSource::kConfigured;
+  // With motion_noise_source identified: the degrees of freedom of the Student t refit
+  // that gives appearance_sigma_m (MotionNoiseIdentificationOptions::offset_dof; 0 takes
+  // it from the Gaussian fit). Finite, >= 0.
+  double motion_noise_offset_dof = MotionNoiseIdentificationOptions{}.offset_dof;
 
   // Throws omnicml::Error naming the first invalid field (including nested options,
   // prefixed "descriptor.", "tracker.", "model.", "reconstruction.").
@@ -248,6 +253,7 @@ void VisitFields(V& v, CmlEngineOptions& o) {
     w.NamedEnum("spatial_scale_source", o.spatial_scale_source,
                 {{SpatialScaleSource::kConfigured, "configured"},
                  {SpatialScaleSource::kCalibrated, "calibrated"}});
+    w("motion_noise_offset_dof", o.motion_noise_offset_dof);
   });
 }
 

@@ -89,13 +89,13 @@ struct MotionNoiseIdentificationOptions {
   double offset_prior_log_sd = 1.5;
   // The appearance offset rho as the core of the pairs' offsets: 0 takes rho from the
   // Gaussian fit with a1..a4 (the second moment of everything a1..a4 leave unexplained);
-  // nu >= 1 refits the same inliers under a multivariate Student t likelihood with nu
+  // nu > 0 refits the same inliers under a multivariate Student t likelihood with nu
   // degrees of freedom and takes rho from that fit. A minority of pairs matched with a
   // large offset (a corridor whose view changes slowly, matched a few metres along itself)
   // then weighs less instead of widening rho for every pair. a1..a4 and rho_phi stay the
   // Gaussian fit's: the prior's covariance must cover the drift's full spread, or a
   // confidence gate rejects the true fix after a long stretch of dead reckoning
-  // (docs/design.md "Motion noise identified from loop innovations"). 0 or >= 1.
+  // (docs/design.md "Motion noise identified from loop innovations"). Finite, >= 0.
   double offset_dof = 4.0;
   // Pairs whose NIS exceeds the chi-square quantile (2 or 3 dof) of this confidence at the
   // current estimate are rejected as aliases. In (0, 1).

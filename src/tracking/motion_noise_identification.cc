@@ -496,6 +496,18 @@ MotionNoiseIdentification IdentifyMotionNoise(const std::vector<Pose2>& odometry
 
 namespace {
 
+// Each parameter's posterior sd of its logarithm, from the covariance of theta (the
+// inverse of half the -2 ln posterior's curvature), and the data's share of its curvature.
+void SetUncertainty(const Matrix6& data, const Matrix6& prior, MotionNoiseIdentification* result) {
+  const Matrix6 covariance =
+      (0.5 * (data + prior)).completeOrthogonalDecomposition().pseudoInverse();
+  for (int j = 0; j < kP; ++j) {
+    result->log_sd[j] = std::sqrt(std::max(covariance(j, j), 0.0));
+    const double total = data(j, j) + prior(j, j);
+    result->data_share[j] = total > 0 ? data(j, j) / total : 0.0;
+  }
+}
+
 MotionNoiseIdentification Identify(const std::vector<Term>& terms,
                                    const MotionNoiseIdentificationOptions& options) {
   MotionNoiseIdentification result;
@@ -549,14 +561,7 @@ MotionNoiseIdentification Identify(const std::vector<Term>& terms,
   result.heading_variance_rad2 = v[5];
   result.median_nis_ratio = Median(ratio);
   result.mean_nis_per_dof = per_dof / static_cast<double>(ratio.size());
-  // Posterior covariance of theta: the inverse of half the -2 ln posterior's curvature.
-  const Matrix6 covariance =
-      (0.5 * (data + prior)).completeOrthogonalDecomposition().pseudoInverse();
-  for (int j = 0; j < kP; ++j) {
-    result.log_sd[j] = std::sqrt(std::max(covariance(j, j), 0.0));
-    const double total = data(j, j) + prior(j, j);
-    result.data_share[j] = total > 0 ? data(j, j) / total : 0.0;
-  }
+  SetUncertainty(data, prior, &result);
   if (options.offset_dof > 0) {
     // The offset from the same inliers under the Student t: the core of the offsets, not
     // their second moment (the header; docs/design.md).
@@ -565,11 +570,10 @@ MotionNoiseIdentification Identify(const std::vector<Term>& terms,
     constexpr int kRho = static_cast<int>(IdentifiedParameter::kAppearanceVariance);
     const Vector6 theta_t = Fit(robust, box, options.max_iterations, &robust_data, &robust_prior);
     result.appearance_variance_m2 = std::exp(theta_t[kRho]);
-    const Matrix6 robust_covariance =
-        (0.5 * (robust_data + robust_prior)).completeOrthogonalDecomposition().pseudoInverse();
-    result.log_sd[kRho] = std::sqrt(std::max(robust_covariance(kRho, kRho), 0.0));
-    const double total = robust_data(kRho, kRho) + robust_prior(kRho, kRho);
-    result.data_share[kRho] = total > 0 ? robust_data(kRho, kRho) / total : 0.0;
+    MotionNoiseIdentification robust_result;
+    SetUncertainty(robust_data, robust_prior, &robust_result);
+    result.log_sd[kRho] = robust_result.log_sd[kRho];
+    result.data_share[kRho] = robust_result.data_share[kRho];
   }
   return result;
 }

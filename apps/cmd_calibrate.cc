@@ -57,15 +57,20 @@ const CommandRegistration kRegistration{
       cmd->add_option("--offset-prior-log-sd", f->calibration.identification.offset_prior_log_sd,
                       "Motion noise prior: sd of ln rho and ln rho_phi about their centres (> 0)")
           ->capture_default_str();
-      cmd->add_option("--offset-dof", f->calibration.identification.offset_dof,
-                      "Appearance offset from a Student t fit with this many degrees of "
-                      "freedom (0: from the Gaussian fit with a1..a4)")
-          ->capture_default_str();
-      cmd->callback([f] {
+      CLI::Option* offset_dof =
+          cmd->add_option("--offset-dof", f->calibration.identification.offset_dof,
+                          "Appearance offset from a Student t fit with this many degrees of "
+                          "freedom (0: from the Gaussian fit with a1..a4); without the flag, "
+                          "the configuration's motion_noise_offset_dof, as a run uses it")
+              ->capture_default_str();
+      cmd->callback([f, offset_dof] {
         f->input.Validate();
         OptionOverrides overrides;
         overrides.config_path = f->config_path;
         const CmlEngineOptions options = ResolveEngineOptions(overrides);
+        if (offset_dof->count() == 0) {
+          f->calibration.identification.offset_dof = options.motion_noise_offset_dof;
+        }
         const std::unique_ptr<FrameSource> source = OpenFrameSource(f->input);
         const Calibration c = Calibrate(*source, options, f->calibration);
         const std::string yaml = c.ToYaml();

@@ -63,13 +63,23 @@ const CommandRegistration kRegistration{
                           "freedom (0: from the Gaussian fit with a1..a4); without the flag, "
                           "the configuration's motion_noise_offset_dof, as a run uses it")
               ->capture_default_str();
-      cmd->callback([f, offset_dof] {
+      CLI::Option* joint_pairs =
+          cmd->add_option("--joint-pairs", f->calibration.identification.joint_pairs,
+                          "a1..a4 from the joint likelihood of up to this many loop pairs (0: "
+                          "pairs as independent); without the flag, the configuration's "
+                          "motion_noise_joint_pairs, as a run uses it")
+              ->capture_default_str()
+              ->check(CLI::NonNegativeNumber);
+      cmd->callback([f, offset_dof, joint_pairs] {
         f->input.Validate();
         OptionOverrides overrides;
         overrides.config_path = f->config_path;
         const CmlEngineOptions options = ResolveEngineOptions(overrides);
         if (offset_dof->count() == 0) {
           f->calibration.identification.offset_dof = options.motion_noise_offset_dof;
+        }
+        if (joint_pairs->count() == 0) {
+          f->calibration.identification.joint_pairs = options.motion_noise_joint_pairs;
         }
         const std::unique_ptr<FrameSource> source = OpenFrameSource(f->input);
         const Calibration c = Calibrate(*source, options, f->calibration);

@@ -290,7 +290,11 @@ std::string Calibration::ToYaml() const {
       << std::sqrt(m.appearance_variance_m2) << " m, heading offset sigma "
       << std::sqrt(m.heading_variance_rad2) << " rad; " << m.pairs_with_heading
       << " pairs with heading; NIS / chi-square median: median " << m.median_nis_ratio
-      << " (consistent 1), NIS / dof: mean " << m.mean_nis_per_dof << "\n";
+      << " (consistent 1), NIS / dof: mean " << m.mean_nis_per_dof;
+    if (m.joint_pairs_used > 0) {
+      s << "; a1..a4 from the joint likelihood of " << m.joint_pairs_used << " pairs";
+    }
+    s << "\n";
     // Which parameters the loops identified and which the prior holds.
     const char* names[kIdentifiedParameters] = {"a1", "a2", "a3", "a4", "rho", "rho_phi"};
     s << "#   posterior sd of ln(value) / share of curvature from the loops:";

@@ -95,6 +95,10 @@ void CmlEngineOptions::Validate() const {
     throw Error(StrCat("CmlEngineOptions.motion_noise_offset_dof must be finite and >= 0, got ",
                        motion_noise_offset_dof));
   }
+  if (motion_noise_joint_pairs < 0) {
+    throw Error(StrCat("CmlEngineOptions.motion_noise_joint_pairs must be >= 0, got ",
+                       motion_noise_joint_pairs));
+  }
   if (!(appearance_sigma_m >= 0.0) || !std::isfinite(appearance_sigma_m)) {
     throw Error(StrCat("CmlEngineOptions.appearance_sigma_m must be finite and >= 0, got ",
                        appearance_sigma_m));

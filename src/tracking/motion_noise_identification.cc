@@ -68,13 +68,26 @@ Eigen::Matrix3d Evaluate(const Prefix& d, const Eigen::Vector2d& c) {
   return b;
 }
 
+// A stretch of one session's dead reckoning whose heading drift a pair's heading
+// innovation contains: the steps in (from, to], with `sign`; from = -1 also holds the
+// session's start error (pose 0).
+struct Segment {
+  int session = 0;
+  int from = 0;
+  int to = 0;
+  double sign = 1.0;
+};
+
 // One pair's innovation (x, y, phi; phi unused when dim is 2), its drift bases and its
-// fixed covariance (start poses).
+// fixed covariance (start poses), and the stretches of dead reckoning it contains (the
+// joint likelihood's covariances between pairs).
 struct Term {
   Eigen::Vector3d r = Eigen::Vector3d::Zero();
   int dim = 2;
   std::array<Eigen::Matrix3d, 4> b;
   Eigen::Matrix3d fixed = Eigen::Matrix3d::Zero();
+  std::array<Segment, 2> segments;
+  int segment_count = 1;
 };
 
 // S = F + sum_j a_j B_j + diag(rho, rho, rho_phi) for parameter values v.
@@ -147,6 +160,43 @@ double AddTerm(const Term& t, const Vector6& v, double nu, Vector6* g, Matrix6* 
   return std::log(det) + (nu > 0 ? (nu + D) * std::log1p(q / nu) : q);
 }
 
+// The prior's -2 ln p(theta) (I5), and, when g is given, its gradient added to g and its
+// Hessian added to prior.
+double AddPrior(const Vector6& theta, const MotionNoiseIdentificationOptions& options, Vector6* g,
+                Matrix6* prior) {
+  double sum = 0.0;
+  // Shape prior: d_j = ln(a_j / c_j), sum_j (d_j - mean d)^2 / sd^2.
+  const MotionNoise& c = options.shape_prior;
+  const std::array<double, 4> shape{c.a1, c.a2, c.a3, c.a4};
+  std::array<double, 4> d;
+  double mean = 0.0;
+  for (int j = 0; j < 4; ++j) {
+    d[j] = theta[j] - std::log(shape[j]);
+    mean += 0.25 * d[j];
+  }
+  const double w = 1.0 / (options.shape_prior_log_sd * options.shape_prior_log_sd);
+  for (int j = 0; j < 4; ++j) {
+    sum += w * (d[j] - mean) * (d[j] - mean);
+    if (g != nullptr) {
+      (*g)[j] += 2.0 * w * (d[j] - mean);
+      for (int l = 0; l < 4; ++l) (*prior)(j, l) += 2.0 * w * ((j == l ? 1.0 : 0.0) - 0.25);
+    }
+  }
+  // Offset priors: ln(rho / rho_0) ~ N(0, sd^2), and the same for rho_phi.
+  const double wo = 1.0 / (options.offset_prior_log_sd * options.offset_prior_log_sd);
+  const double centre[2] = {std::log(options.appearance_variance_prior_m2),
+                            std::log(options.heading_variance_prior_rad2)};
+  for (int j = 4; j < kP; ++j) {
+    const double e = theta[j] - centre[j - 4];
+    sum += wo * e * e;
+    if (g != nullptr) {
+      (*g)[j] += 2.0 * wo * e;
+      (*prior)(j, j) += 2.0 * wo;
+    }
+  }
+  return sum;
+}
+
 // The objective: -2 ln posterior (up to constants) of the pairs flagged in `use`, its
 // gradient in theta, and the Fisher information of the pairs (`data`) and the prior's
 // Hessian (`prior`), both in -2 ln units.
@@ -172,36 +222,7 @@ struct Objective {
                                : AddTerm<2>(terms[k], v, nu, g, data);
       if (!std::isfinite(sum)) return sum;
     }
-    // Shape prior: d_j = ln(a_j / c_j), sum_j (d_j - mean d)^2 / sd^2.
-    const MotionNoise& c = options.shape_prior;
-    const std::array<double, 4> shape{c.a1, c.a2, c.a3, c.a4};
-    std::array<double, 4> d;
-    double mean = 0.0;
-    for (int j = 0; j < 4; ++j) {
-      d[j] = theta[j] - std::log(shape[j]);
-      mean += 0.25 * d[j];
-    }
-    const double w = 1.0 / (options.shape_prior_log_sd * options.shape_prior_log_sd);
-    for (int j = 0; j < 4; ++j) {
-      sum += w * (d[j] - mean) * (d[j] - mean);
-      if (g != nullptr) {
-        (*g)[j] += 2.0 * w * (d[j] - mean);
-        for (int l = 0; l < 4; ++l) (*prior)(j, l) += 2.0 * w * ((j == l ? 1.0 : 0.0) - 0.25);
-      }
-    }
-    // Offset priors: ln(rho / rho_0) ~ N(0, sd^2), and the same for rho_phi.
-    const double wo = 1.0 / (options.offset_prior_log_sd * options.offset_prior_log_sd);
-    const double centre[2] = {std::log(options.appearance_variance_prior_m2),
-                              std::log(options.heading_variance_prior_rad2)};
-    for (int j = 4; j < kP; ++j) {
-      const double e = theta[j] - centre[j - 4];
-      sum += wo * e * e;
-      if (g != nullptr) {
-        (*g)[j] += 2.0 * wo * e;
-        (*prior)(j, j) += 2.0 * wo;
-      }
-    }
-    return sum;
+    return sum + AddPrior(theta, options, g, prior);
   }
 };
 
@@ -227,7 +248,8 @@ Vector6 Clamp(const Vector6& x, const Box& box) { return x.cwiseMax(box.lo).cwis
 
 // The starting point: a1..a4 in the prior shape at the common scale that minimises the
 // objective (golden section on the log scale), the offsets at their prior centres.
-Vector6 Start(const Objective& f, const Box& box) {
+template <typename F>
+Vector6 Start(const F& f, const Box& box) {
   const MotionNoise& c = f.options.shape_prior;
   const std::array<double, 4> shape{std::log(c.a1), std::log(c.a2), std::log(c.a3), std::log(c.a4)};
   Vector6 x;
@@ -265,7 +287,8 @@ Vector6 Start(const Objective& f, const Box& box) {
 // Fisher scoring on theta within the box, with a Levenberg-Marquardt damping that grows
 // until a step lowers the objective; coordinates at a bound whose gradient points out of
 // the box are held. Returns the estimate; `data` and `prior` are the curvatures there.
-Vector6 Fit(const Objective& f, const Box& box, int max_iterations, Matrix6* data, Matrix6* prior) {
+template <typename F>
+Vector6 Fit(const F& f, const Box& box, int max_iterations, Matrix6* data, Matrix6* prior) {
   Vector6 x = Start(f, box);
   Vector6 g;
   double fx = f(x, &g, data, prior);
@@ -355,6 +378,7 @@ void MotionNoiseIdentificationOptions::Validate() const {
   if (min_pairs < 1) fail("min_pairs", ">= 1");
   if (max_iterations < 1) fail("max_iterations", ">= 1");
   if (max_rounds < 1) fail("max_rounds", ">= 1");
+  if (joint_pairs < 0) fail("joint_pairs", ">= 0");
 }
 
 namespace {
@@ -406,7 +430,32 @@ Eigen::Matrix3d StartCovarianceAt(const std::vector<Pose2>& poses, int t,
   return phi * c0 * phi.transpose();
 }
 
-MotionNoiseIdentification Identify(const std::vector<Term>& terms,
+// The sessions' dead reckoning and its prefix sums, for the joint likelihood.
+struct Dead {
+  const std::vector<OdometrySession>& sessions;
+  const std::vector<Prefixes>& prefixes;
+};
+
+// The covariance of the heading drifts of stretches a and b per unit a_j (added to
+// `cross`) and from the start's heading variance (added to `start`): the heading noise of
+// the steps both contain, sum s_i over the common steps; the heading is linear in the
+// noise, so this is exact.
+void AddHeadingCross(const Segment& a, const Segment& b, const Dead& dead,
+                     std::array<double, 4>* cross, double* start) {
+  if (a.session != b.session) return;
+  const Prefixes& prefix = dead.prefixes[static_cast<std::size_t>(a.session)];
+  const double sign = a.sign * b.sign;
+  const int lo = std::max(std::max(a.from, b.from), 0);
+  const int hi = std::min(a.to, b.to);
+  if (hi > lo) {
+    for (int j = 0; j < 4; ++j) (*cross)[j] += sign * (prefix[j][hi].s - prefix[j][lo].s);
+  }
+  if (a.from < 0 && b.from < 0) {
+    *start += sign * dead.sessions[static_cast<std::size_t>(a.session)].start_covariance(2, 2);
+  }
+}
+
+MotionNoiseIdentification Identify(const std::vector<Term>& terms, const Dead& dead,
                                    const MotionNoiseIdentificationOptions& options);
 
 }  // namespace
@@ -471,7 +520,11 @@ MotionNoiseIdentification IdentifyMotionNoise(const std::vector<OdometrySession>
     }
     if (p.first_session == p.second_session) {
       term.b = Bases(prefixes[p.first_session], a.poses, p.first, p.second);
+      term.segments[0] = Segment{p.first_session, p.first, p.second, 1.0};
     } else {
+      term.segment_count = 2;
+      term.segments[0] = Segment{p.second_session, -1, p.second, 1.0};
+      term.segments[1] = Segment{p.first_session, -1, p.first, -1.0};
       const auto ba = Bases(prefixes[p.first_session], a.poses, 0, p.first);
       const auto bb = Bases(prefixes[p.second_session], b.poses, 0, p.second);
       for (int j = 0; j < 4; ++j) term.b[j] = ba[j] + bb[j];
@@ -479,7 +532,7 @@ MotionNoiseIdentification IdentifyMotionNoise(const std::vector<OdometrySession>
                    StartCovarianceAt(b.poses, p.second, b.start_covariance);
     }
   }
-  return Identify(terms, options);
+  return Identify(terms, Dead{sessions, prefixes}, options);
 }
 
 MotionNoiseIdentification IdentifyMotionNoise(const std::vector<Pose2>& odometry,
@@ -496,6 +549,94 @@ MotionNoiseIdentification IdentifyMotionNoise(const std::vector<Pose2>& odometry
 
 namespace {
 
+// The joint likelihood of the heading innovations of a set of pairs (3-dof pairs): stacked
+// into one vector z,
+//   z ~ N(0, S),  S = F + sum_j a_j A_j + rho_phi I,
+// where A_j(u, w) is the covariance of pair u's and pair w's heading drift over the steps
+// their stretches of dead reckoning share, per unit a_j (the pairs of one revisit, and
+// of every revisit of one stretch, share almost all of them), F the start headings'
+// variance, and rho_phi the descriptor's relative-heading noise (independent per pair).
+// The heading is linear in the noise, so S is exact (while a pair's drift stays within
+// half a turn, where WrapAngle keeps the innovation unwrapped); the xy innovations are not
+// used here:
+// they carry the heading drift over the loop on lever arms of the loop's size, where the
+// linearisation about the dead reckoning fails once the drift reaches tenths of a radian.
+// rho enters only through its prior.
+class HeadingJointObjective {
+ public:
+  HeadingJointObjective(const std::vector<Term>& terms, const std::vector<std::size_t>& chosen,
+                        const Dead& dead, const MotionNoiseIdentificationOptions& opts)
+      : options(opts) {
+    const int n = static_cast<int>(chosen.size());
+    z_.resize(n);
+    fixed_.setZero(n, n);
+    for (auto& a : a_) a.setZero(n, n);
+    for (int u = 0; u < n; ++u) {
+      const Term& tu = terms[chosen[u]];
+      z_[u] = tu.r[2];
+      for (int w = u; w < n; ++w) {
+        const Term& tw = terms[chosen[w]];
+        std::array<double, 4> cross{};
+        double start = 0.0;
+        for (int i = 0; i < tu.segment_count; ++i) {
+          for (int l = 0; l < tw.segment_count; ++l) {
+            AddHeadingCross(tu.segments[i], tw.segments[l], dead, &cross, &start);
+          }
+        }
+        for (int j = 0; j < 4; ++j) a_[j](u, w) = a_[j](w, u) = cross[j];
+        fixed_(u, w) = fixed_(w, u) = start;
+      }
+    }
+  }
+
+  // -2 ln posterior of theta (up to constants); with g, its gradient, the pairs' Fisher
+  // information (`data`) and the prior's Hessian, as Objective.
+  double operator()(const Vector6& theta, Vector6* g = nullptr, Matrix6* data = nullptr,
+                    Matrix6* prior = nullptr) const {
+    const Vector6 v = theta.array().exp();
+    const Eigen::Index n = z_.size();
+    Eigen::MatrixXd s = fixed_;
+    for (int j = 0; j < 4; ++j) s += v[j] * a_[j];
+    s.diagonal().array() += v[kPhi];
+    const Eigen::LLT<Eigen::MatrixXd> llt(s);
+    if (llt.info() != Eigen::Success) return std::numeric_limits<double>::infinity();
+    const Eigen::VectorXd alpha = llt.solve(z_);
+    const double sum = 2.0 * llt.matrixLLT().diagonal().array().log().sum() + z_.dot(alpha);
+    if (!std::isfinite(sum)) return std::numeric_limits<double>::infinity();
+    if (g != nullptr) {
+      g->setZero();
+      data->setZero();
+      prior->setZero();
+      // g_j = v_j (tr(S^-1 A_j) - alpha^T A_j alpha), F_jl = v_j v_l tr(S^-1 A_j S^-1 A_l),
+      // with A_phi = I; rho has no term here.
+      const Eigen::MatrixXd si = llt.solve(Eigen::MatrixXd::Identity(n, n));
+      std::array<Eigen::MatrixXd, 5> m;
+      for (int j = 0; j < 4; ++j) m[j] = si * a_[j];
+      m[4] = si;
+      std::array<int, 5> index{0, 1, 2, 3, kPhi};
+      for (int j = 0; j < 5; ++j) {
+        const double quadratic = j < 4 ? alpha.dot(a_[j] * alpha) : alpha.squaredNorm();
+        (*g)[index[j]] = v[index[j]] * (m[j].trace() - quadratic);
+        for (int l = j; l < 5; ++l) {
+          const double x =
+              v[index[j]] * v[index[l]] * (m[j].array() * m[l].transpose().array()).sum();
+          (*data)(index[j], index[l]) = x;
+          (*data)(index[l], index[j]) = x;
+        }
+      }
+    }
+    return sum + AddPrior(theta, options, g, prior);
+  }
+
+  const MotionNoiseIdentificationOptions& options;
+
+ private:
+  static constexpr int kPhi = static_cast<int>(IdentifiedParameter::kHeadingVariance);
+  Eigen::VectorXd z_;
+  Eigen::MatrixXd fixed_;
+  std::array<Eigen::MatrixXd, 4> a_;
+};
+
 // Each parameter's posterior sd of its logarithm, from the covariance of theta (the
 // inverse of half the -2 ln posterior's curvature), and the data's share of its curvature.
 void SetUncertainty(const Matrix6& data, const Matrix6& prior, MotionNoiseIdentification* result) {
@@ -508,7 +649,7 @@ void SetUncertainty(const Matrix6& data, const Matrix6& prior, MotionNoiseIdenti
   }
 }
 
-MotionNoiseIdentification Identify(const std::vector<Term>& terms,
+MotionNoiseIdentification Identify(const std::vector<Term>& terms, const Dead& dead,
                                    const MotionNoiseIdentificationOptions& options) {
   MotionNoiseIdentification result;
   result.pairs = static_cast<int>(terms.size());
@@ -574,6 +715,36 @@ MotionNoiseIdentification Identify(const std::vector<Term>& terms,
     SetUncertainty(robust_data, robust_prior, &robust_result);
     result.log_sd[kRho] = robust_result.log_sd[kRho];
     result.data_share[kRho] = robust_result.data_share[kRho];
+  }
+  if (options.joint_pairs > 0) {
+    // a1..a4 from the joint likelihood of the heading innovations of up to joint_pairs
+    // inliers with heading, evenly spaced in the order given (the header; docs/design.md).
+    std::vector<std::size_t> with_heading;
+    for (std::size_t k = 0; k < terms.size(); ++k) {
+      if (use[k] && terms[k].dim == 3) with_heading.push_back(k);
+    }
+    const std::size_t m =
+        std::min(with_heading.size(), static_cast<std::size_t>(options.joint_pairs));
+    if (m >= static_cast<std::size_t>(options.min_pairs)) {
+      std::vector<std::size_t> chosen;
+      for (std::size_t i = 0; i < m; ++i) {
+        chosen.push_back(with_heading[i * with_heading.size() / m]);
+      }
+      const HeadingJointObjective joint(terms, chosen, dead, options);
+      Matrix6 joint_data, joint_prior;
+      const Vector6 theta_j = Fit(joint, box, options.max_iterations, &joint_data, &joint_prior);
+      if (std::isfinite(joint(theta_j))) {
+        const Vector6 vj = theta_j.array().exp();
+        result.noise = MotionNoise{vj[0], vj[1], vj[2], vj[3]};
+        result.joint_pairs_used = static_cast<int>(chosen.size());
+        MotionNoiseIdentification joint_result;
+        SetUncertainty(joint_data, joint_prior, &joint_result);
+        for (int j = 0; j < 4; ++j) {
+          result.log_sd[j] = joint_result.log_sd[j];
+          result.data_share[j] = joint_result.data_share[j];
+        }
+      }
+    }
   }
   return result;
 }

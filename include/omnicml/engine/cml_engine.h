@@ -214,6 +214,10 @@ struct CmlEngineOptions {
   // that gives appearance_sigma_m (MotionNoiseIdentificationOptions::offset_dof; 0 takes
   // it from the Gaussian fit). Finite, >= 0.
   double motion_noise_offset_dof = MotionNoiseIdentificationOptions{}.offset_dof;
+  // With motion_noise_source identified: a1..a4 from the joint likelihood of up to this
+  // many loop pairs (MotionNoiseIdentificationOptions::joint_pairs; 0 treats the pairs as
+  // independent). >= 0.
+  int motion_noise_joint_pairs = MotionNoiseIdentificationOptions{}.joint_pairs;
 
   // Throws omnicml::Error naming the first invalid field (including nested options,
   // prefixed "descriptor.", "tracker.", "model.", "reconstruction.").
@@ -254,6 +258,7 @@ void VisitFields(V& v, CmlEngineOptions& o) {
                 {{SpatialScaleSource::kConfigured, "configured"},
                  {SpatialScaleSource::kCalibrated, "calibrated"}});
     w("motion_noise_offset_dof", o.motion_noise_offset_dof);
+    w("motion_noise_joint_pairs", o.motion_noise_joint_pairs);
   });
 }
 

@@ -29,7 +29,10 @@
 // the logarithms of the six parameters in bounds (Fisher scoring with a damped step from
 // the prior shape at its best common scale). With offset_dof nu > 0, rho comes from a
 // second fit whose pair terms are the Student t's, ln det S_k + (nu + d) ln(1 + r_k^T
-// S_k^-1 r_k / nu). Pairs whose NIS exceeds the chi-square
+// S_k^-1 r_k / nu). With joint_pairs > 0, a1..a4 come from a third fit: the joint
+// likelihood of the inliers' heading innovations, whose covariance holds what every two
+// pairs' heading drifts share (the pairs of a log hold one realisation of the drift, not
+// one per pair). Pairs whose NIS exceeds the chi-square
 // quantile of `outlier_confidence` (2 or 3 dof) at the current estimate are perceptual
 // aliases and are dropped, and the fit repeated until the set is stable.
 //
@@ -97,6 +100,17 @@ struct MotionNoiseIdentificationOptions {
   // confidence gate rejects the true fix after a long stretch of dead reckoning
   // (docs/design.md "Motion noise identified from loop innovations"). Finite, >= 0.
   double offset_dof = 4.0;
+  // a1..a4 from the joint likelihood of the heading innovations of up to this many inlier
+  // pairs with heading (evenly spaced), whose covariance holds the covariance of every two
+  // pairs' heading drifts over the steps of dead reckoning they share; 0 (or fewer than
+  // min_pairs pairs with heading) keeps the fit that treats pairs as independent. The
+  // pairs of one revisit, and of every revisit of one stretch, share most of their dead
+  // reckoning, so that fit weighs one realisation of the drift as many independent ones,
+  // and its a1..a4 follow that realisation from log to log. The joint fit reads the
+  // heading rows only (exact: the heading is linear in the noise); a3 and a4, which only
+  // the xy rows see, follow a1 and a2 through the shape prior. Cost: a dense Cholesky
+  // factorisation of joint_pairs rows per evaluation. >= 0.
+  int joint_pairs = 150;
   // Pairs whose NIS exceeds the chi-square quantile (2 or 3 dof) of this confidence at the
   // current estimate are rejected as aliases. In (0, 1).
   double outlier_confidence = 0.999;
@@ -121,9 +135,10 @@ struct MotionNoiseIdentification {
   int pairs = 0;                        // pairs given
   int pairs_used = 0;                   // after alias rejection
   int pairs_with_heading = 0;           // of those used, 3-dof pairs
-  // Of the pairs used at the estimate: the median of NIS / (the chi-square median of its
-  // dof: 1.39 for 2, 2.37 for 3) and the mean of NIS / dof; both about 1 when consistent
-  // (the mean less after the rejection).
+  int joint_pairs_used = 0;             // pairs in the joint fit of a1..a4 (0: not run)
+  // Of the pairs used, at the pairwise fit's estimate: the median of NIS / (the chi-square
+  // median of its dof: 1.39 for 2, 2.37 for 3) and the mean of NIS / dof; both about 1
+  // when consistent (the mean less after the rejection).
   double median_nis_ratio = 0.0;
   double mean_nis_per_dof = 0.0;
   // Posterior standard deviation of ln(parameter) (order: IdentifiedParameter), from the

@@ -431,7 +431,7 @@ Eigen::Matrix3d StartCovarianceAt(const std::vector<Pose2>& poses, int t,
 }
 
 // The sessions' dead reckoning and its prefix sums, for the joint likelihood.
-struct Dead {
+struct DeadReckoning {
   const std::vector<OdometrySession>& sessions;
   const std::vector<Prefixes>& prefixes;
 };
@@ -440,7 +440,7 @@ struct Dead {
 // `cross`) and from the start's heading variance (added to `start`): the heading noise of
 // the steps both contain, sum s_i over the common steps; the heading is linear in the
 // noise, so this is exact.
-void AddHeadingCross(const Segment& a, const Segment& b, const Dead& dead,
+void AddHeadingCross(const Segment& a, const Segment& b, const DeadReckoning& dead,
                      std::array<double, 4>* cross, double* start) {
   if (a.session != b.session) return;
   const Prefixes& prefix = dead.prefixes[static_cast<std::size_t>(a.session)];
@@ -455,7 +455,7 @@ void AddHeadingCross(const Segment& a, const Segment& b, const Dead& dead,
   }
 }
 
-MotionNoiseIdentification Identify(const std::vector<Term>& terms, const Dead& dead,
+MotionNoiseIdentification Identify(const std::vector<Term>& terms, const DeadReckoning& dead,
                                    const MotionNoiseIdentificationOptions& options);
 
 }  // namespace
@@ -532,7 +532,7 @@ MotionNoiseIdentification IdentifyMotionNoise(const std::vector<OdometrySession>
                    StartCovarianceAt(b.poses, p.second, b.start_covariance);
     }
   }
-  return Identify(terms, Dead{sessions, prefixes}, options);
+  return Identify(terms, DeadReckoning{sessions, prefixes}, options);
 }
 
 MotionNoiseIdentification IdentifyMotionNoise(const std::vector<Pose2>& odometry,
@@ -565,7 +565,7 @@ namespace {
 class HeadingJointObjective {
  public:
   HeadingJointObjective(const std::vector<Term>& terms, const std::vector<std::size_t>& chosen,
-                        const Dead& dead, const MotionNoiseIdentificationOptions& opts)
+                        const DeadReckoning& dead, const MotionNoiseIdentificationOptions& opts)
       : options(opts) {
     const int n = static_cast<int>(chosen.size());
     z_.resize(n);
@@ -649,7 +649,7 @@ void SetUncertainty(const Matrix6& data, const Matrix6& prior, MotionNoiseIdenti
   }
 }
 
-MotionNoiseIdentification Identify(const std::vector<Term>& terms, const Dead& dead,
+MotionNoiseIdentification Identify(const std::vector<Term>& terms, const DeadReckoning& dead,
                                    const MotionNoiseIdentificationOptions& options) {
   MotionNoiseIdentification result;
   result.pairs = static_cast<int>(terms.size());

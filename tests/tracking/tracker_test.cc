@@ -911,6 +911,9 @@ TEST(MotionNoiseIdentification, RefusesTooLittleDataAndBadInput) {
   MotionNoiseIdentificationOptions no_width;
   no_width.offset_prior_log_sd = 0.0;
   EXPECT_THROW(no_width.Validate(), Error);
+  MotionNoiseIdentificationOptions negative_joint;
+  negative_joint.joint_pairs = -1;
+  EXPECT_THROW(negative_joint.Validate(), Error);
 }
 
 // Loop pairs that all reach back to the first lap share its dead reckoning, and every pair

@@ -75,12 +75,12 @@ const CommandRegistration kRegistration{
         OptionOverrides overrides;
         overrides.config_path = f->config_path;
         const CmlEngineOptions options = ResolveEngineOptions(overrides);
-        if (offset_dof->count() == 0) {
-          f->calibration.identification.offset_dof = options.motion_noise_offset_dof;
-        }
-        if (joint_pairs->count() == 0) {
-          f->calibration.identification.joint_pairs = options.motion_noise_joint_pairs;
-        }
+        // What a run with this configuration identifies, unless a flag says otherwise.
+        MotionNoiseIdentificationOptions& identification = f->calibration.identification;
+        const MotionNoiseIdentificationOptions flags = identification;
+        UseEngineIdentificationOptions(options, &identification);
+        if (offset_dof->count() > 0) identification.offset_dof = flags.offset_dof;
+        if (joint_pairs->count() > 0) identification.joint_pairs = flags.joint_pairs;
         const std::unique_ptr<FrameSource> source = OpenFrameSource(f->input);
         const Calibration c = Calibrate(*source, options, f->calibration);
         const std::string yaml = c.ToYaml();

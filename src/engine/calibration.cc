@@ -259,6 +259,12 @@ bool ScaleSpatialThresholds(const Calibration& calibration, CmlEngineOptions* op
   return true;
 }
 
+void UseEngineIdentificationOptions(const CmlEngineOptions& options,
+                                    MotionNoiseIdentificationOptions* identification) {
+  identification->offset_dof = options.motion_noise_offset_dof;
+  identification->joint_pairs = options.motion_noise_joint_pairs;
+}
+
 bool ApplyMotionCalibration(const Calibration& calibration, CmlEngineOptions* options) {
   if (!calibration.motion.identified) return false;
   options->tracker.motion = calibration.motion.noise;

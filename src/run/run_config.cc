@@ -119,8 +119,7 @@ CmlEngineOptions ResolveNewMapOptions(const OptionOverrides& overrides, const Ru
   // the whole first session's loops.
   CalibrationOptions calibration;
   if (!identify) calibration.max_frames = 600;
-  calibration.identification.offset_dof = resolved.motion_noise_offset_dof;
-  calibration.identification.joint_pairs = resolved.motion_noise_joint_pairs;
+  UseEngineIdentificationOptions(resolved, &calibration.identification);
   const Calibration c = Calibrate(*source, resolved, calibration);
   CmlEngineOptions calibrated = base;  // with the derived values
   std::string joined;                  // "; "-separated notes

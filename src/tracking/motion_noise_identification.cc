@@ -637,12 +637,14 @@ class HeadingJointObjective {
   std::array<Eigen::MatrixXd, 4> a_;
 };
 
-// Each parameter's posterior sd of its logarithm, from the covariance of theta (the
-// inverse of half the -2 ln posterior's curvature), and the data's share of its curvature.
-void SetUncertainty(const Matrix6& data, const Matrix6& prior, MotionNoiseIdentification* result) {
+// The posterior sd of the logarithm of parameters first..last - 1, from the covariance of
+// theta (the inverse of half the -2 ln posterior's curvature), and the data's share of
+// their curvature; the other parameters' entries of `result` stay.
+void SetUncertainty(const Matrix6& data, const Matrix6& prior, int first, int last,
+                    MotionNoiseIdentification* result) {
   const Matrix6 covariance =
       (0.5 * (data + prior)).completeOrthogonalDecomposition().pseudoInverse();
-  for (int j = 0; j < kP; ++j) {
+  for (int j = first; j < last; ++j) {
     result->log_sd[j] = std::sqrt(std::max(covariance(j, j), 0.0));
     const double total = data(j, j) + prior(j, j);
     result->data_share[j] = total > 0 ? data(j, j) / total : 0.0;
@@ -702,7 +704,7 @@ MotionNoiseIdentification Identify(const std::vector<Term>& terms, const DeadRec
   result.heading_variance_rad2 = v[5];
   result.median_nis_ratio = Median(ratio);
   result.mean_nis_per_dof = per_dof / static_cast<double>(ratio.size());
-  SetUncertainty(data, prior, &result);
+  SetUncertainty(data, prior, 0, kP, &result);
   if (options.offset_dof > 0) {
     // The offset from the same inliers under the Student t: the core of the offsets, not
     // their second moment (the header; docs/design.md).
@@ -711,10 +713,7 @@ MotionNoiseIdentification Identify(const std::vector<Term>& terms, const DeadRec
     constexpr int kRho = static_cast<int>(IdentifiedParameter::kAppearanceVariance);
     const Vector6 theta_t = Fit(robust, box, options.max_iterations, &robust_data, &robust_prior);
     result.appearance_variance_m2 = std::exp(theta_t[kRho]);
-    MotionNoiseIdentification robust_result;
-    SetUncertainty(robust_data, robust_prior, &robust_result);
-    result.log_sd[kRho] = robust_result.log_sd[kRho];
-    result.data_share[kRho] = robust_result.data_share[kRho];
+    SetUncertainty(robust_data, robust_prior, kRho, kRho + 1, &result);
   }
   if (options.joint_pairs > 0) {
     // a1..a4 from the joint likelihood of the heading innovations of up to joint_pairs
@@ -737,12 +736,7 @@ MotionNoiseIdentification Identify(const std::vector<Term>& terms, const DeadRec
         const Vector6 vj = theta_j.array().exp();
         result.noise = MotionNoise{vj[0], vj[1], vj[2], vj[3]};
         result.joint_pairs_used = static_cast<int>(chosen.size());
-        MotionNoiseIdentification joint_result;
-        SetUncertainty(joint_data, joint_prior, &joint_result);
-        for (int j = 0; j < 4; ++j) {
-          result.log_sd[j] = joint_result.log_sd[j];
-          result.data_share[j] = joint_result.data_share[j];
-        }
+        SetUncertainty(joint_data, joint_prior, 0, 4, &result);
       }
     }
   }

@@ -98,6 +98,12 @@ struct Calibration {
   std::string ToYaml() const;
 };
 
+// Sets the identification options that engine options choose (motion_noise_offset_dof,
+// motion_noise_joint_pairs), so that a calibration identifies what a run with `options`
+// identifies; the other fields of `identification` stay.
+void UseEngineIdentificationOptions(const CmlEngineOptions& options,
+                                    MotionNoiseIdentificationOptions* identification);
+
 // Reads the first session of `source` (it must be at its start). Throws omnicml::Error
 // when the session has fewer than two frames or on a bad frame.
 Calibration Calibrate(FrameSource& source, const CmlEngineOptions& options,

@@ -65,8 +65,9 @@ const CommandRegistration kRegistration{
               ->capture_default_str();
       CLI::Option* joint_pairs =
           cmd->add_option("--joint-pairs", f->calibration.identification.joint_pairs,
-                          "a1..a4 from the joint likelihood of up to this many loop pairs (0: "
-                          "pairs as independent); without the flag, the configuration's "
+                          "a1..a4 from the joint likelihood of the heading innovations of up to "
+                          "this many loop pairs (0: pairs as independent); without the flag, the "
+                          "configuration's "
                           "motion_noise_joint_pairs, as a run uses it")
               ->capture_default_str()
               ->check(CLI::NonNegativeNumber);

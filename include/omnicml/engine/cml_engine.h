@@ -214,9 +214,9 @@ struct CmlEngineOptions {
   // that gives appearance_sigma_m (MotionNoiseIdentificationOptions::offset_dof; 0 takes
   // it from the Gaussian fit). Finite, >= 0.
   double motion_noise_offset_dof = MotionNoiseIdentificationOptions{}.offset_dof;
-  // With motion_noise_source identified: a1..a4 from the joint likelihood of up to this
-  // many loop pairs (MotionNoiseIdentificationOptions::joint_pairs; 0 treats the pairs as
-  // independent). >= 0.
+  // With motion_noise_source identified: a1..a4 from the joint likelihood of the heading
+  // innovations of up to this many loop pairs (MotionNoiseIdentificationOptions::
+  // joint_pairs; 0 treats the pairs as independent). Pairs, >= 0.
   int motion_noise_joint_pairs = MotionNoiseIdentificationOptions{}.joint_pairs;
 
   // Throws omnicml::Error naming the first invalid field (including nested options,

@@ -95,10 +95,10 @@ struct MotionNoiseIdentificationOptions {
   // nu > 0 refits the same inliers under a multivariate Student t likelihood with nu
   // degrees of freedom and takes rho from that fit. A minority of pairs matched with a
   // large offset (a corridor whose view changes slowly, matched a few metres along itself)
-  // then weighs less instead of widening rho for every pair. a1..a4 and rho_phi stay the
-  // Gaussian fit's: the prior's covariance must cover the drift's full spread, or a
-  // confidence gate rejects the true fix after a long stretch of dead reckoning
-  // (docs/design.md "Motion noise identified from loop innovations"). Finite, >= 0.
+  // then weighs less instead of widening rho for every pair. a1..a4 (unless joint_pairs
+  // replaces them) and rho_phi stay the Gaussian fit's: the prior's covariance must cover the
+  // drift's full spread, or a confidence gate rejects the true fix after a long stretch of dead
+  // reckoning (docs/design.md "Motion noise identified from loop innovations"). Finite, >= 0.
   double offset_dof = 4.0;
   // a1..a4 from the joint likelihood of the heading innovations of up to this many inlier
   // pairs with heading (evenly spaced), whose covariance holds the covariance of every two

@@ -503,6 +503,37 @@ TEST(Align, Se2TurnsTheCovarianceWithTheEstimate) {
   EXPECT_EQ(se2.overall.nees_xy.count, 50);
 }
 
+// The prior's and the fix's NEES compare means the records do not hold with the truth,
+// so an alignment that moves the estimate cannot move them: the aligned evaluation
+// leaves them out (and says so) instead of reporting them in the unaligned frame.
+TEST(Align, PriorAndFixNeesAreLeftOutUnderAlignment) {
+  FramesTable table;
+  for (int i = 0; i < 20; ++i) {
+    const Pose2 truth = MakePose(0.5 * i, 0.1 * i, 0.0);
+    Pose2 est = truth;
+    est.y() += 0.3;
+    FrameRecord r = MakeRecord(0, i, est, truth);
+    r.cov_xx_m2 = r.cov_yy_m2 = 0.04;
+    r.cov_xy_m2 = 0.0;
+    r.prior_nees_xy = 2.5;
+    r.fix_nees_xy = 0.5;
+    table.records.push_back(r);
+  }
+  const EvaluationResult none = Evaluate(table, Alignment::kNone);
+  EXPECT_EQ(none.overall.prior_nees_xy.count, 20);
+  EXPECT_NEAR(none.overall.fix_nees_xy.median, 0.5, 1e-12);
+  EXPECT_EQ(FormatEvaluation(none).find("not reported under alignment"), std::string::npos);
+  for (const Alignment a : {Alignment::kSe2, Alignment::kStart}) {
+    const EvaluationResult aligned = Evaluate(table, a);
+    EXPECT_EQ(aligned.overall.prior_nees_xy.count, 0) << ToString(a);
+    EXPECT_EQ(aligned.overall.fix_nees_xy.count, 0) << ToString(a);
+    // The position NEES is recomputed against the aligned truth: the 0.3 m offset is gone.
+    EXPECT_LT(aligned.overall.nees_xy.median, 1e-6) << ToString(a);
+    EXPECT_NE(FormatEvaluation(aligned).find("not reported under alignment"), std::string::npos)
+        << ToString(a);
+  }
+}
+
 // A straight 10 m run along x, one frame per metre.
 std::vector<FrameRecord> StraightRun(double est_scale, double est_heading_rate_rad_per_m) {
   std::vector<FrameRecord> records;

@@ -195,7 +195,9 @@ std::string ToString(Alignment alignment);            // none|start|se2
 Alignment AlignmentFromString(const std::string& s);  // throws omnicml::Error
 
 // Applies the alignment to the estimates (strongest and mean; the covariance's xy block is
-// rotated with them) and recomputes errors.
+// rotated with them) and recomputes errors. The estimates of records the alignment moves
+// lose their prior_nees_xy and fix_nees_xy (NaN): those compare the prior's and the fix's
+// means, which the records do not hold, with the truth, so they cannot be aligned.
 // Returns the transform used for kSe2 (identity otherwise) as (tx, ty, theta), applied
 // as Compose(T, estimate). kSe2 needs at least two records with estimate and truth at
 // distinct positions, otherwise throws omnicml::Error.

@@ -17,7 +17,8 @@ reported in the frames column, not dropped silently.
 With --first-frames N it also fits the rotation per day from frames.csv (the same rigid
 fit, over one day's frames) and prints, over days >= 2 of every run: the mean and largest
 absolute rotation, the mean and spread of rotation + the day's mean heading error (near 0
-when the heading follows a rotated map), and the rotation of each run's first N frames.
+when the heading follows a rotated map), the rotation of each run's first N frames and
+the map's views after them.
 
 Usage: scripts/nees_frame_table.py OMNICML (SWEEP_DIR [--mode active] | --runs RUN_DIR...)
   [--first-day N]     (pooled ratio over days >= N, 1-based; default 1)
@@ -82,9 +83,12 @@ def rigid_rotation_deg(rows):
 
 
 def day_rotations(run, first_frames):
-    """[(rotation, mean heading error) per day >= 2] and the first frames' rotation."""
+    """[(rotation, mean heading error) per day >= 2], the first frames' rotation and the
+    map's views after them."""
     with open(os.path.join(run, "frames.csv")) as fh:
-        rows = [r for r in csv.DictReader(fh) if r["est_x_m"] and r["truth_x_m"]]
+        all_rows = list(csv.DictReader(fh))
+    views = int(all_rows[min(first_frames, len(all_rows)) - 1]["views"])
+    rows = [r for r in all_rows if r["est_x_m"] and r["truth_x_m"]]
     days = {}
     for r in rows:
         days.setdefault(int(r["session"]), []).append(r)
@@ -95,7 +99,7 @@ def day_rotations(run, first_frames):
         head = sum(math.remainder(float(r["est_phi_rad"]) - float(r["truth_phi_rad"]),
                                   2 * math.pi) for r in rs) / len(rs)
         out.append((rigid_rotation_deg(rs), math.degrees(head)))
-    return out, rigid_rotation_deg(rows[:first_frames])
+    return out, rigid_rotation_deg(rows[:first_frames]), views
 
 
 def main(argv):
@@ -156,11 +160,12 @@ def main(argv):
           f"covariance scaled by it: "
           f"{sum(inband(r[0]['nees_med'] / ratio, BAND_MEDIAN) for r in rows)}")
     if first_frames > 0:
-        days, firsts = [], []
+        days, firsts, views = [], [], []
         for run in runs:
-            d, f = day_rotations(run, first_frames)
+            d, f, v = day_rotations(run, first_frames)
             days += d
             firsts.append((f, d))
+            views.append(v)
         sums = [rot + head for rot, head in days]
         mean_sum = sum(sums) / len(sums)
         sd_sum = math.sqrt(sum((v - mean_sum) ** 2 for v in sums) / len(sums))
@@ -171,7 +176,8 @@ def main(argv):
               f"{max(abs(r) for r, _ in days):.1f}; rotation + mean heading error "
               f"{mean_sum:+.1f} +- {sd_sum:.1f} deg; first {first_frames} frames: mean |rotation| "
               f"{sum(abs(f) for f, _ in firsts) / len(firsts):.1f} deg, same sign as days >= 2 "
-              f"on {same} of {len(firsts)} runs")
+              f"on {same} of {len(firsts)} runs; views after them: mean "
+              f"{sum(views) / len(views):.0f} (range {min(views)}-{max(views)})")
 
 
 if __name__ == "__main__":

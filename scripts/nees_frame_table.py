@@ -24,6 +24,7 @@ Usage: scripts/nees_frame_table.py OMNICML (SWEEP_DIR [--mode active] | --runs R
   [--first-day N]     (pooled ratio over days >= N, 1-based; default 1)
   [--first-frames N]  (per-day rotations, and that of each run's first N frames)
 """
+import argparse
 import csv
 import math
 import os
@@ -57,14 +58,19 @@ def evaluate(omnicml, run, align):
     return res
 
 
-def pooled(run, first_day):
-    e2 = tr = 0.0
+def read_frames(run):
     with open(os.path.join(run, "frames.csv")) as fh:
-        for r in csv.DictReader(fh):
-            if int(r["session"]) + 1 < first_day or not r["nees_xy"]:
-                continue
-            e2 += float(r["position_error_m"]) ** 2
-            tr += float(r["cov_xx_m2"]) + float(r["cov_yy_m2"])
+        return list(csv.DictReader(fh))
+
+
+def pooled(frames, first_day):
+    """Sum of e^2 and of trace C_xy over the frames with a NEES of days >= first_day."""
+    e2 = tr = 0.0
+    for r in frames:
+        if int(r["session"]) + 1 < first_day or not r["nees_xy"]:
+            continue
+        e2 += float(r["position_error_m"]) ** 2
+        tr += float(r["cov_xx_m2"]) + float(r["cov_yy_m2"])
     return e2, tr
 
 
@@ -82,13 +88,11 @@ def rigid_rotation_deg(rows):
     return math.degrees(math.atan2(cross, dot))
 
 
-def day_rotations(run, first_frames):
+def day_rotations(frames, first_frames):
     """[(rotation, mean heading error) per day >= 2], the first frames' rotation and the
     map's views after them."""
-    with open(os.path.join(run, "frames.csv")) as fh:
-        all_rows = list(csv.DictReader(fh))
-    views = int(all_rows[min(first_frames, len(all_rows)) - 1]["views"])
-    rows = [r for r in all_rows if r["est_x_m"] and r["truth_x_m"]]
+    views = int(frames[min(first_frames, len(frames)) - 1]["views"])
+    rows = [r for r in frames if r["est_x_m"] and r["truth_x_m"]]
     days = {}
     for r in rows:
         days.setdefault(int(r["session"]), []).append(r)
@@ -103,28 +107,28 @@ def day_rotations(run, first_frames):
 
 
 def main(argv):
-    if len(argv) < 3:
-        sys.exit(__doc__)
-    omnicml = argv[1]
-    mode, first_day, first_frames, runs, rest = "active", 1, 0, None, argv[2:]
-    if "--mode" in rest:
-        i = rest.index("--mode")
-        mode = rest[i + 1]
-        del rest[i:i + 2]
-    if "--first-day" in rest:
-        i = rest.index("--first-day")
-        first_day = int(rest[i + 1])
-        del rest[i:i + 2]
-    if "--first-frames" in rest:
-        i = rest.index("--first-frames")
-        first_frames = int(rest[i + 1])
-        del rest[i:i + 2]
-    if rest[0] == "--runs":
-        runs = rest[1:]
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0],
+        usage="%(prog)s OMNICML (SWEEP_DIR [--mode MODE] | --runs RUN_DIR...) "
+              "[--first-day N] [--first-frames N]")
+    parser.add_argument("omnicml", help="the omnicml binary")
+    parser.add_argument("sweep_dir", nargs="?", help="a compare sweep's directory")
+    parser.add_argument("--runs", nargs="+", help="run directories instead of a sweep")
+    parser.add_argument("--mode", default="active", help="the sweep's forgetting mode")
+    parser.add_argument("--first-day", type=int, default=1,
+                        help="pooled ratio over days >= N, 1-based")
+    parser.add_argument("--first-frames", type=int, default=0,
+                        help="per-day rotations, and that of each run's first N frames")
+    args = parser.parse_args(argv[1:])
+    if (args.sweep_dir is None) == (args.runs is None):
+        parser.error("give either a sweep directory or --runs")
+    omnicml, first_day, first_frames = args.omnicml, args.first_day, args.first_frames
+    if args.runs:
+        runs = args.runs
     else:
-        base = os.path.join(rest[0], "runs")
-        runs = sorted((os.path.join(base, j, mode) for j in os.listdir(base)
-                       if os.path.isfile(os.path.join(base, j, mode, "frames.csv"))),
+        base = os.path.join(args.sweep_dir, "runs")
+        runs = sorted((os.path.join(base, j, args.mode) for j in os.listdir(base)
+                       if os.path.isfile(os.path.join(base, j, args.mode, "frames.csv"))),
                       key=lambda p: [int(t) if t.isdigit() else t
                                      for t in re.split(r"(\d+)", p)])
     if not runs:
@@ -133,11 +137,18 @@ def main(argv):
           "shift (m) | NEES median world / aligned | NEES p95 world / aligned |")
     print("|---|---|---|---|---|---|---|")
     rows = []
+    days, firsts, views = [], [], []
     e2_all = tr_all = 0.0
     for run in runs:
         w = evaluate(omnicml, run, "none")
         a = evaluate(omnicml, run, "se2")
-        e2, tr = pooled(run, first_day)
+        frames = read_frames(run)
+        e2, tr = pooled(frames, first_day)
+        if first_frames > 0:
+            d, f, v = day_rotations(frames, first_frames)
+            days += d
+            firsts.append((f, d))
+            views.append(v)
         e2_all += e2
         tr_all += tr
         rows.append((w, a))
@@ -160,12 +171,6 @@ def main(argv):
           f"covariance scaled by it: "
           f"{sum(inband(r[0]['nees_med'] / ratio, BAND_MEDIAN) for r in rows)}")
     if first_frames > 0:
-        days, firsts, views = [], [], []
-        for run in runs:
-            d, f, v = day_rotations(run, first_frames)
-            days += d
-            firsts.append((f, d))
-            views.append(v)
         sums = [rot + head for rot, head in days]
         mean_sum = sum(sums) / len(sums)
         sd_sum = math.sqrt(sum((v - mean_sum) ** 2 for v in sums) / len(sums))

@@ -40,18 +40,29 @@ void CmlEngine::UpdatePoseGraph(std::int64_t t, const std::vector<ViewMatch>& ma
                                 FrameStats* stats) {
   if (matches.empty()) return;
   const auto t0 = std::chrono::steady_clock::now();
-  // The best match (matches are sorted by distance, ties by view id): the pose it says the
-  // robot is at, as in p(x|y): its strongest component rotated by the relative heading.
+  // The best match (matches are sorted by distance, ties by view id).
   const ViewMatch& best = matches.front();
   if (best.relative_heading_rad && best.view_index < model_->NumViews()) {
     const ReferenceView& view = model_->views()[best.view_index];
-    const ViewComponent* strongest = &view.components.front();
-    for (const ViewComponent& c : view.components) {
-      if (c.weight > strongest->weight) strongest = &c;
+    const PoseGraphOptions& g = options_.pose_graph;
+    if (g.closure_model == PoseGraphOptions::ClosureModel::kViewFrame) {
+      // The view's panorama was taken at its creator's pose: the current frame is at that
+      // place, turned by the relative heading (design.md "Global pose graph").
+      const double s = g.closure_sigma_m > 0.0 ? g.closure_sigma_m : options_.appearance_sigma_m;
+      pose_graph_->AddRelativeClosure(
+          view.stats.created_frame, t, MakePose(0.0, 0.0, *best.relative_heading_rad),
+          Eigen::Vector3d(s * s, s * s, g.closure_sigma_rad * g.closure_sigma_rad).asDiagonal());
+    } else {
+      // The pose the view says the robot is at, as in p(x|y): its strongest component
+      // rotated by the relative heading.
+      const ViewComponent* strongest = &view.components.front();
+      for (const ViewComponent& c : view.components) {
+        if (c.weight > strongest->weight) strongest = &c;
+      }
+      const Pose2 m = MakePose(strongest->mean.x(), strongest->mean.y(),
+                               strongest->mean.z() + *best.relative_heading_rad);
+      pose_graph_->AddClosure(view.stats.created_frame, t, m, strongest->covariance);
     }
-    const Pose2 m = MakePose(strongest->mean.x(), strongest->mean.y(),
-                             strongest->mean.z() + *best.relative_heading_rad);
-    pose_graph_->AddClosure(view.stats.created_frame, t, m, strongest->covariance);
   }
   if (pose_graph_->ShouldOptimize(t)) ApplyPoseGraphCorrections(pose_graph_->Optimize(t), stats);
   stats->pose_graph_us +=

@@ -38,8 +38,8 @@ void PoseGraphOptions::Validate() const {
   if (closure_every_frames < 1) fail("closure_every_frames", ">= 1", closure_every_frames);
   if (optimize_every_frames < 1) fail("optimize_every_frames", ">= 1", optimize_every_frames);
   if (window_nodes < 2) fail("window_nodes", ">= 2", window_nodes);
-  if (!(closure_sigma_m > 0) || !std::isfinite(closure_sigma_m))
-    fail("closure_sigma_m", "finite and > 0", closure_sigma_m);
+  if (!(closure_sigma_m >= 0) || !std::isfinite(closure_sigma_m))
+    fail("closure_sigma_m", "finite and >= 0", closure_sigma_m);
   if (!(closure_sigma_rad > 0) || !std::isfinite(closure_sigma_rad))
     fail("closure_sigma_rad", "finite and > 0", closure_sigma_rad);
   if (!(loss_scale > 0) || !std::isfinite(loss_scale))
@@ -117,11 +117,8 @@ const PoseGraphNode* PoseGraph::FindNode(std::int64_t frame) const {
 
 bool PoseGraph::AddClosure(std::int64_t view_created_frame, std::int64_t frame, const Pose2& m,
                            const Eigen::Matrix3d& component_covariance) {
-  if (frame - view_created_frame < options_.min_loop_frames) return false;
-  if (frame - last_closure_frame_ < options_.closure_every_frames) return false;
   const PoseGraphNode* from = FindNode(view_created_frame);
-  const PoseGraphNode* to = FindNode(frame);
-  if (from == nullptr || to == nullptr) return false;
+  if (from == nullptr) return false;
   const Eigen::Matrix2d cxy = 0.5 * (component_covariance.topLeftCorner<2, 2>() +
                                      component_covariance.topLeftCorner<2, 2>().transpose());
   // Largest eigenvalue of the symmetric 2x2 block (closed form): an isotropic bound, so
@@ -129,14 +126,28 @@ bool PoseGraph::AddClosure(std::int64_t view_created_frame, std::int64_t frame, 
   const double half_trace = 0.5 * (cxy(0, 0) + cxy(1, 1));
   const double half_diff = 0.5 * (cxy(0, 0) - cxy(1, 1));
   const double largest = half_trace + std::sqrt(half_diff * half_diff + cxy(0, 1) * cxy(0, 1));
-  PoseGraphClosure c;
-  c.from_frame = view_created_frame;
-  c.to_frame = frame;
-  c.z = Between(from->pose, m);
   const double s2 = options_.closure_sigma_m * options_.closure_sigma_m + std::max(largest, 0.0);
   const double sphi2 = options_.closure_sigma_rad * options_.closure_sigma_rad +
                        std::max(component_covariance(2, 2), 0.0);
-  c.covariance = Eigen::Vector3d(s2, s2, sphi2).asDiagonal();
+  return AddRelativeClosure(view_created_frame, frame, Between(from->pose, m),
+                            Eigen::Vector3d(s2, s2, sphi2).asDiagonal());
+}
+
+bool PoseGraph::AddRelativeClosure(std::int64_t from_frame, std::int64_t frame, const Pose2& z,
+                                   const Eigen::Matrix3d& covariance) {
+  if (frame - from_frame < options_.min_loop_frames) return false;
+  if (frame - last_closure_frame_ < options_.closure_every_frames) return false;
+  if (FindNode(from_frame) == nullptr || FindNode(frame) == nullptr) return false;
+  // A position standard deviation below 1 mm is raised to it: a zero neighbourhood
+  // (appearance_sigma_m 0) would make the factor's information infinite.
+  constexpr double kMinClosureVarianceM2 = 1e-6;
+  PoseGraphClosure c;
+  c.from_frame = from_frame;
+  c.to_frame = frame;
+  c.z = z;
+  c.covariance = 0.5 * (covariance + covariance.transpose());
+  c.covariance(0, 0) = std::max(c.covariance(0, 0), kMinClosureVarianceM2);
+  c.covariance(1, 1) = std::max(c.covariance(1, 1), kMinClosureVarianceM2);
   closures_.push_back(c);
   last_closure_frame_ = frame;
   closure_since_optimize_ = true;

@@ -236,6 +236,108 @@ TEST(PoseGraph, ClosureConditions) {
   EXPECT_EQ(graph.closures().size(), 2u);
 }
 
+// A first lap whose odometry drifts (a heading bias per step) followed by three laps of
+// exact odometry over the same circle, each later pass closed at every tenth node on the
+// first lap's view there (the first lap's node at that place). Returns the mean position
+// error of the first lap's nodes after the last optimisation. `component_sd_m`: the
+// standard deviation of the pose the view's component holds, which the component form
+// adds to the closure's.
+double FirstLapError(PoseGraphOptions::ClosureModel model, double component_sd_m) {
+  constexpr int kLaps = 4;
+  PoseGraphOptions o = LoopOptions();
+  o.closure_model = model;
+  o.closure_sigma_m = 0.05;
+  o.closure_sigma_rad = 0.01;
+  o.closure_every_frames = 10;
+  o.optimize_every_frames = 50;
+  o.max_iterations = 50;
+  o.window_nodes = kLaps * kLoopNodes;
+  PoseGraph graph(o, MotionNoise{}, 1e-6, 1e-6, 1000);
+  Gaussian start;
+  start.mean = TruthAt(0);
+  start.covariance = Eigen::Vector3d(1e-6, 1e-6, 1e-8).asDiagonal();
+  graph.BeginSession(false, 0, start);
+  Pose2 odom = TruthAt(0);
+  Pose2 previous_odom = odom;
+  const Eigen::Matrix3d component =
+      Eigen::Vector3d(component_sd_m * component_sd_m, component_sd_m * component_sd_m, 1e-4)
+          .asDiagonal();
+  for (int i = 0; i < kLaps * kLoopNodes; ++i) {
+    OdometryIncrement u;
+    if (i > 0) {
+      u = ComputeIncrement(TruthAt((i - 1) % kLoopNodes), TruthAt(i % kLoopNodes));
+      if (i < kLoopNodes) u.rot2_rad += 0.001;  // the first lap drifts 11 degrees
+      odom = ApplyIncrement(odom, u);
+    }
+    graph.AddFrameOdometry(i, u);
+    // As the engine's tracker: the previous node's current (optimised) pose moved by the
+    // odometry since it.
+    const Pose2 pose =
+        i == 0 ? odom : Compose(graph.FindNode(i - 1)->pose, Between(previous_odom, odom));
+    previous_odom = odom;
+    graph.AddNode(i, pose, std::nullopt);
+    if (i < kLoopNodes || i % 10 != 0) continue;
+    const int view = i % kLoopNodes;  // the first lap's node at this place
+    if (model == PoseGraphOptions::ClosureModel::kViewFrame) {
+      graph.AddRelativeClosure(view, i, Pose2::Zero(),
+                               Eigen::Vector3d(0.05 * 0.05, 0.05 * 0.05, 1e-4).asDiagonal());
+    } else {
+      // The view's component: where the map holds the view now (its creator's pose).
+      graph.AddClosure(view, i, graph.FindNode(view)->pose, component);
+    }
+    if (graph.ShouldOptimize(i)) graph.Optimize(i);
+  }
+  graph.Optimize(kLaps * kLoopNodes - 1);
+  double sum = 0.0;
+  for (int i = 0; i < kLoopNodes; ++i)
+    sum += (graph.FindNode(i)->pose.head<2>() - TruthAt(i).head<2>()).norm();
+  return sum / kLoopNodes;
+}
+
+// Relative closures (the later pass is at the place of the view's creator) let the later
+// laps' odometry correct the first lap's drift. The component form adds the absolute
+// uncertainty of the view's pose to a relative measurement (the graph already holds it
+// in its nodes); with the first lap's uncertainty there it holds the later laps onto the
+// drifted lap instead.
+TEST(PoseGraph, RelativeClosuresCorrectTheFirstLapFromLaterLaps) {
+  Loop drifted;
+  {
+    PoseGraph dead_reckoning(LoopOptions(), MotionNoise{}, 1e-6, 1e-6, 1000);
+    drifted = FeedLoop(&dead_reckoning, 0.001);
+  }
+  double dead_reckoned = 0.0;
+  for (int i = 0; i < kLoopNodes; ++i)
+    dead_reckoned += (drifted.dead_reckoned[static_cast<std::size_t>(i)].head<2>() -
+                      drifted.truth[static_cast<std::size_t>(i)].head<2>())
+                         .norm();
+  dead_reckoned /= kLoopNodes;
+  const double relative = FirstLapError(PoseGraphOptions::ClosureModel::kViewFrame, 0.0);
+  const double component = FirstLapError(PoseGraphOptions::ClosureModel::kViewComponent, 1.0);
+  EXPECT_LT(relative, 0.2 * dead_reckoned) << "dead reckoning " << dead_reckoned << " m";
+  EXPECT_LT(relative, 0.5 * component) << "component form " << component << " m";
+}
+
+// The relative form stores the measurement and covariance as given, under the same
+// conditions as the component form.
+TEST(PoseGraph, RelativeClosureIsStoredAsGiven) {
+  PoseGraphOptions o = LoopOptions();
+  o.closure_every_frames = 10;
+  PoseGraph graph(o, MotionNoise{}, 1e-6, 1e-6, 1000);
+  FeedLoop(&graph, 0.0);
+  const Pose2 z = MakePose(0.0, 0.0, 0.2);
+  const Eigen::Matrix3d c = Eigen::Vector3d(0.04, 0.04, 1e-3).asDiagonal();
+  EXPECT_FALSE(graph.AddRelativeClosure(100, 120, z, c));  // 20 < 50 frames apart
+  EXPECT_FALSE(graph.AddRelativeClosure(0, 500, z, c));    // no node 500
+  ASSERT_TRUE(graph.AddRelativeClosure(0, 150, z, c));
+  EXPECT_FALSE(graph.AddRelativeClosure(0, 155, z, c));  // 5 < 10 frames after the last
+  ASSERT_EQ(graph.closures().size(), 1u);
+  EXPECT_EQ(graph.closures()[0].z, z);
+  EXPECT_EQ(graph.closures()[0].covariance, c);
+  // A zero position variance is raised to 1 mm^2 so that the factor stays finite.
+  ASSERT_TRUE(graph.AddRelativeClosure(0, 170, z, Eigen::Vector3d(0, 0, 1e-3).asDiagonal()));
+  EXPECT_EQ(graph.closures()[1].covariance(0, 0), 1e-6);
+}
+
 // Write/Read restores the graph exactly.
 TEST(PoseGraph, WriteReadRoundTrip) {
   PoseGraph graph(LoopOptions(), MotionNoise{}, 1e-6, 1e-6, 1000);
@@ -379,6 +481,38 @@ TEST(PoseGraphEngine, SaveLoadRoundTrip) {
   EXPECT_TRUE(loaded->pose_graph() == whole.pose_graph());
   EXPECT_EQ(ModelBytes(*loaded), ModelBytes(whole));
   EXPECT_GT(whole.pose_graph().optimizations(), 0);
+}
+
+// In the engine a closure (kViewFrame, closure_sigma_m 0) puts the current frame at the
+// place of the matched view's creator, turned by the relative heading, with the engine's
+// appearance neighbourhood as its position standard deviation.
+TEST(PoseGraphEngine, ClosuresAreRelativeToTheViewsCreator) {
+  CmlEngineOptions o = GraphEngineOptions(1);
+  o.appearance_sigma_m = 0.2;
+  ASSERT_EQ(o.pose_graph.closure_model, PoseGraphOptions::ClosureModel::kViewFrame);
+  ASSERT_EQ(o.pose_graph.closure_sigma_m, 0.0);
+  CmlEngine engine(o);
+  RunOutput out;
+  Feed(&engine, TwoDays(), 0, 1, &out);
+  ASSERT_FALSE(engine.pose_graph().closures().empty());
+  for (const PoseGraphClosure& c : engine.pose_graph().closures()) {
+    EXPECT_EQ(c.z.x(), 0.0);
+    EXPECT_EQ(c.z.y(), 0.0);
+    EXPECT_DOUBLE_EQ(c.covariance(0, 0), 0.04);
+    EXPECT_DOUBLE_EQ(c.covariance(1, 1), 0.04);
+    EXPECT_DOUBLE_EQ(c.covariance(2, 2),
+                     o.pose_graph.closure_sigma_rad * o.pose_graph.closure_sigma_rad);
+  }
+  // The component form measures the offset to the view's component: not zero.
+  o.pose_graph.closure_model = PoseGraphOptions::ClosureModel::kViewComponent;
+  CmlEngine component(o);
+  RunOutput out2;
+  Feed(&component, TwoDays(), 0, 1, &out2);
+  ASSERT_FALSE(component.pose_graph().closures().empty());
+  double offset = 0.0;
+  for (const PoseGraphClosure& c : component.pose_graph().closures())
+    offset += c.z.head<2>().norm();
+  EXPECT_GT(offset, 0.0);
 }
 
 // Off by default, and then the engine keeps no graph.

@@ -16,12 +16,15 @@
 //             pose) and the first frame of a kKnownPose session (its start pose):
 //             r = W (x - mu).
 //   closure   between the node c that created the best-matching view i and the current
-//             anchor node t, when t - c >= min_loop_frames: z_ct = Between(x_c, m) with
-//             m = (x_ij, y_ij, wrap(phi_ij + RelativeHeading(y_t, y_i))) from the view's
-//             strongest component j (the pose the view says the robot is at, as in
-//             p(x|y)); Sigma = diag(s^2, s^2, s_phi^2), s^2 = closure_sigma_m^2 + the
-//             largest xy variance of the component, s_phi^2 = closure_sigma_rad^2 +
-//             its heading variance. Under a Cauchy loss rho(s) = c^2 log(1 + s / c^2)
+//             anchor node t, when t - c >= min_loop_frames. kViewFrame (default): y_i is
+//             the panorama taken at x_c, so a match says x_t is at x_c's place, turned by
+//             the descriptors' relative heading: z_ct = (0, 0, RelativeHeading(y_t, y_i)),
+//             Sigma = diag(s^2, s^2, s_phi^2), s = closure_sigma_m (0: the engine's
+//             appearance_sigma_m, the spread of a match about the view's place), s_phi =
+//             closure_sigma_rad. kViewComponent: z_ct = Between(x_c, m) with m = (x_ij,
+//             y_ij, wrap(phi_ij + RelativeHeading(y_t, y_i))) from the view's strongest
+//             component j, Sigma with the component's largest xy variance and its
+//             heading variance added. Under a Cauchy loss rho(s) = c^2 log(1 + s / c^2)
 //             of the squared whitened residual, c = loss_scale, so that a false closure
 //             (aliasing) cannot pull the map apart.
 // Optimisation (Optimize): Levenberg-Marquardt over the newest window_nodes nodes (older
@@ -77,13 +80,35 @@ struct PoseGraphOptions {
   // Nodes optimised: the newest window_nodes (older ones are constant). Bounds the cost of
   // one optimisation. Nodes, >= 2.
   int window_nodes = 3000;
-  // Standard deviations added to a closure's: position (metres, > 0) and heading
-  // (radians, > 0).
-  double closure_sigma_m = 0.3;
+  // What a closure measures. kViewFrame: the pose of the current frame relative to the
+  // frame that created the matched view (the two panoramas were taken at one place), a
+  // relative measurement whose noise is how far from a view's place it still matches.
+  // kViewComponent: the pose the view's strongest component says the robot is at, with
+  // the component's covariance added. That covariance is the absolute uncertainty of
+  // the map at the view, which the graph already holds in its nodes, so the closure
+  // counts it twice and is weaker than the match; and a component merged from later
+  // passes is not the creator's pose. Measured in docs/results.md "Pose graph
+  // closures relative to the view's frame".
+  enum class ClosureModel : std::uint8_t { kViewFrame = 0, kViewComponent = 1 };
+  ClosureModel closure_model = ClosureModel::kViewFrame;
+  // Closure standard deviations. Position (metres, >= 0): kViewFrame, the whole standard
+  // deviation of the current position about the creator's; 0 takes the engine's
+  // appearance_sigma_m (as identified from the log or configured, and scaled with the
+  // spatial thresholds), the same neighbourhood a fix gets in p(x|y). kViewComponent:
+  // added to the component's variance (0: nothing added). Heading (radians, > 0): the
+  // relative heading's noise, plus the component's heading variance under
+  // kViewComponent. A position below 1 mm is raised to 1 mm.
+  double closure_sigma_m = 0.0;
   double closure_sigma_rad = 0.05;
   // Cauchy loss scale c on the squared whitened closure residual (dimensionless, in
-  // standard deviations, > 0): residuals much beyond c count logarithmically.
-  double loss_scale = 1.0;
+  // standard deviations, > 0): residuals much beyond c count logarithmically (weight
+  // 1 / (1 + s / c^2)). 3.368 = sqrt(11.34), the chi-square 99 % quantile of 3 dof, so a
+  // closure inside the 99 % gate keeps at least half its weight. A scale of 1 halves
+  // the weight of a closure one standard deviation off: from a map that the first lap's
+  // drift turned, the closures that would turn it back then look like outliers and are
+  // removed by reject_chi2 (docs/results.md "Pose graph closures relative to the view's
+  // frame").
+  double loss_scale = 3.368;
   // Levenberg-Marquardt iterations per optimisation, >= 1.
   int max_iterations = 10;
   // Closure verification: after the robust optimisation, a closure whose squared whitened
@@ -119,7 +144,12 @@ void VisitFields(V& v, PoseGraphOptions& o) {
   v("max_iterations", o.max_iterations);
   v("reject_chi2", o.reject_chi2);
   // After engine file format 14 (engine_io.h): stored only when not the default.
-  v.Since(15, [&](auto& w) { w("hold_earlier_sessions", o.hold_earlier_sessions); });
+  v.Since(15, [&](auto& w) {
+    w("hold_earlier_sessions", o.hold_earlier_sessions);
+    w.NamedEnum("closure_model", o.closure_model,
+                {{PoseGraphOptions::ClosureModel::kViewFrame, "view_frame"},
+                 {PoseGraphOptions::ClosureModel::kViewComponent, "view_component"}});
+  });
 }
 
 // One node: the pose of a map update.
@@ -173,12 +203,19 @@ class PoseGraph {
   // A map update of `frame` at `pose` (frames increasing; a frame not after the last
   // node's is ignored). `prior`: a pose from outside the engine (survey).
   void AddNode(std::int64_t frame, const Pose2& pose, const std::optional<Gaussian>& prior);
-  // A loop closure from the node of `view_created_frame` to the node of `frame`, with the
-  // pose m the view's component says the robot is at and that component's covariance.
-  // Returns false (nothing added) when either node is missing, the frames are less than
-  // min_loop_frames apart, or the last closure is less than closure_every_frames old.
+  // A loop closure from the node of `view_created_frame` to the node of `frame` in the
+  // kViewComponent form: the absolute pose m the view's component says the robot is at
+  // and that component's covariance; z = Between(x_c, m) at the creator's current pose,
+  // Sigma = diag(s^2 + largest xy variance, same, closure_sigma_rad^2 + heading
+  // variance), s = closure_sigma_m. Returns false (nothing added) when either node is
+  // missing, the frames are less than min_loop_frames apart, or the last closure is less
+  // than closure_every_frames old.
   bool AddClosure(std::int64_t view_created_frame, std::int64_t frame, const Pose2& m,
                   const Eigen::Matrix3d& component_covariance);
+  // A loop closure measured directly: Between(x_from, x_to) = z with `covariance`
+  // (symmetric positive definite; used as given). The conditions of AddClosure apply.
+  bool AddRelativeClosure(std::int64_t from_frame, std::int64_t frame, const Pose2& z,
+                          const Eigen::Matrix3d& covariance);
   // Whether Optimize should run at `frame` (a closure since the last optimisation, and
   // optimize_every_frames passed).
   bool ShouldOptimize(std::int64_t frame) const;

@@ -138,9 +138,10 @@ bool PoseGraph::AddRelativeClosure(std::int64_t from_frame, std::int64_t frame, 
   if (frame - from_frame < options_.min_loop_frames) return false;
   if (frame - last_closure_frame_ < options_.closure_every_frames) return false;
   if (FindNode(from_frame) == nullptr || FindNode(frame) == nullptr) return false;
-  // A position standard deviation below 1 mm is raised to it: a zero neighbourhood
+  // Standard deviations below 1 mm and 0.1 mrad are raised to them: a zero neighbourhood
   // (appearance_sigma_m 0) would make the factor's information infinite.
   constexpr double kMinClosureVarianceM2 = 1e-6;
+  constexpr double kMinClosureVarianceRad2 = 1e-8;
   PoseGraphClosure c;
   c.from_frame = from_frame;
   c.to_frame = frame;
@@ -148,6 +149,7 @@ bool PoseGraph::AddRelativeClosure(std::int64_t from_frame, std::int64_t frame, 
   c.covariance = 0.5 * (covariance + covariance.transpose());
   c.covariance(0, 0) = std::max(c.covariance(0, 0), kMinClosureVarianceM2);
   c.covariance(1, 1) = std::max(c.covariance(1, 1), kMinClosureVarianceM2);
+  c.covariance(2, 2) = std::max(c.covariance(2, 2), kMinClosureVarianceRad2);
   closures_.push_back(c);
   last_closure_frame_ = frame;
   closure_since_optimize_ = true;

@@ -97,7 +97,7 @@ struct PoseGraphOptions {
   // spatial thresholds), the same neighbourhood a fix gets in p(x|y). kViewComponent:
   // added to the component's variance (0: nothing added). Heading (radians, > 0): the
   // relative heading's noise, plus the component's heading variance under
-  // kViewComponent. A position below 1 mm is raised to 1 mm.
+  // kViewComponent. Standard deviations below 1 mm are raised to 1 mm.
   double closure_sigma_m = 0.0;
   double closure_sigma_rad = 0.05;
   // Cauchy loss scale c on the squared whitened closure residual (dimensionless, in
@@ -213,7 +213,8 @@ class PoseGraph {
   bool AddClosure(std::int64_t view_created_frame, std::int64_t frame, const Pose2& m,
                   const Eigen::Matrix3d& component_covariance);
   // A loop closure measured directly: Between(x_from, x_to) = z with `covariance`
-  // (symmetric positive definite; used as given). The conditions of AddClosure apply.
+  // (symmetric positive semi-definite; its diagonal raised to at least 1 mm^2 for x and y
+  // and 1e-8 rad^2 for the heading). The conditions of AddClosure apply.
   bool AddRelativeClosure(std::int64_t from_frame, std::int64_t frame, const Pose2& z,
                           const Eigen::Matrix3d& covariance);
   // Whether Optimize should run at `frame` (a closure since the last optimisation, and

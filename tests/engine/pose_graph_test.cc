@@ -259,6 +259,12 @@ double FirstLapError(PoseGraphOptions::ClosureModel model, double component_sd_m
   graph.BeginSession(false, 0, start);
   Pose2 odom = TruthAt(0);
   Pose2 previous_odom = odom;
+  // The relative closure's covariance is the options' standard deviations; the component
+  // form adds them to the component's (AddClosure).
+  const Eigen::Matrix3d relative =
+      Eigen::Vector3d(o.closure_sigma_m * o.closure_sigma_m, o.closure_sigma_m * o.closure_sigma_m,
+                      o.closure_sigma_rad * o.closure_sigma_rad)
+          .asDiagonal();
   const Eigen::Matrix3d component =
       Eigen::Vector3d(component_sd_m * component_sd_m, component_sd_m * component_sd_m, 1e-4)
           .asDiagonal();
@@ -279,8 +285,7 @@ double FirstLapError(PoseGraphOptions::ClosureModel model, double component_sd_m
     if (i < kLoopNodes || i % 10 != 0) continue;
     const int view = i % kLoopNodes;  // the first lap's node at this place
     if (model == PoseGraphOptions::ClosureModel::kViewFrame) {
-      graph.AddRelativeClosure(view, i, Pose2::Zero(),
-                               Eigen::Vector3d(0.05 * 0.05, 0.05 * 0.05, 1e-4).asDiagonal());
+      graph.AddRelativeClosure(view, i, Pose2::Zero(), relative);
     } else {
       // The view's component: where the map holds the view now (its creator's pose).
       graph.AddClosure(view, i, graph.FindNode(view)->pose, component);

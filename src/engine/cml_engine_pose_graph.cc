@@ -2,9 +2,9 @@
 // graph"): loop closures from appearance matches, optimisation, and moving the map, the
 // queued updates and the tracker with the corrected nodes. Kept apart from
 // cml_engine.cc so the CML pipeline and the graph can change independently.
-#include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <optional>
 #include <utility>
 
 #include "omnicml/common/common.h"
@@ -42,6 +42,9 @@ void CmlEngine::UpdatePoseGraph(std::int64_t t, const std::vector<ViewMatch>& ma
   const auto t0 = std::chrono::steady_clock::now();
   // The best match (matches are sorted by distance, ties by view id).
   const ViewMatch& best = matches.front();
+  std::optional<std::int64_t> fixed_by;
+  if (best.view_index < model_->NumViews())
+    fixed_by = model_->views()[best.view_index].stats.created_frame;
   if (best.relative_heading_rad && best.view_index < model_->NumViews()) {
     const ReferenceView& view = model_->views()[best.view_index];
     const PoseGraphOptions& g = options_.pose_graph;
@@ -64,21 +67,17 @@ void CmlEngine::UpdatePoseGraph(std::int64_t t, const std::vector<ViewMatch>& ma
       pose_graph_->AddClosure(view.stats.created_frame, t, m, strongest->covariance);
     }
   }
-  if (pose_graph_->ShouldOptimize(t)) ApplyPoseGraphCorrections(pose_graph_->Optimize(t), stats);
+  if (pose_graph_->ShouldOptimize(t))
+    ApplyPoseGraphCorrections(pose_graph_->Optimize(t), fixed_by, stats);
   stats->pose_graph_us +=
       std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0).count();
 }
 
 void CmlEngine::ApplyPoseGraphCorrections(std::vector<NodeCorrection> corrections,
-                                          FrameStats* stats) {
+                                          std::optional<std::int64_t> fixed_by, FrameStats* stats) {
   if (corrections.empty()) return;
   // Sorted by frame (Optimize returns them in node order).
-  const auto find = [&](std::int64_t frame) -> const NodeCorrection* {
-    const auto it =
-        std::lower_bound(corrections.begin(), corrections.end(), frame,
-                         [](const NodeCorrection& c, std::int64_t f) { return c.frame < f; });
-    return it != corrections.end() && it->frame == frame ? &*it : nullptr;
-  };
+  const auto find = [&](std::int64_t frame) { return FindCorrection(corrections, frame); };
   // Views move with the node of the update that created them: later components were
   // localized against the view, so they share its error (docs/design.md).
   int moved = 0;
@@ -93,13 +92,17 @@ void CmlEngine::ApplyPoseGraphCorrections(std::vector<NodeCorrection> correction
     if (const NodeCorrection* c = find(u.frame))
       u.state = MoveRigidly(u.state, c->before, c->after);
   }
-  // The tracker and the anchor follow the newest node (the current anchor).
+  // The tracker and the anchor (the newest node's frame) move with the node that created
+  // the view they were fixed by, or with the newest node (PoseGraphOptions::tracker_follows).
   const NodeCorrection& newest = corrections.back();
   if (anchor_ && anchor_->first == newest.frame) {
-    anchor_->second = MoveRigidly(anchor_->second, newest.before, newest.after);
-    Mixture state = tracker_.state();
-    for (Gaussian& g : state) g = MoveRigidly(g, newest.before, newest.after);
-    tracker_.set_state(std::move(state));
+    if (const NodeCorrection* follow =
+            TrackerCorrection(corrections, options_.pose_graph.tracker_follows, fixed_by)) {
+      anchor_->second = MoveRigidly(anchor_->second, follow->before, follow->after);
+      Mixture state = tracker_.state();
+      for (Gaussian& g : state) g = MoveRigidly(g, follow->before, follow->after);
+      tracker_.set_state(std::move(state));
+    }
   }
   if (stats != nullptr) stats->pose_graph_moved_views += moved;
 }

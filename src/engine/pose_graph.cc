@@ -48,6 +48,22 @@ void PoseGraphOptions::Validate() const {
   if (!(reject_chi2 > 0)) fail("reject_chi2", "> 0", reject_chi2);
 }
 
+const NodeCorrection* FindCorrection(const std::vector<NodeCorrection>& corrections,
+                                     std::int64_t frame) {
+  const auto it =
+      std::lower_bound(corrections.begin(), corrections.end(), frame,
+                       [](const NodeCorrection& c, std::int64_t f) { return c.frame < f; });
+  return it != corrections.end() && it->frame == frame ? &*it : nullptr;
+}
+
+const NodeCorrection* TrackerCorrection(const std::vector<NodeCorrection>& corrections,
+                                        PoseGraphOptions::TrackerFollows follows,
+                                        std::optional<std::int64_t> fixed_by) {
+  if (corrections.empty()) return nullptr;
+  if (follows == PoseGraphOptions::TrackerFollows::kNewestNode) return &corrections.back();
+  return fixed_by ? FindCorrection(corrections, *fixed_by) : nullptr;
+}
+
 PoseGraph::PoseGraph(const PoseGraphOptions& options, const MotionNoise& motion,
                      double min_translation_variance_m2, double min_rotation_variance_rad2,
                      std::size_t max_recent_frames)

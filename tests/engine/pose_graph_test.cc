@@ -220,6 +220,70 @@ TEST(PoseGraph, HoldEarlierSessionsKeepsTheOlderMapAndCorrectsTheCurrentDay) {
   for (int i = 0; i < kLoopNodes; ++i) EXPECT_EQ(held.FindNode(i)->pose, free.FindNode(i)->pose);
 }
 
+// What an optimisation does to the tracker after a fix by a view that matched a metre
+// from its place (store_large's long match length). Day 1 (a survey: every node has its
+// trusted pose as a prior) made the view at node 54; day 2 comes down the same line with
+// drifting odometry and is fixed at its node 159, where the tracker's fused estimate is
+// the truth, by that view, 1 m behind. The closure "at the creator's place" pulls node 159 back
+// towards it: following the newest node moves the tracker off its good fix by most of
+// that metre, following the view's node (held by the survey) leaves it where it was.
+TEST(PoseGraph, TrackerFollowsTheViewItWasFixedBy) {
+  constexpr int kDayNodes = 100;
+  constexpr int kFixStep = 59;
+  constexpr int kView = kFixStep - 5;  // 1 m behind the fix
+  PoseGraphOptions o = LoopOptions();
+  o.closure_every_frames = 1;
+  PoseGraph graph(o, MotionNoise{}, 1e-6, 1e-6, 1000);
+  const auto truth = [](int i) { return MakePose(0.2 * i, 0.0, 0.0); };
+  // Day 1: survey nodes, each with its trusted pose as a prior (as the engine's survey
+  // frames have).
+  graph.BeginSession(false, 0, std::nullopt);
+  for (int i = 0; i < kDayNodes; ++i) {
+    graph.AddFrameOdometry(i,
+                           i > 0 ? ComputeIncrement(truth(i - 1), truth(i)) : OdometryIncrement{});
+    Gaussian survey;
+    survey.mean = truth(i);
+    survey.covariance = Eigen::Vector3d(1e-4, 1e-4, 1e-6).asDiagonal();
+    graph.AddNode(i, truth(i), survey);
+  }
+  const std::vector<Pose2> day2 = FeedSession(&graph, kDayNodes, kFixStep, truth, 0.01);
+  ASSERT_GT((day2.back().head<2>() - truth(kFixStep - 1).head<2>()).norm(), 2.0)
+      << "day 2's odometry drifted";
+  const std::int64_t fix = kDayNodes + kFixStep;
+  OdometryIncrement u = ComputeIncrement(truth(kFixStep - 1), truth(kFixStep));
+  u.rot2_rad += 0.01;
+  graph.AddFrameOdometry(fix, u);
+  const Pose2 tracker = truth(kFixStep);  // the fused fix
+  graph.AddNode(fix, tracker, std::nullopt);
+  ASSERT_TRUE(
+      graph.AddRelativeClosure(kView, fix, MakePose(0.0, 0.0, 0.0),
+                               Eigen::Vector3d(0.04 * 0.04, 0.04 * 0.04, 0.0025).asDiagonal()));
+  const std::vector<NodeCorrection> corrections = graph.Optimize(fix);
+  ASSERT_FALSE(corrections.empty());
+  ASSERT_EQ(corrections.back().frame, fix);
+  // The tracker moved rigidly with the followed node's correction.
+  const auto tracker_error = [&](PoseGraphOptions::TrackerFollows follows) {
+    const NodeCorrection* c = TrackerCorrection(corrections, follows, kView);
+    const Pose2 moved = c != nullptr ? Compose(c->after, Between(c->before, tracker)) : tracker;
+    return (moved.head<2>() - truth(kFixStep).head<2>()).norm();
+  };
+  EXPECT_GT(tracker_error(PoseGraphOptions::TrackerFollows::kNewestNode), 0.5);
+  EXPECT_LT(tracker_error(PoseGraphOptions::TrackerFollows::kMatchedView), 0.05);
+  // The dead-reckoned stretch before the fix was corrected all the same.
+  EXPECT_LT((graph.FindNode(fix - 1)->pose.head<2>() - truth(kFixStep - 1).head<2>()).norm(),
+            0.5 * (day2.back().head<2>() - truth(kFixStep - 1).head<2>()).norm());
+  // The rule itself: the newest node's correction, the followed node's, or none.
+  EXPECT_EQ(
+      TrackerCorrection(corrections, PoseGraphOptions::TrackerFollows::kNewestNode, std::nullopt),
+      &corrections.back());
+  EXPECT_EQ(
+      TrackerCorrection(corrections, PoseGraphOptions::TrackerFollows::kMatchedView, std::nullopt),
+      nullptr);
+  EXPECT_EQ(TrackerCorrection(corrections, PoseGraphOptions::TrackerFollows::kMatchedView, fix),
+            &corrections.back());
+  EXPECT_EQ(TrackerCorrection({}, PoseGraphOptions::TrackerFollows::kNewestNode, fix), nullptr);
+}
+
 // Closures need min_loop_frames between the nodes, closure_every_frames between closures
 // and both nodes.
 TEST(PoseGraph, ClosureConditions) {

@@ -460,9 +460,12 @@ class CmlEngine {
   void NoteInnovation(const Mixture& p_x_u, const Mixture& p_x_y, FrameResult* result) const;
   // Global pose graph (cml_engine_pose_graph.cc): after the anchor frame t was queued
   // with an appearance fix, a loop closure from the best match and, when due, the
-  // optimisation; the map, the queued updates and the tracker move with the nodes.
+  // optimisation; the map and the queued updates move with the nodes, the tracker as
+  // pose_graph.tracker_follows says. fixed_by: the node (frame) that created the view the
+  // current frame was fixed by, if any.
   void UpdatePoseGraph(std::int64_t t, const std::vector<ViewMatch>& matches, FrameStats* stats);
-  void ApplyPoseGraphCorrections(std::vector<NodeCorrection> corrections, FrameStats* stats);
+  void ApplyPoseGraphCorrections(std::vector<NodeCorrection> corrections,
+                                 std::optional<std::int64_t> fixed_by, FrameStats* stats);
 
   CmlEngineOptions options_;
   std::shared_ptr<const DescriptorExtractor> extractor_;

@@ -126,6 +126,17 @@ struct PoseGraphOptions {
   // optimisation has solved yet when the next session begins (CmlEngine::BeginSession),
   // while that session's nodes are still free.
   bool hold_earlier_sessions = false;
+  // What moves the tracker (and the anchor it reconstructs from) after an optimisation at
+  // an appearance fix. kMatchedView: the correction of the node that created the view the
+  // frame was fixed by (the best match). The tracker's estimate was fused from that
+  // view's place, so it moves with it; where the view's node did not move, the tracker
+  // stays. kNewestNode: the correction of the newest node, the fixed frame's own. That
+  // node's optimised pose rests on one closure to the creator's place and the odometry
+  // before it, not on the fused fix (prior and up to top_k views), so where a view still
+  // matches a match length from its place it pulled the tracker off a good fix
+  // (docs/results.md "The tracker follows the view it was fixed by").
+  enum class TrackerFollows : std::uint8_t { kMatchedView = 0, kNewestNode = 1 };
+  TrackerFollows tracker_follows = TrackerFollows::kMatchedView;
 
   // Throws omnicml::Error naming the first invalid field ("PoseGraphOptions.<field>").
   void Validate() const;
@@ -149,6 +160,9 @@ void VisitFields(V& v, PoseGraphOptions& o) {
     w.NamedEnum("closure_model", o.closure_model,
                 {{PoseGraphOptions::ClosureModel::kViewFrame, "view_frame"},
                  {PoseGraphOptions::ClosureModel::kViewComponent, "view_component"}});
+    w.NamedEnum("tracker_follows", o.tracker_follows,
+                {{PoseGraphOptions::TrackerFollows::kMatchedView, "matched_view"},
+                 {PoseGraphOptions::TrackerFollows::kNewestNode, "newest_node"}});
   });
 }
 
@@ -182,6 +196,20 @@ struct NodeCorrection {
   Pose2 before = Pose2::Zero();
   Pose2 after = Pose2::Zero();
 };
+
+// The correction of node `frame` in `corrections` (sorted by frame, as Optimize returns
+// them); nullptr when that node did not move.
+const NodeCorrection* FindCorrection(const std::vector<NodeCorrection>& corrections,
+                                     std::int64_t frame);
+
+// The correction the tracker follows after an optimisation at an appearance fix
+// (PoseGraphOptions::tracker_follows): the newest node's (the last of `corrections`), or
+// that of node `fixed_by` (the creator of the view the frame was fixed by). nullptr when
+// `corrections` is empty or the followed node did not move (or there is none).
+// `corrections` sorted by frame, as Optimize returns them.
+const NodeCorrection* TrackerCorrection(const std::vector<NodeCorrection>& corrections,
+                                        PoseGraphOptions::TrackerFollows follows,
+                                        std::optional<std::int64_t> fixed_by);
 
 class PoseGraph {
  public:

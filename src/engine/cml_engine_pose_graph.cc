@@ -4,8 +4,11 @@
 // cml_engine.cc so the CML pipeline and the graph can change independently.
 #include <chrono>
 #include <cmath>
+#include <cstddef>
 #include <optional>
 #include <utility>
+
+#include <Eigen/Cholesky>
 
 #include "omnicml/common/common.h"
 #include "omnicml/engine/cml_engine.h"
@@ -73,6 +76,21 @@ void CmlEngine::UpdatePoseGraph(std::int64_t t, const std::vector<ViewMatch>& ma
       std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0).count();
 }
 
+void CmlEngine::GiveMarginalToComponentsAtTheNode(std::size_t view_index, const NodeCorrection& c) {
+  // A component is at the node's place when the node's position lies inside its 99 %
+  // ellipse with the marginal added (chi-square, 2 dof); components of the same view
+  // elsewhere (aliasing) keep their covariance.
+  constexpr double kChi2TwoDof99 = 9.2103;
+  const std::vector<ViewComponent>& components = model_->views()[view_index].components;
+  for (std::size_t k = 0; k < components.size(); ++k) {
+    const Eigen::Vector2d d = components[k].mean.head<2>() - c.after.head<2>();
+    const Eigen::Matrix2d s =
+        components[k].covariance.topLeftCorner<2, 2>() + c.covariance->topLeftCorner<2, 2>();
+    if (d.dot(s.ldlt().solve(d)) < kChi2TwoDof99)
+      model_->SetComponentCovariance(view_index, k, *c.covariance);
+  }
+}
+
 void CmlEngine::ApplyPoseGraphCorrections(std::vector<NodeCorrection> corrections,
                                           std::optional<std::int64_t> fixed_by, FrameStats* stats) {
   if (corrections.empty()) return;
@@ -84,6 +102,7 @@ void CmlEngine::ApplyPoseGraphCorrections(std::vector<NodeCorrection> correction
   for (std::size_t i = 0; i < model_->NumViews(); ++i) {
     if (const NodeCorrection* c = find(model_->views()[i].stats.created_frame)) {
       model_->MoveViewRigidly(i, c->before, c->after);
+      if (c->covariance) GiveMarginalToComponentsAtTheNode(i, *c);
       ++moved;
     }
   }

@@ -200,6 +200,8 @@ std::vector<NodeCorrection> PoseGraph::Optimize(std::int64_t frame) {
   double closure_inflation = 1.0;
   // Where each solve starts: the nodes' poses, or the graduated start's last solution.
   std::vector<std::array<double, 3>> staged;
+  // Marginal covariances of the window's nodes after the last solve (marginal_covariances).
+  std::vector<std::optional<Eigen::Matrix3d>> marginals;
   const auto solve = [&]() -> bool {
     if (!staged.empty()) {
       x = staged;
@@ -267,6 +269,31 @@ std::vector<NodeCorrection> PoseGraph::Optimize(std::int64_t frame) {
     so.minimizer_progress_to_stdout = false;
     ceres::Solver::Summary summary;
     ceres::Solve(so, &problem, &summary);
+    marginals.assign(x.size(), std::nullopt);
+    if (options_.marginal_covariances && closure_inflation == 1.0 && summary.IsSolutionUsable()) {
+      ceres::Covariance::Options co;
+      co.algorithm_type = ceres::SPARSE_QR;
+      co.num_threads = 1;
+      co.apply_loss_function = true;
+      ceres::Covariance covariance(co);
+      std::vector<std::pair<const double*, const double*>> blocks;
+      for (std::size_t i = 0; i < x.size(); ++i) {
+        if (problem.HasParameterBlock(x[i].data()) &&
+            !problem.IsParameterBlockConstant(x[i].data()))
+          blocks.emplace_back(x[i].data(), x[i].data());
+      }
+      // Fails (false) when the window's information is rank deficient: no marginals then.
+      if (!blocks.empty() && covariance.Compute(blocks, &problem)) {
+        for (std::size_t i = 0; i < x.size(); ++i) {
+          if (!problem.HasParameterBlock(x[i].data()) ||
+              problem.IsParameterBlockConstant(x[i].data()))
+            continue;
+          Eigen::Matrix<double, 3, 3, Eigen::RowMajor> c;
+          if (covariance.GetCovarianceBlock(x[i].data(), x[i].data(), c.data()))
+            marginals[i] = Eigen::Matrix3d(0.5 * (c + c.transpose()));
+        }
+      }
+    }
     return summary.IsSolutionUsable();
   };
   optimizations_ += 1;
@@ -336,7 +363,7 @@ std::vector<NodeCorrection> PoseGraph::Optimize(std::int64_t frame) {
   for (std::size_t i = first; i < nodes_.size(); ++i) {
     const Pose2 after = MakePose(x[i - first][0], x[i - first][1], x[i - first][2]);
     if (after == nodes_[i].pose) continue;
-    out.push_back({nodes_[i].frame, nodes_[i].pose, after});
+    out.push_back({nodes_[i].frame, nodes_[i].pose, after, marginals[i - first]});
     nodes_[i].pose = after;
   }
   return out;

@@ -276,6 +276,16 @@ void EnvironmentModel::MoveViewRigidly(std::size_t view_index, const Pose2& old_
   }
 }
 
+void EnvironmentModel::SetComponentCovariance(std::size_t view_index, std::size_t k,
+                                              const Eigen::Matrix3d& covariance) {
+  OMNICML_CHECK(view_index < store_.size()) << "SetComponentCovariance: no view " << view_index;
+  OMNICML_CHECK(k < store_.view(view_index).components.size())
+      << "SetComponentCovariance: no component " << k << " in view " << view_index;
+  ViewComponent comp = store_.view(view_index).components[k];
+  comp.covariance = 0.5 * (covariance + covariance.transpose());
+  store_.ReplaceComponent(view_index, k, comp);
+}
+
 // ---- Update: [G 2.3] in named phases ------------------------------------------------
 
 UpdateStats EnvironmentModel::Update(const Descriptor& y, const Gaussian& estimate,

@@ -464,6 +464,9 @@ class CmlEngine {
   // pose_graph.tracker_follows says. fixed_by: the node (frame) that created the view the
   // current frame was fixed by, if any.
   void UpdatePoseGraph(std::int64_t t, const std::vector<ViewMatch>& matches, FrameStats* stats);
+  // pose_graph.marginal_covariances: view view_index moved with correction c, which
+  // carries its node's marginal covariance; its components at the node take it.
+  void GiveMarginalToComponentsAtTheNode(std::size_t view_index, const NodeCorrection& c);
   void ApplyPoseGraphCorrections(std::vector<NodeCorrection> corrections,
                                  std::optional<std::int64_t> fixed_by, FrameStats* stats);
 

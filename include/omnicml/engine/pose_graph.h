@@ -137,6 +137,12 @@ struct PoseGraphOptions {
   // (docs/results.md "The tracker follows the view it was fixed by").
   enum class TrackerFollows : std::uint8_t { kMatchedView = 0, kNewestNode = 1 };
   TrackerFollows tracker_follows = TrackerFollows::kMatchedView;
+  // After each optimisation, the marginal covariance of every moved node (Ceres'
+  // Covariance over the window, the robust loss applied) goes with its correction, and the
+  // engine gives it to the components of the node's views at the node's place: the graph's
+  // knowledge of where the creator was replaces what the reconstruction left. One sparse
+  // QR of the window per optimisation.
+  bool marginal_covariances = false;
 
   // Throws omnicml::Error naming the first invalid field ("PoseGraphOptions.<field>").
   void Validate() const;
@@ -163,6 +169,7 @@ void VisitFields(V& v, PoseGraphOptions& o) {
     w.NamedEnum("tracker_follows", o.tracker_follows,
                 {{PoseGraphOptions::TrackerFollows::kMatchedView, "matched_view"},
                  {PoseGraphOptions::TrackerFollows::kNewestNode, "newest_node"}});
+    w("marginal_covariances", o.marginal_covariances);
   });
 }
 
@@ -195,6 +202,9 @@ struct NodeCorrection {
   std::int64_t frame = 0;
   Pose2 before = Pose2::Zero();
   Pose2 after = Pose2::Zero();
+  // Marginal covariance of `after` (map frame; m^2, rad^2) when
+  // PoseGraphOptions::marginal_covariances and Ceres could compute it.
+  std::optional<Eigen::Matrix3d> covariance;
 };
 
 // The correction of node `frame` in `corrections` (sorted by frame, as Optimize returns

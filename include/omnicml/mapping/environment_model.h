@@ -138,6 +138,13 @@ class EnvironmentModel {
   // Weights, ids, counters and events are unchanged. Poses in the map frame (m, m, rad).
   // Precondition: view_index < NumViews() (OMNICML_CHECK).
   void MoveViewRigidly(std::size_t view_index, const Pose2& old_anchor, const Pose2& new_anchor);
+  // Sets the covariance of component `k` of view `view_index` (symmetric positive
+  // definite, map frame; m^2, m^2, rad^2); means, weights and the spatial index are
+  // unchanged (the engine's pose graph gives a moved view's component its node's marginal
+  // covariance). Preconditions: view_index < NumViews(), k < the view's components
+  // (OMNICML_CHECK).
+  void SetComponentCovariance(std::size_t view_index, std::size_t k,
+                              const Eigen::Matrix3d& covariance);
 
   std::size_t NumViews() const { return store_.size(); }
   std::size_t NumComponents() const { return store_.NumComponents(); }

@@ -81,6 +81,8 @@ void CmlEngine::GiveMarginalToComponentsAtTheNode(std::size_t view_index, const 
   // ellipse with the marginal added (chi-square, 2 dof); components of the same view
   // elsewhere (aliasing) keep their covariance.
   constexpr double kChi2TwoDof99 = 9.2103;
+  // A marginal Ceres returned that is not positive definite (numerically) is not used.
+  if (!c.covariance->allFinite() || c.covariance->llt().info() != Eigen::Success) return;
   const std::vector<ViewComponent>& components = model_->views()[view_index].components;
   for (std::size_t k = 0; k < components.size(); ++k) {
     const Eigen::Vector2d d = components[k].mean.head<2>() - c.after.head<2>();

@@ -283,6 +283,8 @@ void EnvironmentModel::SetComponentCovariance(std::size_t view_index, std::size_
       << "SetComponentCovariance: no component " << k << " in view " << view_index;
   ViewComponent comp = store_.view(view_index).components[k];
   comp.covariance = 0.5 * (covariance + covariance.transpose());
+  OMNICML_CHECK(comp.covariance.allFinite() && comp.covariance.llt().info() == Eigen::Success)
+      << "SetComponentCovariance: the covariance is not positive definite";
   store_.ReplaceComponent(view_index, k, comp);
 }
 

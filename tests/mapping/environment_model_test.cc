@@ -1262,6 +1262,39 @@ TEST(EnvironmentModel, LookBackStaysInItsSessionAndWindow) {
   EXPECT_EQ(components_of_new_view(0, {1, 0}, {2, 0}), 1u);
 }
 
+// SetComponentCovariance (the pose graph's marginals): the component takes the covariance
+// (symmetrised), its mean and weight and the other views stay, and the model serialises
+// with it; a covariance that is not positive definite is refused (and the component
+// keeps its own).
+TEST(EnvironmentModel, SetComponentCovarianceReplacesOnlyTheCovariance) {
+  auto fx = MakeFakeExtractor(2);
+  EnvironmentModelOptions o = TestOptions();
+  o.forgetting.mode = ForgettingMode::kPassive;
+  EnvironmentModel m(o, fx);
+  m.Update(fx->Make({0, 0}), Est(2, 1, 0.3, 0.1, 0.3, 0.05), {0, 0});
+  m.Update(fx->Make({5, 5}), Est(-4, 3, 0.0), {1, 0});
+  ASSERT_EQ(m.NumViews(), 2u);
+  const ReferenceView before0 = m.views()[0];
+  const ReferenceView before1 = m.views()[1];
+  Eigen::Matrix3d cov;
+  cov << 0.04, 0.01, 0.0, 0.0, 0.02, 0.0, 0.0, 0.0, 0.001;
+  m.SetComponentCovariance(0, 0, cov);
+  const ViewComponent& c = m.views()[0].components.front();
+  EXPECT_NEAR(c.covariance(0, 1), 0.005, kTol);
+  EXPECT_NEAR(c.covariance(1, 0), 0.005, kTol);
+  EXPECT_NEAR(c.covariance(0, 0), 0.04, kTol);
+  EXPECT_NEAR(c.covariance(2, 2), 0.001, kTol);
+  EXPECT_EQ(c.mean, before0.components.front().mean);
+  EXPECT_EQ(c.weight, before0.components.front().weight);
+  EXPECT_EQ(m.views()[1], before1);
+  BinaryWriter w;
+  m.Serialize(w);
+  BinaryReader r(w.bytes(), "model");
+  EXPECT_EQ(EnvironmentModel::Deserialize(r, o, fx).views(), m.views());
+  EXPECT_THROW(m.SetComponentCovariance(0, 0, Eigen::Matrix3d::Zero()), InternalError);
+  EXPECT_EQ(m.views()[0].components.front().covariance(0, 0), 0.04);
+}
+
 // MoveViewRigidly (global pose graph): component means, headings and covariances and
 // the footprint follow the anchor's rigid motion; other views stay; moving back
 // restores the view.

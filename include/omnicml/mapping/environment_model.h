@@ -141,8 +141,9 @@ class EnvironmentModel {
   // Sets the covariance of component `k` of view `view_index` (symmetric positive
   // definite, map frame; m^2, m^2, rad^2); means, weights and the spatial index are
   // unchanged (the engine's pose graph gives a moved view's component its node's marginal
-  // covariance). Preconditions: view_index < NumViews(), k < the view's components
-  // (OMNICML_CHECK).
+  // covariance). Preconditions (OMNICML_CHECK, the component unchanged when one fails):
+  // view_index < NumViews(), k < the view's components, `covariance` finite and positive
+  // definite.
   void SetComponentCovariance(std::size_t view_index, std::size_t k,
                               const Eigen::Matrix3d& covariance);
 

@@ -45,11 +45,12 @@ void CmlEngine::UpdatePoseGraph(std::int64_t t, const std::vector<ViewMatch>& ma
   const auto t0 = std::chrono::steady_clock::now();
   // The best match (matches are sorted by distance, ties by view id).
   const ViewMatch& best = matches.front();
+  const ReferenceView* matched =
+      best.view_index < model_->NumViews() ? &model_->views()[best.view_index] : nullptr;
   std::optional<std::int64_t> fixed_by;
-  if (best.view_index < model_->NumViews())
-    fixed_by = model_->views()[best.view_index].stats.created_frame;
-  if (best.relative_heading_rad && best.view_index < model_->NumViews()) {
-    const ReferenceView& view = model_->views()[best.view_index];
+  if (matched != nullptr) fixed_by = matched->stats.created_frame;
+  if (matched != nullptr && best.relative_heading_rad) {
+    const ReferenceView& view = *matched;
     const PoseGraphOptions& g = options_.pose_graph;
     if (g.closure_model == PoseGraphOptions::ClosureModel::kViewFrame) {
       // The view's panorama was taken at its creator's pose: the current frame is at that

@@ -48,6 +48,39 @@ void PoseGraphOptions::Validate() const {
   if (!(reject_chi2 > 0)) fail("reject_chi2", "> 0", reject_chi2);
 }
 
+namespace {
+
+// Marginal covariance of each free block of `x` in the solved `problem` (Ceres'
+// Covariance, sparse QR, the robust loss applied); nullopt for constant blocks and for
+// every block when the information is rank deficient.
+std::vector<std::optional<Eigen::Matrix3d>> MarginalCovariances(
+    ceres::Problem& problem, std::vector<std::array<double, 3>>* x) {
+  std::vector<std::optional<Eigen::Matrix3d>> out(x->size());
+  std::vector<std::size_t> free;
+  std::vector<std::pair<const double*, const double*>> blocks;
+  for (std::size_t i = 0; i < x->size(); ++i) {
+    double* b = (*x)[i].data();
+    if (!problem.HasParameterBlock(b) || problem.IsParameterBlockConstant(b)) continue;
+    free.push_back(i);
+    blocks.emplace_back(b, b);
+  }
+  ceres::Covariance::Options co;
+  co.algorithm_type = ceres::SPARSE_QR;
+  co.num_threads = 1;
+  co.apply_loss_function = true;
+  ceres::Covariance covariance(co);
+  if (blocks.empty() || !covariance.Compute(blocks, &problem)) return out;
+  for (const std::size_t i : free) {
+    Eigen::Matrix<double, 3, 3, Eigen::RowMajor> c;
+    const double* b = (*x)[i].data();
+    if (covariance.GetCovarianceBlock(b, b, c.data()))
+      out[i] = Eigen::Matrix3d(0.5 * (c + c.transpose()));
+  }
+  return out;
+}
+
+}  // namespace
+
 const NodeCorrection* FindCorrection(const std::vector<NodeCorrection>& corrections,
                                      std::int64_t frame) {
   const auto it =
@@ -200,8 +233,9 @@ std::vector<NodeCorrection> PoseGraph::Optimize(std::int64_t frame) {
   double closure_inflation = 1.0;
   // Where each solve starts: the nodes' poses, or the graduated start's last solution.
   std::vector<std::array<double, 3>> staged;
-  // Marginal covariances of the window's nodes after the last solve (marginal_covariances).
-  std::vector<std::optional<Eigen::Matrix3d>> marginals;
+  // The last solve's problem (its parameter blocks are x and constants), for the
+  // marginal covariances of the final solution.
+  std::unique_ptr<ceres::Problem> last_problem;
   const auto solve = [&]() -> bool {
     if (!staged.empty()) {
       x = staged;
@@ -219,7 +253,8 @@ std::vector<NodeCorrection> PoseGraph::Optimize(std::int64_t frame) {
     };
 
     ceres::Problem::Options problem_options;
-    ceres::Problem problem(problem_options);
+    last_problem = std::make_unique<ceres::Problem>(problem_options);
+    ceres::Problem& problem = *last_problem;
     bool gauge = false;
     // Odometry factors between consecutive nodes of one segment (the first links the
     // window to its constant predecessor).
@@ -269,31 +304,6 @@ std::vector<NodeCorrection> PoseGraph::Optimize(std::int64_t frame) {
     so.minimizer_progress_to_stdout = false;
     ceres::Solver::Summary summary;
     ceres::Solve(so, &problem, &summary);
-    marginals.assign(x.size(), std::nullopt);
-    if (options_.marginal_covariances && closure_inflation == 1.0 && summary.IsSolutionUsable()) {
-      ceres::Covariance::Options co;
-      co.algorithm_type = ceres::SPARSE_QR;
-      co.num_threads = 1;
-      co.apply_loss_function = true;
-      ceres::Covariance covariance(co);
-      std::vector<std::pair<const double*, const double*>> blocks;
-      for (std::size_t i = 0; i < x.size(); ++i) {
-        if (problem.HasParameterBlock(x[i].data()) &&
-            !problem.IsParameterBlockConstant(x[i].data()))
-          blocks.emplace_back(x[i].data(), x[i].data());
-      }
-      // Fails (false) when the window's information is rank deficient: no marginals then.
-      if (!blocks.empty() && covariance.Compute(blocks, &problem)) {
-        for (std::size_t i = 0; i < x.size(); ++i) {
-          if (!problem.HasParameterBlock(x[i].data()) ||
-              problem.IsParameterBlockConstant(x[i].data()))
-            continue;
-          Eigen::Matrix<double, 3, 3, Eigen::RowMajor> c;
-          if (covariance.GetCovarianceBlock(x[i].data(), x[i].data(), c.data()))
-            marginals[i] = Eigen::Matrix3d(0.5 * (c + c.transpose()));
-        }
-      }
-    }
     return summary.IsSolutionUsable();
   };
   optimizations_ += 1;
@@ -360,6 +370,9 @@ std::vector<NodeCorrection> PoseGraph::Optimize(std::int64_t frame) {
     }
   }
   if (!usable) return out;
+  const std::vector<std::optional<Eigen::Matrix3d>> marginals =
+      options_.marginal_covariances ? MarginalCovariances(*last_problem, &x)
+                                    : std::vector<std::optional<Eigen::Matrix3d>>(x.size());
   for (std::size_t i = first; i < nodes_.size(); ++i) {
     const Pose2 after = MakePose(x[i - first][0], x[i - first][1], x[i - first][2]);
     if (after == nodes_[i].pose) continue;

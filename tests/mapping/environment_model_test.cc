@@ -1262,18 +1262,38 @@ TEST(EnvironmentModel, LookBackStaysInItsSessionAndWindow) {
   EXPECT_EQ(components_of_new_view(0, {1, 0}, {2, 0}), 1u);
 }
 
+// The pose graph's map operations: a passive model with two views, one with an
+// anisotropic covariance, and the check that a changed model serialises and reads back to
+// the same views.
+EnvironmentModelOptions PassiveOptions() {
+  EnvironmentModelOptions o = TestOptions();
+  o.forgetting.mode = ForgettingMode::kPassive;
+  return o;
+}
+
+void AddTwoViews(const std::shared_ptr<FakeDescriptorExtractor>& fx, EnvironmentModel* m) {
+  m->Update(fx->Make({0, 0}), Est(2, 1, 0.3, 0.1, 0.3, 0.05), {0, 0});
+  m->Update(fx->Make({5, 5}), Est(-4, 3, 0.0), {1, 0});
+  ASSERT_EQ(m->NumViews(), 2u);
+}
+
+void ExpectReadsBack(const EnvironmentModel& m, const EnvironmentModelOptions& o,
+                     const std::shared_ptr<FakeDescriptorExtractor>& fx) {
+  BinaryWriter w;
+  m.Serialize(w);
+  BinaryReader r(w.bytes(), "model");
+  EXPECT_EQ(EnvironmentModel::Deserialize(r, o, fx).views(), m.views());
+}
+
 // SetComponentCovariance (the pose graph's marginals): the component takes the covariance
 // (symmetrised), its mean and weight and the other views stay, and the model serialises
 // with it; a covariance that is not positive definite is refused (and the component
 // keeps its own).
 TEST(EnvironmentModel, SetComponentCovarianceReplacesOnlyTheCovariance) {
   auto fx = MakeFakeExtractor(2);
-  EnvironmentModelOptions o = TestOptions();
-  o.forgetting.mode = ForgettingMode::kPassive;
+  const EnvironmentModelOptions o = PassiveOptions();
   EnvironmentModel m(o, fx);
-  m.Update(fx->Make({0, 0}), Est(2, 1, 0.3, 0.1, 0.3, 0.05), {0, 0});
-  m.Update(fx->Make({5, 5}), Est(-4, 3, 0.0), {1, 0});
-  ASSERT_EQ(m.NumViews(), 2u);
+  ASSERT_NO_FATAL_FAILURE(AddTwoViews(fx, &m));
   const ReferenceView before0 = m.views()[0];
   const ReferenceView before1 = m.views()[1];
   Eigen::Matrix3d cov;
@@ -1287,10 +1307,7 @@ TEST(EnvironmentModel, SetComponentCovarianceReplacesOnlyTheCovariance) {
   EXPECT_EQ(c.mean, before0.components.front().mean);
   EXPECT_EQ(c.weight, before0.components.front().weight);
   EXPECT_EQ(m.views()[1], before1);
-  BinaryWriter w;
-  m.Serialize(w);
-  BinaryReader r(w.bytes(), "model");
-  EXPECT_EQ(EnvironmentModel::Deserialize(r, o, fx).views(), m.views());
+  ExpectReadsBack(m, o, fx);
   EXPECT_THROW(m.SetComponentCovariance(0, 0, Eigen::Matrix3d::Zero()), InternalError);
   EXPECT_EQ(m.views()[0].components.front().covariance(0, 0), 0.04);
 }
@@ -1300,12 +1317,9 @@ TEST(EnvironmentModel, SetComponentCovarianceReplacesOnlyTheCovariance) {
 // restores the view.
 TEST(EnvironmentModel, MoveViewRigidlyFollowsTheAnchor) {
   auto fx = MakeFakeExtractor(2);
-  EnvironmentModelOptions o = TestOptions();
-  o.forgetting.mode = ForgettingMode::kPassive;
+  const EnvironmentModelOptions o = PassiveOptions();
   EnvironmentModel m(o, fx);
-  m.Update(fx->Make({0, 0}), Est(2, 1, 0.3, 0.1, 0.3, 0.05), {0, 0});
-  m.Update(fx->Make({5, 5}), Est(-4, 3, 0.0), {1, 0});
-  ASSERT_EQ(m.NumViews(), 2u);
+  ASSERT_NO_FATAL_FAILURE(AddTwoViews(fx, &m));
   const ReferenceView before0 = m.views()[0];
   const ReferenceView before1 = m.views()[1];
   // Anchor (1, 1, 0) -> (5, 5, pi/2): the point (2, 1) is 1 m ahead of the anchor, so it
@@ -1327,10 +1341,7 @@ TEST(EnvironmentModel, MoveViewRigidlyFollowsTheAnchor) {
       m.views()[0].components.front().mean.isApprox(before0.components.front().mean, 1e-12));
   EXPECT_TRUE(m.views()[0].footprint.mean.isApprox(before0.footprint.mean, 1e-12));
   // The moved model serialises and reads back to the same views.
-  BinaryWriter w;
-  m.Serialize(w);
-  BinaryReader r(w.bytes(), "model");
-  EXPECT_EQ(EnvironmentModel::Deserialize(r, o, fx).views(), m.views());
+  ExpectReadsBack(m, o, fx);
 }
 
 }  // namespace

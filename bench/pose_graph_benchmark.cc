@@ -7,13 +7,15 @@
 //
 // Fixture: a 285 m rectangular route (store_large's lap length) at 0.2 m per frame,
 // odometry with seeded noise (motion model a1..a4 defaults), one node and one view per
-// frame, 10,000 of them (about 7 laps), built with the same calls. Each benchmark
+// frame (or every view_every-th frame, as when forgetting keeps a fraction of the views),
+// 10,000 frames (about 7 laps), built with the same calls. Each benchmark
 // iteration is one further frame, revisiting the route, whose closure links it to the
 // node one lap earlier at the true pose. Counters: p50_us, p99_us and max_us of the
 // per-frame wall time over the iterations (most frames add a node only; the optimising
 // ones make the tail), views, nodes, closures, optimisations. With marginal_covariances
-// each optimisation also computes the marginal covariance of every window node (Ceres'
-// Covariance, sparse QR) and gives it to the moved view's component.
+// each optimisation also computes the marginal covariance of the window nodes that
+// created a view (Ceres' Covariance, sparse QR; the list CmlEngine passes) and gives it
+// to the moved view's component.
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -55,6 +57,8 @@ struct Fixture {
   Pose2 prev_truth = Pose2::Zero();
   std::int64_t frame = 0;
   Descriptor descriptor;
+  std::vector<std::int64_t> creators;  // frames that created a view, ascending
+  bool marginals = false;
 
   // One frame: odometry, node at the dead-reckoned pose (as a dead-reckoned anchor
   // would be), a view created by it, and (when the graph accepts it) the closure to
@@ -82,12 +86,14 @@ struct Fixture {
       ViewStats st;
       st.created_frame = frame;
       model->AddView(descriptor, {c}, st);
+      creators.push_back(frame);
     }
     std::vector<NodeCorrection> corrections;
     if (frame >= kFramesPerLap) {
       graph->AddClosure(frame - kFramesPerLap, frame, truth,
                         Eigen::Vector3d(0.04, 0.04, 0.01).asDiagonal());
-      if (graph->ShouldOptimize(frame)) corrections = graph->Optimize(frame);
+      if (graph->ShouldOptimize(frame))
+        corrections = graph->Optimize(frame, marginals ? &creators : nullptr);
     }
     ++frame;
     return corrections;
@@ -109,7 +115,7 @@ struct Fixture {
   }
 };
 
-std::unique_ptr<Fixture> MakeFixture(int views, bool marginal_covariances) {
+std::unique_ptr<Fixture> MakeFixture(int frames, bool marginal_covariances, int view_every) {
   auto f = std::make_unique<Fixture>();
   DescriptorOptions d;
   std::shared_ptr<const DescriptorExtractor> extractor = MakeDescriptorExtractor(d);
@@ -121,19 +127,20 @@ std::unique_ptr<Fixture> MakeFixture(int views, bool marginal_covariances) {
   PoseGraphOptions o;
   o.enabled = true;
   o.marginal_covariances = marginal_covariances;
+  f->marginals = marginal_covariances;
   f->graph = std::make_unique<PoseGraph>(o, MotionNoise{}, 1e-6, 1e-6, 1001);
   Gaussian start;
   start.mean = RouteAt(0);
   start.covariance = Eigen::Vector3d(1e-4, 1e-4, 1e-6).asDiagonal();
   f->graph->BeginSession(false, 0, start);
-  for (int i = 0; i < views; ++i) f->MoveViews(f->Step(true));
+  for (int i = 0; i < frames; ++i) f->MoveViews(f->Step(i % view_every == 0));
   f->model->ClearEvents();
   return f;
 }
 
 void BM_PoseGraphPerFrame(benchmark::State& state) {
-  const int views = static_cast<int>(state.range(0));
-  std::unique_ptr<Fixture> f = MakeFixture(views, state.range(1) != 0);
+  std::unique_ptr<Fixture> f = MakeFixture(static_cast<int>(state.range(0)), state.range(1) != 0,
+                                           static_cast<int>(state.range(2)));
   std::vector<double> us;
   for (auto _ : state) {
     const auto t0 = std::chrono::steady_clock::now();
@@ -154,12 +161,14 @@ void BM_PoseGraphPerFrame(benchmark::State& state) {
   state.counters["closures"] = static_cast<double>(f->graph->closures().size());
   state.counters["optimizations"] = static_cast<double>(f->graph->optimizations());
 }
-// 500 frames after the 10k-view fixture: 10 optimisations at the default every 50 frames;
+// 500 frames after the 10k-frame fixture: 10 optimisations at the default every 50 frames;
 // second argument: marginal_covariances (0 off, 1 on: a sparse QR of the window per
-// optimisation, and each moved view's component takes its node's marginal).
+// optimisation, and each moved view's component takes its node's marginal); third: a
+// view every this many frames (1: 10k views; 5: 2k, the map active forgetting keeps).
 BENCHMARK(BM_PoseGraphPerFrame)
-    ->Args({10000, 0})
-    ->Args({10000, 1})
+    ->Args({10000, 0, 1})
+    ->Args({10000, 1, 1})
+    ->Args({10000, 1, 5})
     ->Iterations(500)
     ->Unit(benchmark::kMicrosecond);
 

@@ -273,6 +273,16 @@ bool ApplyMotionCalibration(const Calibration& calibration, CmlEngineOptions* op
   return true;
 }
 
+std::vector<std::array<double, 2>> ClosureOffsetCurve(const Calibration& calibration) {
+  std::vector<std::array<double, 2>> out;
+  for (const CalibrationPoint& p : calibration.curve) {
+    if (!(p.median_path_m > (out.empty() ? 0.0 : out.back()[0]))) continue;
+    out.push_back({p.median_path_m, p.median_distance});
+    if (p.median_distance >= calibration.e_max) break;
+  }
+  return out;
+}
+
 std::string Calibration::ToYaml() const {
   std::ostringstream s;
   s.precision(6);

@@ -289,7 +289,7 @@ void CmlEngine::BeginSession(const SessionInfo& info) {
         pose_graph_->HasUnoptimizedClosures()) {
       // The ending session's last closures, solved while its nodes are still free: from
       // the new session on they are held.
-      ApplyPoseGraphCorrections(pose_graph_->Optimize(next_frame_ - 1), std::nullopt, nullptr);
+      ApplyPoseGraphCorrections(OptimizePoseGraph(next_frame_ - 1), std::nullopt, nullptr);
     }
     std::optional<Gaussian> known;
     if (info.start.mode == SessionStartMode::kKnownPose) known = tracker_.state().front();

@@ -2,6 +2,7 @@
 // graph"): loop closures from appearance matches, optimisation, and moving the map, the
 // queued updates and the tracker with the corrected nodes. Kept apart from
 // cml_engine.cc so the CML pipeline and the graph can change independently.
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstddef>
@@ -52,13 +53,16 @@ void CmlEngine::UpdatePoseGraph(std::int64_t t, const std::vector<ViewMatch>& ma
   if (matched != nullptr && best.relative_heading_rad) {
     const ReferenceView& view = *matched;
     const PoseGraphOptions& g = options_.pose_graph;
+    // How far from the view's place a match this far in appearance lies.
+    const double offset_variance = ClosureOffsetVariance(g.closure_offset_curve, best.distance);
     if (g.closure_model == PoseGraphOptions::ClosureModel::kViewFrame) {
       // The view's panorama was taken at its creator's pose: the current frame is at that
       // place, turned by the relative heading (design.md "Global pose graph").
       const double s = g.closure_sigma_m > 0.0 ? g.closure_sigma_m : options_.appearance_sigma_m;
+      const double v = s * s + offset_variance;
       pose_graph_->AddRelativeClosure(
           view.stats.created_frame, t, MakePose(0.0, 0.0, *best.relative_heading_rad),
-          Eigen::Vector3d(s * s, s * s, g.closure_sigma_rad * g.closure_sigma_rad).asDiagonal());
+          Eigen::Vector3d(v, v, g.closure_sigma_rad * g.closure_sigma_rad).asDiagonal());
     } else {
       // The pose the view says the robot is at, as in p(x|y): its strongest component
       // rotated by the relative heading.
@@ -68,13 +72,27 @@ void CmlEngine::UpdatePoseGraph(std::int64_t t, const std::vector<ViewMatch>& ma
       }
       const Pose2 m = MakePose(strongest->mean.x(), strongest->mean.y(),
                                strongest->mean.z() + *best.relative_heading_rad);
-      pose_graph_->AddClosure(view.stats.created_frame, t, m, strongest->covariance);
+      Eigen::Matrix3d covariance = strongest->covariance;
+      covariance(0, 0) += offset_variance;
+      covariance(1, 1) += offset_variance;
+      pose_graph_->AddClosure(view.stats.created_frame, t, m, covariance);
     }
   }
   if (pose_graph_->ShouldOptimize(t))
-    ApplyPoseGraphCorrections(pose_graph_->Optimize(t), fixed_by, stats);
+    ApplyPoseGraphCorrections(OptimizePoseGraph(t), fixed_by, stats);
   stats->pose_graph_us +=
       std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0).count();
+}
+
+std::vector<NodeCorrection> CmlEngine::OptimizePoseGraph(std::int64_t t) {
+  if (!options_.pose_graph.marginal_covariances) return pose_graph_->Optimize(t);
+  // Marginals are wanted only where a view can take them: at the nodes that created one.
+  std::vector<std::int64_t> creators;
+  creators.reserve(model_->NumViews());
+  for (const ReferenceView& v : model_->views()) creators.push_back(v.stats.created_frame);
+  std::sort(creators.begin(), creators.end());
+  creators.erase(std::unique(creators.begin(), creators.end()), creators.end());
+  return pose_graph_->Optimize(t, &creators);
 }
 
 void CmlEngine::GiveMarginalToComponentsAtTheNode(std::size_t view_index, const NodeCorrection& c) {

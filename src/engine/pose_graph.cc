@@ -6,6 +6,7 @@
 #include <map>
 #include <memory>
 #include <optional>
+#include <string>
 
 #include <ceres/ceres.h>
 #include <Eigen/Cholesky>
@@ -46,21 +47,48 @@ void PoseGraphOptions::Validate() const {
     fail("loss_scale", "finite and > 0", loss_scale);
   if (max_iterations < 1) fail("max_iterations", ">= 1", max_iterations);
   if (!(reject_chi2 > 0)) fail("reject_chi2", "> 0", reject_chi2);
+  double travel = 0.0;
+  for (std::size_t i = 0; i < closure_offset_curve.size(); ++i) {
+    const auto& [m, e] = closure_offset_curve[i];
+    const std::string at = StrCat("closure_offset_curve[", i, "]");
+    if (!std::isfinite(m) || !std::isfinite(e) || e < 0)
+      fail(at.c_str(), "finite with E >= 0", StrCat(m, ", ", e));
+    if (!(m > travel)) fail(at.c_str(), "of travel increasing from 0 m", m);
+    travel = m;
+  }
+}
+
+double ClosureOffsetVariance(const std::vector<std::array<double, 2>>& curve, double e) {
+  if (curve.empty() || !(e > 0)) return 0.0;
+  double m0 = 0.0;
+  double e0 = 0.0;
+  double d = curve.back()[0];
+  for (const auto& [m1, e1] : curve) {
+    if (e1 >= e) {
+      d = e1 > e0 ? m0 + (m1 - m0) * (e - e0) / (e1 - e0) : m1;
+      break;
+    }
+    m0 = m1;
+    e0 = e1;
+  }
+  return 0.25 * d * d;
 }
 
 namespace {
 
-// Marginal covariance of each free block of `x` in the solved `problem` (Ceres'
-// Covariance, sparse QR, the robust loss applied); nullopt for constant blocks and for
-// every block when the information is rank deficient.
+// Marginal covariance of each free block of `x` in the solved `problem` for which
+// `wanted(i)` holds (Ceres' Covariance, sparse QR, the robust loss applied); nullopt for
+// the others, constant blocks, and every block when the information is rank deficient.
+template <typename Wanted>
 std::vector<std::optional<Eigen::Matrix3d>> MarginalCovariances(
-    ceres::Problem& problem, std::vector<std::array<double, 3>>* x) {
+    ceres::Problem& problem, std::vector<std::array<double, 3>>* x, const Wanted& wanted) {
   std::vector<std::optional<Eigen::Matrix3d>> out(x->size());
   std::vector<std::size_t> free;
   std::vector<std::pair<const double*, const double*>> blocks;
   for (std::size_t i = 0; i < x->size(); ++i) {
     double* b = (*x)[i].data();
-    if (!problem.HasParameterBlock(b) || problem.IsParameterBlockConstant(b)) continue;
+    if (!wanted(i) || !problem.HasParameterBlock(b) || problem.IsParameterBlockConstant(b))
+      continue;
     free.push_back(i);
     blocks.emplace_back(b, b);
   }
@@ -209,7 +237,8 @@ bool PoseGraph::ShouldOptimize(std::int64_t frame) const {
   return closure_since_optimize_ && frame - last_optimized_frame_ >= options_.optimize_every_frames;
 }
 
-std::vector<NodeCorrection> PoseGraph::Optimize(std::int64_t frame) {
+std::vector<NodeCorrection> PoseGraph::Optimize(std::int64_t frame,
+                                                const std::vector<std::int64_t>* marginal_frames) {
   closure_since_optimize_ = false;
   last_optimized_frame_ = frame;
   std::vector<NodeCorrection> out;
@@ -370,8 +399,13 @@ std::vector<NodeCorrection> PoseGraph::Optimize(std::int64_t frame) {
     }
   }
   if (!usable) return out;
+  const auto wanted = [&](std::size_t k) {
+    return marginal_frames == nullptr ||
+           std::binary_search(marginal_frames->begin(), marginal_frames->end(),
+                              nodes_[first + k].frame);
+  };
   const std::vector<std::optional<Eigen::Matrix3d>> marginals =
-      options_.marginal_covariances ? MarginalCovariances(*last_problem, &x)
+      options_.marginal_covariances ? MarginalCovariances(*last_problem, &x, wanted)
                                     : std::vector<std::optional<Eigen::Matrix3d>>(x.size());
   for (std::size_t i = first; i < nodes_.size(); ++i) {
     const Pose2 after = MakePose(x[i - first][0], x[i - first][1], x[i - first][2]);

@@ -150,6 +150,13 @@ CmlEngineOptions ResolveNewMapOptions(const OptionOverrides& overrides, const Ru
                       c.loop_frames, " frames): configured values kept"));
     }
   }
+  if (resolved.pose_graph.enabled) {
+    calibrated.pose_graph.closure_offset_curve = ClosureOffsetCurve(c);
+    if (!calibrated.pose_graph.closure_offset_curve.empty()) {
+      add_note(StrCat("closure offsets from the appearance curve up to ",
+                      calibrated.pose_graph.closure_offset_curve.back()[0], " m"));
+    }
+  }
   if (note != nullptr) *note = joined;
   // Explicit values of the configuration file and the flags win over the derived ones.
   return ResolveEngineOptions(overrides, calibrated);

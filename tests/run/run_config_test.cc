@@ -14,6 +14,7 @@
 
 #include "omnicml/common/common.h"
 #include "omnicml/common/file_io.h"
+#include "omnicml/engine/calibration.h"
 #include "omnicml/sim/simulator.h"
 
 namespace omnicml {
@@ -196,6 +197,50 @@ TEST(RunConfig, IdentifiedMotionNoiseUnderExplicitValues) {
   const CmlEngineOptions p = ResolveNewMapOptions(plain, input, &note);
   EXPECT_TRUE(note.empty()) << note;
   EXPECT_TRUE(SameEngineOptions(p, CmlEngineOptions{}));
+}
+
+// With the pose graph on, a calibrated new map's closures get the appearance curve up to
+// e_max (ClosureOffsetCurve); an explicit curve in the configuration wins, even an empty one.
+TEST(RunConfig, PoseGraphClosuresTakeTheAppearanceCurve) {
+  Calibration c;
+  c.e_max = 0.45;
+  c.curve = {{1, 10, 0.2, 0.24}, {2, 10, 0.2, 0.30}, {3, 10, 0.6, 0.46}, {4, 10, 0.8, 0.5}};
+  const std::vector<std::array<double, 2>> expected = {{0.2, 0.24}, {0.6, 0.46}};
+  EXPECT_EQ(ClosureOffsetCurve(c), expected);
+
+  const std::filesystem::path path =
+      std::filesystem::temp_directory_path() /
+      ("omnicml_closure_curve_test_" + std::to_string(::getpid()) + ".yaml");
+  const auto write = [&path](const std::string& yaml) {
+    std::ofstream os(path);
+    os << yaml;
+  };
+  OptionOverrides file;
+  file.config_path = path.string();
+  RunInput input;
+  input.world = "home_store";
+  input.days = 2;
+  input.frames_per_day = 150;
+  input.sim_image = ImageKind::kPanorama;
+  std::string note;
+  write("motion_noise_source: identified\npose_graph: {enabled: true}\n");
+  const CmlEngineOptions o = ResolveNewMapOptions(file, input, &note);
+  EXPECT_NE(note.find("closure offsets from the appearance curve"), std::string::npos) << note;
+  const std::vector<std::array<double, 2>>& curve = o.pose_graph.closure_offset_curve;
+  ASSERT_GE(curve.size(), 2u);
+  for (std::size_t i = 1; i < curve.size(); ++i) EXPECT_GT(curve[i][0], curve[i - 1][0]);
+  for (std::size_t i = 0; i + 1 < curve.size(); ++i)
+    EXPECT_LT(curve[i][1], o.model.retrieval.e_max);
+  EXPECT_NO_THROW(o.pose_graph.Validate());
+
+  write("motion_noise_source: identified\npose_graph: {enabled: true, closure_offset_curve: []}\n");
+  const CmlEngineOptions empty = ResolveNewMapOptions(file, input, &note);
+  EXPECT_TRUE(empty.pose_graph.closure_offset_curve.empty());
+  // Without the graph the options do not carry a curve.
+  write("motion_noise_source: identified\n");
+  const CmlEngineOptions off = ResolveNewMapOptions(file, input, &note);
+  std::filesystem::remove(path);
+  EXPECT_TRUE(off.pose_graph.closure_offset_curve.empty());
 }
 
 // spatial_scale_source: calibrated multiplies the spatial thresholds by the scale measured

@@ -31,6 +31,7 @@
 #ifndef OMNICML_ENGINE_CALIBRATION_H_
 #define OMNICML_ENGINE_CALIBRATION_H_
 
+#include <array>
 #include <string>
 #include <vector>
 
@@ -118,6 +119,12 @@ bool ScaleSpatialThresholds(const Calibration& calibration, CmlEngineOptions* op
 // reconstruction.motion), and rho as appearance_sigma_m = sqrt(rho), when identified;
 // returns whether it was.
 bool ApplyMotionCalibration(const Calibration& calibration, CmlEngineOptions* options);
+
+// The appearance curve as PoseGraphOptions::closure_offset_curve: (median travel m,
+// median E) of calibration.curve up to and including its first point at or beyond
+// e_max (a match's E is at most e_max; later points are not read), points whose travel
+// does not increase skipped. Empty when the curve is.
+std::vector<std::array<double, 2>> ClosureOffsetCurve(const Calibration& calibration);
 
 }  // namespace omnicml
 

@@ -464,6 +464,9 @@ class CmlEngine {
   // pose_graph.tracker_follows says. fixed_by: the node (frame) that created the view the
   // current frame was fixed by, if any.
   void UpdatePoseGraph(std::int64_t t, const std::vector<ViewMatch>& matches, FrameStats* stats);
+  // Optimize at frame t; with pose_graph.marginal_covariances, marginals for the nodes
+  // that created a view in the map.
+  std::vector<NodeCorrection> OptimizePoseGraph(std::int64_t t);
   // pose_graph.marginal_covariances: view view_index moved with correction c, which
   // carries its node's marginal covariance; its components at the node take it.
   void GiveMarginalToComponentsAtTheNode(std::size_t view_index, const NodeCorrection& c);

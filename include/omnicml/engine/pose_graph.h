@@ -39,6 +39,7 @@
 #ifndef OMNICML_ENGINE_POSE_GRAPH_H_
 #define OMNICML_ENGINE_POSE_GRAPH_H_
 
+#include <array>
 #include <cstddef>
 #include <cstdint>
 #include <deque>
@@ -100,6 +101,17 @@ struct PoseGraphOptions {
   // kViewComponent. Standard deviations below 1 mm are raised to 1 mm.
   double closure_sigma_m = 0.0;
   double closure_sigma_rad = 0.05;
+  // How far from a view's place a match of descriptor distance E lies: the first
+  // session's appearance curve, (travel in metres, median descriptor distance E in the
+  // extractor's units) points of increasing travel, from the calibration (run layer:
+  // whenever a new map is calibrated, ClosureOffsetCurve). With it a closure from a
+  // match at distance E gets the position variance (d(E) / 2)^2 added to s^2 (both
+  // closure models), d(E) the travel at which the curve first reaches E (ClosureOffset
+  // Variance): the closure claims the two frames were taken at one place, but a match
+  // that far in appearance is on median d(E) of travel from the view's place; an offset
+  // uniform on a disc of that radius has per-axis variance d^2 / 4, the identification's
+  // rho_0 = (L / 4)^2 at E(L / 2) (docs/design.md "Global pose graph"). Empty: s alone.
+  std::vector<std::array<double, 2>> closure_offset_curve;
   // Cauchy loss scale c on the squared whitened closure residual (dimensionless, in
   // standard deviations, > 0): residuals much beyond c count logarithmically (weight
   // 1 / (1 + s / c^2)). 3.368 = sqrt(11.34), the chi-square 99 % quantile of 3 dof, so a
@@ -137,11 +149,12 @@ struct PoseGraphOptions {
   // (docs/results.md "The tracker follows the view it was fixed by").
   enum class TrackerFollows : std::uint8_t { kMatchedView = 0, kNewestNode = 1 };
   TrackerFollows tracker_follows = TrackerFollows::kMatchedView;
-  // After each optimisation, the marginal covariance of every moved node (Ceres'
-  // Covariance over the window, the robust loss applied) goes with its correction, and the
-  // engine gives it to the components of the node's views at the node's place: the graph's
-  // knowledge of where the creator was replaces what the reconstruction left. One sparse
-  // QR of the window per optimisation.
+  // After each optimisation, the marginal covariance of every moved node that created a
+  // view still in the map (Ceres' Covariance over the window, the robust loss applied)
+  // goes with its correction, and the engine gives it to the components of the node's
+  // views at the node's place: the graph's knowledge of where the creator was replaces
+  // what the reconstruction left. One sparse QR of the window per optimisation and one
+  // back-substitution per requested node.
   bool marginal_covariances = false;
 
   // Throws omnicml::Error naming the first invalid field ("PoseGraphOptions.<field>").
@@ -170,6 +183,7 @@ void VisitFields(V& v, PoseGraphOptions& o) {
                 {{PoseGraphOptions::TrackerFollows::kMatchedView, "matched_view"},
                  {PoseGraphOptions::TrackerFollows::kNewestNode, "newest_node"}});
     w("marginal_covariances", o.marginal_covariances);
+    w("closure_offset_curve", o.closure_offset_curve);
   });
 }
 
@@ -206,6 +220,12 @@ struct NodeCorrection {
   // PoseGraphOptions::marginal_covariances and Ceres could compute it.
   std::optional<Eigen::Matrix3d> covariance;
 };
+
+// (d(E) / 2)^2 in m^2 (PoseGraphOptions::closure_offset_curve): d(E) the travel at which
+// `curve` first reaches descriptor distance e, interpolated linearly from (0 m, E 0)
+// through the points; the last point's travel when the curve never reaches e; 0 for an
+// empty curve or e <= 0.
+double ClosureOffsetVariance(const std::vector<std::array<double, 2>>& curve, double e);
 
 // The correction of node `frame` in `corrections` (sorted by frame, as Optimize returns
 // them); nullptr when that node did not move.
@@ -260,8 +280,12 @@ class PoseGraph {
   bool ShouldOptimize(std::int64_t frame) const;
   // A closure was added since the last optimisation.
   bool HasUnoptimizedClosures() const { return closure_since_optimize_; }
-  // Optimises the window (file comment) and returns the nodes whose pose changed.
-  std::vector<NodeCorrection> Optimize(std::int64_t frame);
+  // Optimises the window (file comment) and returns the nodes whose pose changed. With
+  // marginal_covariances, `marginal_frames` (ascending) names the nodes whose marginal is
+  // wanted (the engine's: the frames that created a view still in the map); the cost of
+  // the covariance grows with their number. nullptr: every free node of the window.
+  std::vector<NodeCorrection> Optimize(std::int64_t frame,
+                                       const std::vector<std::int64_t>* marginal_frames = nullptr);
 
   // The node of `frame`, or null.
   const PoseGraphNode* FindNode(std::int64_t frame) const;

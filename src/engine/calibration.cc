@@ -273,7 +273,7 @@ bool ApplyMotionCalibration(const Calibration& calibration, CmlEngineOptions* op
   return true;
 }
 
-std::vector<std::array<double, 2>> ClosureOffsetCurve(const Calibration& calibration) {
+std::vector<std::array<double, 2>> AppearanceOffsetCurve(const Calibration& calibration) {
   std::vector<std::array<double, 2>> out;
   for (const CalibrationPoint& p : calibration.curve) {
     if (!(p.median_path_m > (out.empty() ? 0.0 : out.back()[0]))) continue;

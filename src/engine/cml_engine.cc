@@ -48,6 +48,16 @@ void CmlEngineOptions::Validate() const {
   nested("reconstruction", [&] { reconstruction.Validate(); });
   nested("pose_graph", [&] { pose_graph.Validate(); });
   nested("gated_matching", [&] { gated_matching.Validate(); });
+  double travel = 0.0;
+  for (std::size_t i = 0; i < appearance_offset_curve.size(); ++i) {
+    const auto& [m, e] = appearance_offset_curve[i];
+    if (!std::isfinite(m) || !std::isfinite(e) || !(e >= 0) || !(m > travel)) {
+      throw Error(StrCat("CmlEngineOptions.appearance_offset_curve[", i,
+                         "] must be finite with travel increasing from > 0 m and E >= 0, got ", m,
+                         ", ", e));
+    }
+    travel = m;
+  }
   if (update_delay_frames < 1) {
     throw Error(
         StrCat("CmlEngineOptions.update_delay_frames must be >= 1, got ", update_delay_frames));
@@ -347,6 +357,36 @@ void CmlEngine::QueueUnimodal(std::int64_t t, const Descriptor& y, const Estimat
   anchor_ = std::make_pair(t, state);
 }
 
+double AppearanceOffsetVariance(const std::vector<std::array<double, 2>>& curve, double e) {
+  if (curve.empty() || !(e > 0)) return 0.0;
+  double m0 = 0.0;
+  double e0 = 0.0;
+  double d = curve.back()[0];
+  for (const auto& [m1, e1] : curve) {
+    if (e1 >= e) {  // e0 < e <= e1
+      d = m0 + (m1 - m0) * (e - e0) / (e1 - e0);
+      break;
+    }
+    m0 = m1;
+    e0 = e1;
+  }
+  return 0.25 * d * d;
+}
+
+void AddAppearanceOffsets(const EnvironmentModel& model, const std::vector<ViewMatch>& matches,
+                          const std::vector<std::array<double, 2>>& curve, Mixture* p_x_y) {
+  if (curve.empty() || p_x_y->empty()) return;
+  std::size_t k = 0;
+  for (const ViewMatch& m : matches) {
+    const double v = AppearanceOffsetVariance(curve, m.distance);
+    const std::size_t n = model.views()[m.view_index].components.size();
+    for (std::size_t j = 0; j < n && k < p_x_y->size(); ++j, ++k) {
+      (*p_x_y)[k].covariance(0, 0) += v;
+      (*p_x_y)[k].covariance(1, 1) += v;
+    }
+  }
+}
+
 void CmlEngine::ShapeHypothesis(double best_similarity, Mixture* p_x_y) const {
   if (p_x_y->empty()) return;
   if (best_similarity < options_.hypothesis_min_similarity) {
@@ -438,8 +478,10 @@ FrameResult CmlEngine::ProcessFrame(const Frame& frame) {
   const GatedMatchingOptions& gm = options_.gated_matching;
   if (gm.enabled && p_x_u.size() == 1 && t % gm.full_search_every_frames != 0 &&
       model_->NumViews() >= static_cast<std::size_t>(gm.min_views)) {
-    const double variance = LargestEigenvalue2(p_x_u[0].covariance.topLeftCorner<2, 2>()) +
-                            options_.appearance_sigma_m * options_.appearance_sigma_m;
+    const double variance =
+        LargestEigenvalue2(p_x_u[0].covariance.topLeftCorner<2, 2>()) +
+        options_.appearance_sigma_m * options_.appearance_sigma_m +
+        AppearanceOffsetVariance(options_.appearance_offset_curve, options_.model.retrieval.e_max);
     const EnvironmentModel::Disc gate{p_x_u[0].mean.x(), p_x_u[0].mean.y(),
                                       gm.gate_sigmas * std::sqrt(variance)};
     matches = model_->FindMatchesNear(y, {gate}, &result.stats.matching_candidates);
@@ -449,6 +491,7 @@ FrameResult CmlEngine::ProcessFrame(const Frame& frame) {
     result.stats.matching_candidates = model_->NumViews();
   }
   Mixture p_x_y = model_->Hypothesis(matches);
+  AddAppearanceOffsets(*model_, matches, options_.appearance_offset_curve, &p_x_y);
   result.stats.num_matches = static_cast<int>(matches.size());
   for (const ViewMatch& m : matches)
     result.stats.best_similarity = std::max(result.stats.best_similarity, m.similarity);

@@ -54,7 +54,8 @@ void CmlEngine::UpdatePoseGraph(std::int64_t t, const std::vector<ViewMatch>& ma
     const ReferenceView& view = *matched;
     const PoseGraphOptions& g = options_.pose_graph;
     // How far from the view's place a match this far in appearance lies.
-    const double offset_variance = ClosureOffsetVariance(g.closure_offset_curve, best.distance);
+    const double offset_variance =
+        AppearanceOffsetVariance(options_.appearance_offset_curve, best.distance);
     if (g.closure_model == PoseGraphOptions::ClosureModel::kViewFrame) {
       // The view's panorama was taken at its creator's pose: the current frame is at that
       // place, turned by the relative heading (design.md "Global pose graph").

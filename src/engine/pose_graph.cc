@@ -47,31 +47,6 @@ void PoseGraphOptions::Validate() const {
     fail("loss_scale", "finite and > 0", loss_scale);
   if (max_iterations < 1) fail("max_iterations", ">= 1", max_iterations);
   if (!(reject_chi2 > 0)) fail("reject_chi2", "> 0", reject_chi2);
-  double travel = 0.0;
-  for (std::size_t i = 0; i < closure_offset_curve.size(); ++i) {
-    const auto& [m, e] = closure_offset_curve[i];
-    const std::string at = StrCat("closure_offset_curve[", i, "]");
-    if (!std::isfinite(m) || !std::isfinite(e) || e < 0)
-      fail(at.c_str(), "finite with E >= 0", StrCat(m, ", ", e));
-    if (!(m > travel)) fail(at.c_str(), "of travel increasing from 0 m", m);
-    travel = m;
-  }
-}
-
-double ClosureOffsetVariance(const std::vector<std::array<double, 2>>& curve, double e) {
-  if (curve.empty() || !(e > 0)) return 0.0;
-  double m0 = 0.0;
-  double e0 = 0.0;
-  double d = curve.back()[0];
-  for (const auto& [m1, e1] : curve) {
-    if (e1 >= e) {
-      d = e1 > e0 ? m0 + (m1 - m0) * (e - e0) / (e1 - e0) : m1;
-      break;
-    }
-    m0 = m1;
-    e0 = e1;
-  }
-  return 0.25 * d * d;
 }
 
 namespace {

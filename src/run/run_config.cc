@@ -113,7 +113,8 @@ CmlEngineOptions ResolveNewMapOptions(const OptionOverrides& overrides, const Ru
   const CmlEngineOptions resolved = ResolveEngineOptions(overrides, base);
   const bool scale = resolved.spatial_scale_source == SpatialScaleSource::kCalibrated;
   const bool identify = resolved.motion_noise_source == MotionNoiseSource::kIdentified;
-  if (!scale && !identify) return resolved;
+  const bool offsets = resolved.appearance_offset_source == AppearanceOffsetSource::kCalibrated;
+  if (!scale && !identify && !offsets) return resolved;
   const std::unique_ptr<FrameSource> source = OpenFrameSource(input);
   // The match length's median over a few hundred frames is stable; the motion noise needs
   // the whole first session's loops.
@@ -150,11 +151,13 @@ CmlEngineOptions ResolveNewMapOptions(const OptionOverrides& overrides, const Ru
                       c.loop_frames, " frames): configured values kept"));
     }
   }
-  if (resolved.pose_graph.enabled) {
-    calibrated.pose_graph.closure_offset_curve = ClosureOffsetCurve(c);
-    if (!calibrated.pose_graph.closure_offset_curve.empty()) {
-      add_note(StrCat("closure offsets from the appearance curve up to ",
-                      calibrated.pose_graph.closure_offset_curve.back()[0], " m"));
+  if (offsets) {
+    calibrated.appearance_offset_curve = AppearanceOffsetCurve(c);
+    if (calibrated.appearance_offset_curve.empty()) {
+      add_note("appearance offsets not measured (no appearance curve): none");
+    } else {
+      add_note(StrCat("appearance offsets from the first session's appearance curve up to ",
+                      calibrated.appearance_offset_curve.back()[0], " m"));
     }
   }
   if (note != nullptr) *note = joined;

@@ -1,8 +1,11 @@
 #include "omnicml/engine/cml_engine.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
+#include <complex>
 #include <cstdint>
+#include <memory>
 #include <random>
 #include <set>
 #include <vector>
@@ -10,6 +13,7 @@
 #include <gtest/gtest.h>
 
 #include "omnicml/common/common.h"
+#include "omnicml/descriptors/descriptor_factory.h"
 #include "omnicml/engine/engine_io.h"
 #include "omnicml/unwrap/omni_unwrapper.h"
 
@@ -183,9 +187,76 @@ TEST(CmlEngineOptions, ValidateNamesField) {
                "gated_matching: full_search_every_frames");
   expect_named([](CmlEngineOptions& o) { o.gated_matching.min_views = -1; },
                "gated_matching: min_views");
+  expect_named(
+      [](CmlEngineOptions& o) {
+        o.appearance_offset_curve = {{0.2, 0.25}, {0.2, 0.3}};
+      },
+      "appearance_offset_curve[1]");
+  expect_named(
+      [](CmlEngineOptions& o) {
+        o.appearance_offset_curve = {{0.2, -0.1}};
+      },
+      "appearance_offset_curve[0]");
   CmlEngineOptions bad_threads;
   bad_threads.threads = 0;
   EXPECT_THROW(CmlEngine{bad_threads}, Error);
+}
+
+// d(E) is read off the appearance curve from (0 m, E 0): exact at its points, linear
+// between them, the first crossing when the curve is not monotone, its last travel beyond
+// it; the variance is (d / 2)^2.
+TEST(AppearanceOffset, VarianceReadsTheAppearanceCurve) {
+  const std::vector<std::array<double, 2>> curve = {
+      {0.2, 0.25}, {0.4, 0.35}, {0.6, 0.30}, {0.8, 0.45}};
+  const auto d_of = [&](double e) { return 2.0 * std::sqrt(AppearanceOffsetVariance(curve, e)); };
+  EXPECT_DOUBLE_EQ(d_of(0.25), 0.2);
+  EXPECT_DOUBLE_EQ(d_of(0.125), 0.1);
+  EXPECT_DOUBLE_EQ(d_of(0.30), 0.3);  // between 0.2 and 0.4, not at the later 0.6
+  // Past the dip: between 0.6 m (E 0.30) and 0.8 m (E 0.45).
+  EXPECT_NEAR(d_of(0.40), 0.6 + 0.2 * (0.10 / 0.15), 1e-12);
+  EXPECT_DOUBLE_EQ(d_of(0.9), 0.8);
+  EXPECT_EQ(AppearanceOffsetVariance(curve, 0.0), 0.0);
+  EXPECT_EQ(AppearanceOffsetVariance({}, 0.3), 0.0);
+}
+
+// p(x|y) widens each view's components by the offset of that view's match, and only them.
+TEST(AppearanceOffset, EachViewsComponentsTakeTheirMatchsOffset) {
+  CmlEngineOptions o;
+  std::shared_ptr<const DescriptorExtractor> extractor = MakeDescriptorExtractor(o.descriptor);
+  EnvironmentModel model(o.model, extractor);
+  Descriptor d;
+  d.kind = DescriptorKind::kFourier;
+  d.features.assign(extractor->FeatureSize(), 0.3f);
+  d.coefficients.assign(extractor->FeatureSize(), std::complex<float>(0.3f, 0.0f));
+  d.panorama_width = 720;
+  const auto component = [](double x) {
+    ViewComponent c;
+    c.weight = 0.5;
+    c.eta = 1.0;
+    c.mean = MakePose(x, 0.0, 0.0);
+    c.covariance = Eigen::Vector3d(0.01, 0.02, 0.001).asDiagonal();
+    return c;
+  };
+  model.AddView(d, {component(0.0), component(1.0)}, ViewStats{});
+  model.AddView(d, {component(5.0)}, ViewStats{});
+  const std::vector<ViewMatch> matches = {{1, model.views()[1].id, 0.1, 0.9, std::nullopt},
+                                          {0, model.views()[0].id, 0.3, 0.5, std::nullopt}};
+  const std::vector<std::array<double, 2>> curve = {{0.4, 0.4}};  // d(E) = E m
+  const Mixture plain = model.Hypothesis(matches);
+  Mixture widened = plain;
+  AddAppearanceOffsets(model, matches, curve, &widened);
+  ASSERT_EQ(widened.size(), 3u);
+  const double v[3] = {0.25 * 0.1 * 0.1, 0.25 * 0.3 * 0.3, 0.25 * 0.3 * 0.3};
+  for (std::size_t k = 0; k < 3; ++k) {
+    EXPECT_NEAR(widened[k].covariance(0, 0) - plain[k].covariance(0, 0), v[k], 1e-15) << k;
+    EXPECT_NEAR(widened[k].covariance(1, 1) - plain[k].covariance(1, 1), v[k], 1e-15) << k;
+    EXPECT_EQ(widened[k].covariance(2, 2), plain[k].covariance(2, 2));
+    EXPECT_EQ(widened[k].covariance(0, 1), plain[k].covariance(0, 1));
+    EXPECT_EQ(widened[k].mean, plain[k].mean);
+  }
+  Mixture unchanged = plain;
+  AddAppearanceOffsets(model, matches, {}, &unchanged);
+  for (std::size_t k = 0; k < 3; ++k) EXPECT_EQ(unchanged[k].covariance, plain[k].covariance);
 }
 
 // Frames before any session are refused.

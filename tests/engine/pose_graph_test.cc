@@ -472,31 +472,6 @@ TEST(PoseGraph, RelativeClosureIsStoredAsGiven) {
   EXPECT_EQ(graph.closures()[1].covariance(0, 0), 1e-6);
 }
 
-// d(E) is read off the appearance curve from (0 m, E 0): exact at its points, linear
-// between them, the first crossing when the curve is not monotone, its last travel beyond
-// it; the variance is (d / 2)^2.
-TEST(PoseGraph, ClosureOffsetVarianceReadsTheAppearanceCurve) {
-  const std::vector<std::array<double, 2>> curve = {
-      {0.2, 0.25}, {0.4, 0.35}, {0.6, 0.30}, {0.8, 0.45}};
-  const auto d_of = [&](double e) { return 2.0 * std::sqrt(ClosureOffsetVariance(curve, e)); };
-  EXPECT_DOUBLE_EQ(d_of(0.25), 0.2);
-  EXPECT_DOUBLE_EQ(d_of(0.125), 0.1);
-  EXPECT_DOUBLE_EQ(d_of(0.30), 0.3);  // between 0.2 and 0.4, not at the later 0.6
-  // Past the dip: between 0.6 m (E 0.30) and 0.8 m (E 0.45).
-  EXPECT_NEAR(d_of(0.40), 0.6 + 0.2 * (0.10 / 0.15), 1e-12);
-  EXPECT_DOUBLE_EQ(d_of(0.9), 0.8);
-  EXPECT_EQ(ClosureOffsetVariance(curve, 0.0), 0.0);
-  EXPECT_EQ(ClosureOffsetVariance({}, 0.3), 0.0);
-  // The options refuse a curve whose travel does not increase or whose E is negative.
-  PoseGraphOptions o;
-  o.closure_offset_curve = curve;
-  EXPECT_NO_THROW(o.Validate());
-  o.closure_offset_curve = {{0.2, 0.25}, {0.2, 0.3}};
-  EXPECT_THROW(o.Validate(), Error);
-  o.closure_offset_curve = {{0.2, -0.1}};
-  EXPECT_THROW(o.Validate(), Error);
-}
-
 // Write/Read restores the graph exactly.
 TEST(PoseGraph, WriteReadRoundTrip) {
   PoseGraph graph(LoopOptions(), MotionNoise{}, 1e-6, 1e-6, 1000);
@@ -666,7 +641,7 @@ TEST(PoseGraphEngine, ClosuresAreRelativeToTheViewsCreator) {
   // runs from 0 to 0.4 m over E 0..1, so the variance lies in [0.04, 0.08], and matches
   // of different distance give different variances.
   CmlEngineOptions curved = o;
-  curved.pose_graph.closure_offset_curve = {{0.4, 1.0}};
+  curved.appearance_offset_curve = {{0.4, 1.0}};
   CmlEngine with_curve(curved);
   RunOutput out_curve;
   Feed(&with_curve, TwoDays(), 0, 1, &out_curve);

@@ -199,18 +199,19 @@ TEST(RunConfig, IdentifiedMotionNoiseUnderExplicitValues) {
   EXPECT_TRUE(SameEngineOptions(p, CmlEngineOptions{}));
 }
 
-// With the pose graph on, a calibrated new map's closures get the appearance curve up to
-// e_max (ClosureOffsetCurve); an explicit curve in the configuration wins, even an empty one.
-TEST(RunConfig, PoseGraphClosuresTakeTheAppearanceCurve) {
+// appearance_offset_source: calibrated gives a new map the first session's appearance
+// curve up to e_max (AppearanceOffsetCurve); an explicit curve in the configuration wins,
+// even an empty one.
+TEST(RunConfig, CalibratedAppearanceOffsetsTakeTheAppearanceCurve) {
   Calibration c;
   c.e_max = 0.45;
   c.curve = {{1, 10, 0.2, 0.24}, {2, 10, 0.2, 0.30}, {3, 10, 0.6, 0.46}, {4, 10, 0.8, 0.5}};
   const std::vector<std::array<double, 2>> expected = {{0.2, 0.24}, {0.6, 0.46}};
-  EXPECT_EQ(ClosureOffsetCurve(c), expected);
+  EXPECT_EQ(AppearanceOffsetCurve(c), expected);
 
   const std::filesystem::path path =
       std::filesystem::temp_directory_path() /
-      ("omnicml_closure_curve_test_" + std::to_string(::getpid()) + ".yaml");
+      ("omnicml_offset_curve_test_" + std::to_string(::getpid()) + ".yaml");
   const auto write = [&path](const std::string& yaml) {
     std::ofstream os(path);
     os << yaml;
@@ -219,28 +220,30 @@ TEST(RunConfig, PoseGraphClosuresTakeTheAppearanceCurve) {
   file.config_path = path.string();
   RunInput input;
   input.world = "home_store";
-  input.days = 2;
+  input.days = 1;
   input.frames_per_day = 150;
   input.sim_image = ImageKind::kPanorama;
   std::string note;
-  write("motion_noise_source: identified\npose_graph: {enabled: true}\n");
+  write("appearance_offset_source: calibrated\n");
   const CmlEngineOptions o = ResolveNewMapOptions(file, input, &note);
-  EXPECT_NE(note.find("closure offsets from the appearance curve"), std::string::npos) << note;
-  const std::vector<std::array<double, 2>>& curve = o.pose_graph.closure_offset_curve;
+  EXPECT_NE(note.find("appearance offsets from the first session's appearance curve"),
+            std::string::npos)
+      << note;
+  const std::vector<std::array<double, 2>>& curve = o.appearance_offset_curve;
   ASSERT_GE(curve.size(), 2u);
   for (std::size_t i = 1; i < curve.size(); ++i) EXPECT_GT(curve[i][0], curve[i - 1][0]);
   for (std::size_t i = 0; i + 1 < curve.size(); ++i)
     EXPECT_LT(curve[i][1], o.model.retrieval.e_max);
-  EXPECT_NO_THROW(o.pose_graph.Validate());
+  EXPECT_GE(curve.back()[1], o.model.retrieval.e_max);
+  EXPECT_NO_THROW(o.Validate());
+  EXPECT_EQ(o.tracker.motion.a1, CmlEngineOptions{}.tracker.motion.a1);  // not asked to identify
 
-  write("motion_noise_source: identified\npose_graph: {enabled: true, closure_offset_curve: []}\n");
-  const CmlEngineOptions empty = ResolveNewMapOptions(file, input, &note);
-  EXPECT_TRUE(empty.pose_graph.closure_offset_curve.empty());
-  // Without the graph the options do not carry a curve.
+  write("appearance_offset_source: calibrated\nappearance_offset_curve: []\n");
+  EXPECT_TRUE(ResolveNewMapOptions(file, input, &note).appearance_offset_curve.empty());
   write("motion_noise_source: identified\n");
   const CmlEngineOptions off = ResolveNewMapOptions(file, input, &note);
   std::filesystem::remove(path);
-  EXPECT_TRUE(off.pose_graph.closure_offset_curve.empty());
+  EXPECT_TRUE(off.appearance_offset_curve.empty());
 }
 
 // spatial_scale_source: calibrated multiplies the spatial thresholds by the scale measured

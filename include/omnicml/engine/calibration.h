@@ -120,11 +120,11 @@ bool ScaleSpatialThresholds(const Calibration& calibration, CmlEngineOptions* op
 // returns whether it was.
 bool ApplyMotionCalibration(const Calibration& calibration, CmlEngineOptions* options);
 
-// The appearance curve as PoseGraphOptions::closure_offset_curve: (median travel m,
+// The appearance curve as CmlEngineOptions::appearance_offset_curve: (median travel m,
 // median E) of calibration.curve up to and including its first point at or beyond
 // e_max (a match's E is at most e_max; later points are not read), points whose travel
 // does not increase skipped. Empty when the curve is.
-std::vector<std::array<double, 2>> ClosureOffsetCurve(const Calibration& calibration);
+std::vector<std::array<double, 2>> AppearanceOffsetCurve(const Calibration& calibration);
 
 }  // namespace omnicml
 

@@ -45,6 +45,7 @@
 #ifndef OMNICML_ENGINE_CML_ENGINE_H_
 #define OMNICML_ENGINE_CML_ENGINE_H_
 
+#include <array>
 #include <chrono>
 #include <cstdint>
 #include <limits>
@@ -84,7 +85,8 @@ namespace omnicml {
 struct GatedMatchingOptions {
   bool enabled = false;
   // Gate radius around the prior's mean: gate_sigmas x sqrt(largest eigenvalue of its xy
-  // covariance + appearance_sigma_m^2) (the spread a match's component gets in p(x|y)).
+  // covariance + appearance_sigma_m^2 + the appearance offset at e_max) (the largest
+  // spread a match's component gets in p(x|y)).
   // Dimensionless, > 0.
   double gate_sigmas = 4.0;
   // Frames, >= 1: every frame index that is a multiple of this searches the whole map.
@@ -122,6 +124,13 @@ enum class MotionNoiseSource { kConfigured, kIdentified };
 // flags still win; a run that loads a map keeps the map's. kConfigured (the default):
 // the thresholds as configured.
 enum class SpatialScaleSource { kConfigured, kCalibrated };
+
+// kCalibrated: at the start of a new map, the run first reads the log's first session and
+// sets appearance_offset_curve to its appearance curve (engine/calibration.h
+// AppearanceOffsetCurve); a curve given explicitly in the configuration file still wins,
+// and a run that loads a map keeps the map's. kConfigured (the default): the curve as
+// configured (empty: none).
+enum class AppearanceOffsetSource { kConfigured, kCalibrated };
 
 struct CmlEngineOptions {
   // Which descriptor and its parameters (descriptor_factory.h).
@@ -192,6 +201,19 @@ struct CmlEngineOptions {
   //  - appearance_sigma_m^2 is added to the x and y variances of every component: a view
   //    matches over a neighbourhood of its place, not only at its exact pose. Metres, >= 0.
   double appearance_sigma_m = 0.5;
+  //  - ... plus the match's appearance offset: with a non-empty appearance_offset_curve,
+  //    (d(E) / 2)^2 is added to the x and y variances of the components of a view
+  //    matched at descriptor distance E (and to a pose-graph closure from it), d(E) the
+  //    travel at which the curve first reaches E (AppearanceOffsetVariance).
+  //    appearance_sigma_m is the spread of the closest matches (the identification's
+  //    loop pairs, E < E(L / 2)); a view still matches up to e_max, and a match that far
+  //    in appearance lies on median d(E) of travel from the view's place. An offset
+  //    uniform on a disc of radius d has per-axis variance d^2 / 4, the identification's
+  //    prior rho_0 = (L / 4)^2 at E(L / 2) (docs/design.md "Appearance offset of a
+  //    match"). The curve: (travel in metres, median descriptor distance E in the
+  //    extractor's units) points, travel increasing from > 0, E >= 0, as the first
+  //    session's calibration measures it (appearance_offset_source). Empty: none.
+  std::vector<std::array<double, 2>> appearance_offset_curve;
   // Global start: the smallest similarity S of the best matching view for p(x|y) to seed
   // the mixture. Dimensionless, in [0, 1].
   double global_seed_min_similarity = 0.3;
@@ -210,6 +232,9 @@ struct CmlEngineOptions {
   // Where the spatial thresholds come from when a run starts a new map
   // (SpatialScaleSource); read by the run layer with the motion noise above.
   SpatialScaleSource spatial_scale_source = SpatialScaleSource::kConfigured;
+  // Where appearance_offset_curve comes from when a run starts a new map
+  // (AppearanceOffsetSource); read by the run layer with the motion noise above.
+  AppearanceOffsetSource appearance_offset_source = AppearanceOffsetSource::kConfigured;
   // With motion_noise_source identified: the degrees of freedom of the Student t refit
   // that gives appearance_sigma_m (MotionNoiseIdentificationOptions::offset_dof; 0 takes
   // it from the Gaussian fit). Finite, >= 0.
@@ -259,8 +284,25 @@ void VisitFields(V& v, CmlEngineOptions& o) {
                  {SpatialScaleSource::kCalibrated, "calibrated"}});
     w("motion_noise_offset_dof", o.motion_noise_offset_dof);
     w("motion_noise_joint_pairs", o.motion_noise_joint_pairs);
+    w("appearance_offset_curve", o.appearance_offset_curve);
+    w.NamedEnum("appearance_offset_source", o.appearance_offset_source,
+                {{AppearanceOffsetSource::kConfigured, "configured"},
+                 {AppearanceOffsetSource::kCalibrated, "calibrated"}});
   });
 }
+
+// (d(E) / 2)^2 in m^2 (CmlEngineOptions::appearance_offset_curve): d(E) the travel at
+// which `curve` first reaches descriptor distance e, interpolated linearly from (0 m,
+// E 0) through the points; the last point's travel when the curve never reaches e; 0
+// for an empty curve or e <= 0.
+double AppearanceOffsetVariance(const std::vector<std::array<double, 2>>& curve, double e);
+
+// Adds each match's appearance offset variance (AppearanceOffsetVariance of its distance)
+// to the x and y variances of its view's components in `p_x_y`, which must be
+// model.Hypothesis(matches) (match order, then component order). Nothing for an empty
+// curve or hypothesis.
+void AddAppearanceOffsets(const EnvironmentModel& model, const std::vector<ViewMatch>& matches,
+                          const std::vector<std::array<double, 2>>& curve, Mixture* p_x_y);
 
 // Timing (microseconds, wall clock) and sizes of one ProcessFrame call.
 struct FrameStats {

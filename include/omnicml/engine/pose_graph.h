@@ -21,12 +21,13 @@
 //             the descriptors' relative heading: z_ct = (0, 0, RelativeHeading(y_t, y_i)),
 //             Sigma = diag(s^2, s^2, s_phi^2), s = closure_sigma_m (0: the engine's
 //             appearance_sigma_m, the spread of a match about the view's place), s_phi =
-//             closure_sigma_rad. kViewComponent: z_ct = Between(x_c, m) with m = (x_ij,
-//             y_ij, wrap(phi_ij + RelativeHeading(y_t, y_i))) from the view's strongest
-//             component j, Sigma with the component's largest xy variance and its
-//             heading variance added. Under a Cauchy loss rho(s) = c^2 log(1 + s / c^2)
-//             of the squared whitened residual, c = loss_scale, so that a false closure
-//             (aliasing) cannot pull the map apart.
+//             closure_sigma_rad; the engine adds the match's appearance offset
+//             (CmlEngineOptions::appearance_offset_curve) to s^2. kViewComponent: z_ct =
+//             Between(x_c, m) with m = (x_ij, y_ij, wrap(phi_ij + RelativeHeading(y_t, y_i))) from
+//             the view's strongest component j, Sigma with the component's largest xy variance and
+//             its heading variance added. Under a Cauchy loss rho(s) = c^2 log(1 + s / c^2) of the
+//             squared whitened residual, c = loss_scale, so that a false closure (aliasing) cannot
+//             pull the map apart.
 // Optimisation (Optimize): Levenberg-Marquardt over the newest window_nodes nodes (older
 // nodes referenced by a factor are held constant); then closures whose squared whitened
 // residual exceeds reject_chi2 are removed and the window is solved again without
@@ -39,7 +40,6 @@
 #ifndef OMNICML_ENGINE_POSE_GRAPH_H_
 #define OMNICML_ENGINE_POSE_GRAPH_H_
 
-#include <array>
 #include <cstddef>
 #include <cstdint>
 #include <deque>
@@ -96,22 +96,13 @@ struct PoseGraphOptions {
   // deviation of the current position about the creator's; 0 takes the engine's
   // appearance_sigma_m (as identified from the log or configured, and scaled with the
   // spatial thresholds), the same neighbourhood a fix gets in p(x|y). kViewComponent:
-  // added to the component's variance (0: nothing added). Heading (radians, > 0): the
+  // added to the component's variance (0: nothing added). Both models also add the
+  // match's appearance offset, as p(x|y) does (CmlEngineOptions::appearance_offset_curve).
+  // Heading (radians, > 0): the
   // relative heading's noise, plus the component's heading variance under
   // kViewComponent. Standard deviations below 1 mm are raised to 1 mm.
   double closure_sigma_m = 0.0;
   double closure_sigma_rad = 0.05;
-  // How far from a view's place a match of descriptor distance E lies: the first
-  // session's appearance curve, (travel in metres, median descriptor distance E in the
-  // extractor's units) points of increasing travel, from the calibration (run layer:
-  // whenever a new map is calibrated, ClosureOffsetCurve). With it a closure from a
-  // match at distance E gets the position variance (d(E) / 2)^2 added to s^2 (both
-  // closure models), d(E) the travel at which the curve first reaches E (ClosureOffset
-  // Variance): the closure claims the two frames were taken at one place, but a match
-  // that far in appearance is on median d(E) of travel from the view's place; an offset
-  // uniform on a disc of that radius has per-axis variance d^2 / 4, the identification's
-  // rho_0 = (L / 4)^2 at E(L / 2) (docs/design.md "Global pose graph"). Empty: s alone.
-  std::vector<std::array<double, 2>> closure_offset_curve;
   // Cauchy loss scale c on the squared whitened closure residual (dimensionless, in
   // standard deviations, > 0): residuals much beyond c count logarithmically (weight
   // 1 / (1 + s / c^2)). 3.368 = sqrt(11.34), the chi-square 99 % quantile of 3 dof, so a
@@ -183,7 +174,6 @@ void VisitFields(V& v, PoseGraphOptions& o) {
                 {{PoseGraphOptions::TrackerFollows::kMatchedView, "matched_view"},
                  {PoseGraphOptions::TrackerFollows::kNewestNode, "newest_node"}});
     w("marginal_covariances", o.marginal_covariances);
-    w("closure_offset_curve", o.closure_offset_curve);
   });
 }
 
@@ -220,12 +210,6 @@ struct NodeCorrection {
   // PoseGraphOptions::marginal_covariances and Ceres could compute it.
   std::optional<Eigen::Matrix3d> covariance;
 };
-
-// (d(E) / 2)^2 in m^2 (PoseGraphOptions::closure_offset_curve): d(E) the travel at which
-// `curve` first reaches descriptor distance e, interpolated linearly from (0 m, E 0)
-// through the points; the last point's travel when the curve never reaches e; 0 for an
-// empty curve or e <= 0.
-double ClosureOffsetVariance(const std::vector<std::array<double, 2>>& curve, double e);
 
 // The correction of node `frame` in `corrections` (sorted by frame, as Optimize returns
 // them); nullptr when that node did not move.

@@ -100,7 +100,9 @@ struct RunInput;  // frame_sources.h
 // under the configuration file and the flags (explicit values win): when they say
 // spatial_scale_source: calibrated, base's spatial thresholds times the
 // calibrated scale (ScaleSpatialThresholds); when they say motion_noise_source:
-// identified, the identified motion noise and appearance_sigma_m (ApplyMotionCalibration).
+// identified, the identified motion noise and appearance_sigma_m (ApplyMotionCalibration);
+// when they say appearance_offset_source: calibrated, the first session's appearance
+// curve as appearance_offset_curve (AppearanceOffsetCurve).
 // *note (if not null) gets one line on what was derived, or "" when nothing was asked.
 // Reads the first session once more (a second FrameSource). Throws omnicml::Error.
 CmlEngineOptions ResolveNewMapOptions(const OptionOverrides& overrides, const RunInput& input,

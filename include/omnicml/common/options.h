@@ -454,7 +454,10 @@ class Randomizer {
       }
     } else if constexpr (std::is_same_v<T, std::string>) {
       f += "_" + std::to_string(rng_() % 1000);
-    } else if constexpr (IsVector<T>::value || IsArray<T>::value) {
+    } else if constexpr (IsVector<T>::value) {
+      if (f.empty()) f.emplace_back();  // an empty list gets one element, changed below
+      for (auto& e : f) Randomize(e, in_matrix);
+    } else if constexpr (IsArray<T>::value) {
       for (auto& e : f) Randomize(e, in_matrix);
     } else if constexpr (EigenFixed<T>) {
       // Matrices keep their zeros (a covariance stays SPD); vectors get all entries.

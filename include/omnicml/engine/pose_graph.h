@@ -22,12 +22,13 @@
 //             Sigma = diag(s^2, s^2, s_phi^2), s = closure_sigma_m (0: the engine's
 //             appearance_sigma_m, the spread of a match about the view's place), s_phi =
 //             closure_sigma_rad; the engine adds the match's appearance offset
-//             (CmlEngineOptions::appearance_offset_curve) to s^2. kViewComponent: z_ct =
-//             Between(x_c, m) with m = (x_ij, y_ij, wrap(phi_ij + RelativeHeading(y_t, y_i))) from
-//             the view's strongest component j, Sigma with the component's largest xy variance and
-//             its heading variance added. Under a Cauchy loss rho(s) = c^2 log(1 + s / c^2) of the
-//             squared whitened residual, c = loss_scale, so that a false closure (aliasing) cannot
-//             pull the map apart.
+//             (CmlEngineOptions::appearance_offset_curve) to s^2. kViewComponent:
+//             z_ct = Between(x_c, m) with m = (x_ij, y_ij, wrap(phi_ij +
+//             RelativeHeading(y_t, y_i))) from the view's strongest component j, Sigma
+//             with the component's largest xy variance and its heading variance added.
+//             Under a Cauchy loss rho(s) = c^2 log(1 + s / c^2) of the squared whitened
+//             residual, c = loss_scale, so that a false closure (aliasing) cannot pull
+//             the map apart.
 // Optimisation (Optimize): Levenberg-Marquardt over the newest window_nodes nodes (older
 // nodes referenced by a factor are held constant); then closures whose squared whitened
 // residual exceeds reject_chi2 are removed and the window is solved again without

@@ -199,6 +199,36 @@ TEST(RunConfig, IdentifiedMotionNoiseUnderExplicitValues) {
   EXPECT_TRUE(SameEngineOptions(p, CmlEngineOptions{}));
 }
 
+// A configuration file in the temporary directory (removed at scope exit) and the
+// overrides that read it.
+class TempConfig {
+ public:
+  explicit TempConfig(const std::string& stem)
+      : path_(std::filesystem::temp_directory_path() /
+              (stem + "_" + std::to_string(::getpid()) + ".yaml")) {
+    overrides.config_path = path_.string();
+  }
+  ~TempConfig() { std::filesystem::remove(path_); }
+  void Write(const std::string& yaml) const {
+    std::ofstream os(path_);
+    os << yaml;
+  }
+  OptionOverrides overrides;
+
+ private:
+  std::filesystem::path path_;
+};
+
+// A simulated panoramic input of `world`.
+RunInput SimulatedInput(const std::string& world, int days, int frames_per_day) {
+  RunInput input;
+  input.world = world;
+  input.days = days;
+  input.frames_per_day = frames_per_day;
+  input.sim_image = ImageKind::kPanorama;
+  return input;
+}
+
 // appearance_offset_source: calibrated gives a new map the first session's appearance
 // curve up to e_max (AppearanceOffsetCurve); an explicit curve in the configuration wins,
 // even an empty one.
@@ -209,23 +239,11 @@ TEST(RunConfig, CalibratedAppearanceOffsetsTakeTheAppearanceCurve) {
   const std::vector<std::array<double, 2>> expected = {{0.2, 0.24}, {0.6, 0.46}};
   EXPECT_EQ(AppearanceOffsetCurve(c), expected);
 
-  const std::filesystem::path path =
-      std::filesystem::temp_directory_path() /
-      ("omnicml_offset_curve_test_" + std::to_string(::getpid()) + ".yaml");
-  const auto write = [&path](const std::string& yaml) {
-    std::ofstream os(path);
-    os << yaml;
-  };
-  OptionOverrides file;
-  file.config_path = path.string();
-  RunInput input;
-  input.world = "home_store";
-  input.days = 1;
-  input.frames_per_day = 150;
-  input.sim_image = ImageKind::kPanorama;
+  TempConfig file("omnicml_offset_curve_test");
+  const RunInput input = SimulatedInput("home_store", 1, 150);
   std::string note;
-  write("appearance_offset_source: calibrated\n");
-  const CmlEngineOptions o = ResolveNewMapOptions(file, input, &note);
+  file.Write("appearance_offset_source: calibrated\n");
+  const CmlEngineOptions o = ResolveNewMapOptions(file.overrides, input, &note);
   EXPECT_NE(note.find("appearance offsets from the first session's appearance curve"),
             std::string::npos)
       << note;
@@ -238,37 +256,23 @@ TEST(RunConfig, CalibratedAppearanceOffsetsTakeTheAppearanceCurve) {
   EXPECT_NO_THROW(o.Validate());
   EXPECT_EQ(o.tracker.motion.a1, CmlEngineOptions{}.tracker.motion.a1);  // not asked to identify
 
-  write("appearance_offset_source: calibrated\nappearance_offset_curve: []\n");
-  EXPECT_TRUE(ResolveNewMapOptions(file, input, &note).appearance_offset_curve.empty());
-  write("motion_noise_source: identified\n");
-  const CmlEngineOptions off = ResolveNewMapOptions(file, input, &note);
-  std::filesystem::remove(path);
-  EXPECT_TRUE(off.appearance_offset_curve.empty());
+  file.Write("appearance_offset_source: calibrated\nappearance_offset_curve: []\n");
+  EXPECT_TRUE(ResolveNewMapOptions(file.overrides, input, &note).appearance_offset_curve.empty());
+  file.Write("motion_noise_source: identified\n");
+  EXPECT_TRUE(ResolveNewMapOptions(file.overrides, input, &note).appearance_offset_curve.empty());
 }
 
 // spatial_scale_source: calibrated multiplies the spatial thresholds by the scale measured
 // on the input: 1 on home_store, where the defaults were measured; 2 on home_store with
 // every length doubled. Explicit values win.
 TEST(RunConfig, CalibratedSpatialThresholdsFollowTheWorldsScale) {
-  const std::filesystem::path path =
-      std::filesystem::temp_directory_path() /
-      ("omnicml_spatial_test_" + std::to_string(::getpid()) + ".yaml");
-  const auto write = [&path](const std::string& yaml) {
-    std::ofstream os(path);
-    os << yaml;
-  };
-  OptionOverrides file;
-  file.config_path = path.string();
-  RunInput input;
-  input.days = 1;
-  input.frames_per_day = 200;
-  input.sim_image = ImageKind::kPanorama;
+  TempConfig file("omnicml_spatial_test");
+  RunInput input = SimulatedInput("home_store", 1, 200);
   std::string note;
   const CmlEngineOptions defaults;
 
-  write("spatial_scale_source: calibrated\n");
-  input.world = "home_store";
-  const CmlEngineOptions same = ResolveNewMapOptions(file, input, &note);
+  file.Write("spatial_scale_source: calibrated\n");
+  const CmlEngineOptions same = ResolveNewMapOptions(file.overrides, input, &note);
   EXPECT_NE(note.find("spatial scale 1 "), std::string::npos) << note;
   CmlEngineOptions calibrated = defaults;
   calibrated.spatial_scale_source = SpatialScaleSource::kCalibrated;
@@ -277,7 +281,7 @@ TEST(RunConfig, CalibratedSpatialThresholdsFollowTheWorldsScale) {
   input.world = (std::filesystem::path(OMNICML_SOURCE_DIR) / "datasets" / "sweeps" / "worlds" /
                  "home_store_x2.yaml")
                     .string();
-  const CmlEngineOptions o = ResolveNewMapOptions(file, input, &note);
+  const CmlEngineOptions o = ResolveNewMapOptions(file.overrides, input, &note);
   EXPECT_NE(note.find("spatial scale 2 "), std::string::npos) << note;
   EXPECT_DOUBLE_EQ(o.appearance_sigma_m, 2 * defaults.appearance_sigma_m);
   EXPECT_DOUBLE_EQ(o.anchor_max_sigma_m, 2 * defaults.anchor_max_sigma_m);
@@ -285,9 +289,8 @@ TEST(RunConfig, CalibratedSpatialThresholdsFollowTheWorldsScale) {
   EXPECT_DOUBLE_EQ(o.model.index.spatial_cell_m, 2 * defaults.model.index.spatial_cell_m);
   EXPECT_EQ(o.tracker.motion.a3, defaults.tracker.motion.a3);  // not asked to identify
 
-  write("spatial_scale_source: calibrated\nmodel: {forgetting: {d_for_m: 0.7}}\n");
-  const CmlEngineOptions f = ResolveNewMapOptions(file, input, &note);
-  std::filesystem::remove(path);
+  file.Write("spatial_scale_source: calibrated\nmodel: {forgetting: {d_for_m: 0.7}}\n");
+  const CmlEngineOptions f = ResolveNewMapOptions(file.overrides, input, &note);
   EXPECT_DOUBLE_EQ(f.model.forgetting.d_for_m, 0.7);  // explicit
   EXPECT_DOUBLE_EQ(f.appearance_sigma_m, 2 * defaults.appearance_sigma_m);
 }

@@ -283,7 +283,7 @@ void EnvironmentModel::SetComponentCovariance(std::size_t view_index, std::size_
       << "SetComponentCovariance: no component " << k << " in view " << view_index;
   ViewComponent comp = store_.view(view_index).components[k];
   comp.covariance = 0.5 * (covariance + covariance.transpose());
-  OMNICML_CHECK(comp.covariance.allFinite() && comp.covariance.llt().info() == Eigen::Success)
+  OMNICML_CHECK(comp.covariance.allFinite() && IsSpd(comp.covariance))
       << "SetComponentCovariance: the covariance is not positive definite";
   store_.ReplaceComponent(view_index, k, comp);
 }

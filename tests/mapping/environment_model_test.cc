@@ -1262,86 +1262,81 @@ TEST(EnvironmentModel, LookBackStaysInItsSessionAndWindow) {
   EXPECT_EQ(components_of_new_view(0, {1, 0}, {2, 0}), 1u);
 }
 
-// The pose graph's map operations: a passive model with two views, one with an
-// anisotropic covariance, and the check that a changed model serialises and reads back to
-// the same views.
-EnvironmentModelOptions PassiveOptions() {
-  EnvironmentModelOptions o = TestOptions();
-  o.forgetting.mode = ForgettingMode::kPassive;
-  return o;
-}
+// The pose graph's map operations, on a passive model with two views (view 0 with an
+// anisotropic covariance) and their state before the operation.
+class PoseGraphMapOps : public ::testing::Test {
+ protected:
+  static EnvironmentModelOptions PassiveOptions() {
+    EnvironmentModelOptions o = TestOptions();
+    o.forgetting.mode = ForgettingMode::kPassive;
+    return o;
+  }
+  void SetUp() override {
+    m_.Update(fx_->Make({0, 0}), Est(2, 1, 0.3, 0.1, 0.3, 0.05), {0, 0});
+    m_.Update(fx_->Make({5, 5}), Est(-4, 3, 0.0), {1, 0});
+    ASSERT_EQ(m_.NumViews(), 2u);
+    before0_ = m_.views()[0];
+    before1_ = m_.views()[1];
+  }
+  // The changed model serialises and reads back to the same views.
+  void ExpectReadsBack() const {
+    BinaryWriter w;
+    m_.Serialize(w);
+    BinaryReader r(w.bytes(), "model");
+    EXPECT_EQ(EnvironmentModel::Deserialize(r, o_, fx_).views(), m_.views());
+  }
 
-void AddTwoViews(const std::shared_ptr<FakeDescriptorExtractor>& fx, EnvironmentModel* m) {
-  m->Update(fx->Make({0, 0}), Est(2, 1, 0.3, 0.1, 0.3, 0.05), {0, 0});
-  m->Update(fx->Make({5, 5}), Est(-4, 3, 0.0), {1, 0});
-  ASSERT_EQ(m->NumViews(), 2u);
-}
-
-void ExpectReadsBack(const EnvironmentModel& m, const EnvironmentModelOptions& o,
-                     const std::shared_ptr<FakeDescriptorExtractor>& fx) {
-  BinaryWriter w;
-  m.Serialize(w);
-  BinaryReader r(w.bytes(), "model");
-  EXPECT_EQ(EnvironmentModel::Deserialize(r, o, fx).views(), m.views());
-}
+  std::shared_ptr<FakeDescriptorExtractor> fx_ = MakeFakeExtractor(2);
+  EnvironmentModelOptions o_ = PassiveOptions();
+  EnvironmentModel m_{o_, fx_};
+  ReferenceView before0_;
+  ReferenceView before1_;
+};
 
 // SetComponentCovariance (the pose graph's marginals): the component takes the covariance
 // (symmetrised), its mean and weight and the other views stay, and the model serialises
 // with it; a covariance that is not positive definite is refused (and the component
 // keeps its own).
-TEST(EnvironmentModel, SetComponentCovarianceReplacesOnlyTheCovariance) {
-  auto fx = MakeFakeExtractor(2);
-  const EnvironmentModelOptions o = PassiveOptions();
-  EnvironmentModel m(o, fx);
-  ASSERT_NO_FATAL_FAILURE(AddTwoViews(fx, &m));
-  const ReferenceView before0 = m.views()[0];
-  const ReferenceView before1 = m.views()[1];
+TEST_F(PoseGraphMapOps, SetComponentCovarianceReplacesOnlyTheCovariance) {
   Eigen::Matrix3d cov;
   cov << 0.04, 0.01, 0.0, 0.0, 0.02, 0.0, 0.0, 0.0, 0.001;
-  m.SetComponentCovariance(0, 0, cov);
-  const ViewComponent& c = m.views()[0].components.front();
+  m_.SetComponentCovariance(0, 0, cov);
+  const ViewComponent& c = m_.views()[0].components.front();
   EXPECT_NEAR(c.covariance(0, 1), 0.005, kTol);
   EXPECT_NEAR(c.covariance(1, 0), 0.005, kTol);
   EXPECT_NEAR(c.covariance(0, 0), 0.04, kTol);
   EXPECT_NEAR(c.covariance(2, 2), 0.001, kTol);
-  EXPECT_EQ(c.mean, before0.components.front().mean);
-  EXPECT_EQ(c.weight, before0.components.front().weight);
-  EXPECT_EQ(m.views()[1], before1);
-  ExpectReadsBack(m, o, fx);
-  EXPECT_THROW(m.SetComponentCovariance(0, 0, Eigen::Matrix3d::Zero()), InternalError);
-  EXPECT_EQ(m.views()[0].components.front().covariance(0, 0), 0.04);
+  EXPECT_EQ(c.mean, before0_.components.front().mean);
+  EXPECT_EQ(c.weight, before0_.components.front().weight);
+  EXPECT_EQ(m_.views()[1], before1_);
+  ExpectReadsBack();
+  EXPECT_THROW(m_.SetComponentCovariance(0, 0, Eigen::Matrix3d::Zero()), InternalError);
+  EXPECT_EQ(m_.views()[0].components.front().covariance(0, 0), 0.04);
 }
 
 // MoveViewRigidly (global pose graph): component means, headings and covariances and
 // the footprint follow the anchor's rigid motion; other views stay; moving back
 // restores the view.
-TEST(EnvironmentModel, MoveViewRigidlyFollowsTheAnchor) {
-  auto fx = MakeFakeExtractor(2);
-  const EnvironmentModelOptions o = PassiveOptions();
-  EnvironmentModel m(o, fx);
-  ASSERT_NO_FATAL_FAILURE(AddTwoViews(fx, &m));
-  const ReferenceView before0 = m.views()[0];
-  const ReferenceView before1 = m.views()[1];
+TEST_F(PoseGraphMapOps, MoveViewRigidlyFollowsTheAnchor) {
   // Anchor (1, 1, 0) -> (5, 5, pi/2): the point (2, 1) is 1 m ahead of the anchor, so it
   // goes to (5, 6); the heading turns by pi/2; x and y variances swap.
-  m.MoveViewRigidly(0, MakePose(1, 1, 0), MakePose(5, 5, kPi / 2));
-  const ViewComponent& c = m.views()[0].components.front();
+  m_.MoveViewRigidly(0, MakePose(1, 1, 0), MakePose(5, 5, kPi / 2));
+  const ViewComponent& c = m_.views()[0].components.front();
   EXPECT_NEAR(c.mean.x(), 5.0, kTol);
   EXPECT_NEAR(c.mean.y(), 6.0, kTol);
   EXPECT_NEAR(c.mean.z(), 0.3 + kPi / 2, kTol);
   EXPECT_NEAR(c.covariance(0, 0), 0.09, kTol);
   EXPECT_NEAR(c.covariance(1, 1), 0.01, kTol);
   EXPECT_NEAR(c.covariance(2, 2), 0.0025, kTol);
-  EXPECT_NEAR(m.views()[0].footprint.mean.x(), 5.0, kTol);
-  EXPECT_NEAR(m.views()[0].footprint.mean.y(), 6.0, kTol);
-  EXPECT_EQ(m.views()[1], before1);
-  EXPECT_EQ(c.weight, before0.components.front().weight);
-  m.MoveViewRigidly(0, MakePose(5, 5, kPi / 2), MakePose(1, 1, 0));
+  EXPECT_NEAR(m_.views()[0].footprint.mean.x(), 5.0, kTol);
+  EXPECT_NEAR(m_.views()[0].footprint.mean.y(), 6.0, kTol);
+  EXPECT_EQ(m_.views()[1], before1_);
+  EXPECT_EQ(c.weight, before0_.components.front().weight);
+  m_.MoveViewRigidly(0, MakePose(5, 5, kPi / 2), MakePose(1, 1, 0));
   EXPECT_TRUE(
-      m.views()[0].components.front().mean.isApprox(before0.components.front().mean, 1e-12));
-  EXPECT_TRUE(m.views()[0].footprint.mean.isApprox(before0.footprint.mean, 1e-12));
-  // The moved model serialises and reads back to the same views.
-  ExpectReadsBack(m, o, fx);
+      m_.views()[0].components.front().mean.isApprox(before0_.components.front().mean, 1e-12));
+  EXPECT_TRUE(m_.views()[0].footprint.mean.isApprox(before0_.footprint.mean, 1e-12));
+  ExpectReadsBack();
 }
 
 }  // namespace

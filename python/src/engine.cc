@@ -141,7 +141,7 @@ MapSnapshot Snapshot(const EnvironmentModel& model) {
   py::array_t<float> features({static_cast<py::ssize_t>(n), static_cast<py::ssize_t>(f)});
   std::vector<std::int64_t> c_view_index;
   std::vector<std::uint64_t> c_view_id, c_id;
-  std::vector<double> c_weight, c_eta, c_mean, c_cov;
+  std::vector<double> c_weight, c_eta, c_mean, c_cov, c_spread;
   for (std::size_t i = 0; i < n; ++i) {
     const ReferenceView& v = views[i];
     view_id[i] = v.id;
@@ -165,6 +165,8 @@ MapSnapshot Snapshot(const EnvironmentModel& model) {
       for (int k = 0; k < 3; ++k) c_mean.push_back(c.mean[k]);
       for (int r = 0; r < 3; ++r)
         for (int k = 0; k < 3; ++k) c_cov.push_back(c.covariance(r, k));
+      for (int r = 0; r < 2; ++r)
+        for (int k = 0; k < 2; ++k) c_spread.push_back(c.spread(r, k));
     }
   }
   s.views["id"] = Vec(view_id);
@@ -184,6 +186,7 @@ MapSnapshot Snapshot(const EnvironmentModel& model) {
   s.components["eta"] = Vec(c_eta);
   s.components["mean"] = Vec(c_mean).reshape({m, py::ssize_t{3}});
   s.components["covariance"] = Vec(c_cov).reshape({m, py::ssize_t{3}, py::ssize_t{3}});
+  s.components["spread"] = Vec(c_spread).reshape({m, py::ssize_t{2}, py::ssize_t{2}});
 
   const auto& events = model.events();
   py::list type, reason;
@@ -380,8 +383,9 @@ void BindEngine(py::module_& m) {
       "A snapshot of the adaptive appearance map as numpy arrays. views: dict of (N,) arrays "
       "(id, created_frame, created_session, observations, last_seen_frame, last_seen_session, "
       "num_components, total_weight) and features (N, F) float32; components: dict of (M,) "
-      "arrays (view_index into the views, view_id, id, weight, eta), mean (M, 3) and covariance "
-      "(M, 3, 3); events: the map's event log (type, frame, session, view_id, component_id, "
+      "arrays (view_index into the views, view_id, id, weight, eta), mean (M, 3), covariance "
+      "(M, 3, 3) and spread (M, 2, 2), the scatter of the positions merged into each; events: the "
+      "map's event log (type, frame, session, view_id, component_id, "
       "position (K, 3), weight, reason).")
       .def_readonly("views", &MapSnapshot::views)
       .def_readonly("components", &MapSnapshot::components)

@@ -6,6 +6,7 @@
 #include <limits>
 #include <utility>
 
+#include <Eigen/Eigenvalues>
 #include <Eigen/LU>
 
 #include "omnicml/common/common.h"
@@ -387,6 +388,30 @@ void AddAppearanceOffsets(const EnvironmentModel& model, const std::vector<ViewM
   }
 }
 
+Eigen::Matrix2d SpreadBeyond(const Eigen::Matrix2d& spread, double floor_m2) {
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d> es(spread);
+  const Eigen::Vector2d excess = (es.eigenvalues().array() - floor_m2).max(0.0);
+  const Eigen::Matrix2d out =
+      es.eigenvectors() * excess.asDiagonal() * es.eigenvectors().transpose();
+  return 0.5 * (out + out.transpose());
+}
+
+void AddSpreadOffsets(const EnvironmentModel& model, const std::vector<ViewMatch>& matches,
+                      double floor_m2, Mixture* p_x_y) {
+  std::size_t k = 0;
+  for (const ViewMatch& m : matches) {
+    for (const ViewComponent& c : model.views()[m.view_index].components) {
+      if (k >= p_x_y->size()) return;
+      (*p_x_y)[k++].covariance.topLeftCorner<2, 2>() += SpreadBeyond(c.spread, floor_m2);
+    }
+  }
+}
+
+double CmlEngine::SpreadFloor() const {
+  // (S2): the identified neighbourhood, which ShapeHypothesis adds to every component.
+  return options_.appearance_sigma_m * options_.appearance_sigma_m;
+}
+
 void CmlEngine::ShapeHypothesis(double best_similarity, Mixture* p_x_y) const {
   if (p_x_y->empty()) return;
   if (best_similarity < options_.hypothesis_min_similarity) {
@@ -492,6 +517,8 @@ FrameResult CmlEngine::ProcessFrame(const Frame& frame) {
   }
   Mixture p_x_y = model_->Hypothesis(matches);
   AddAppearanceOffsets(*model_, matches, options_.appearance_offset_curve, &p_x_y);
+  // docs/design.md (S2).
+  if (options_.appearance_offset_spread) AddSpreadOffsets(*model_, matches, SpreadFloor(), &p_x_y);
   result.stats.num_matches = static_cast<int>(matches.size());
   for (const ViewMatch& m : matches)
     result.stats.best_similarity = std::max(result.stats.best_similarity, m.similarity);

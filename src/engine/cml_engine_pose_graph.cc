@@ -13,6 +13,7 @@
 
 #include "omnicml/common/common.h"
 #include "omnicml/engine/cml_engine.h"
+#include "omnicml/geometry/gaussian_mixture.h"
 
 namespace omnicml {
 namespace {
@@ -60,7 +61,19 @@ void CmlEngine::UpdatePoseGraph(std::int64_t t, const std::vector<ViewMatch>& ma
       // The view's panorama was taken at its creator's pose: the current frame is at that
       // place, turned by the relative heading (design.md "Global pose graph").
       const double s = g.closure_sigma_m > 0.0 ? g.closure_sigma_m : options_.appearance_sigma_m;
-      const double v = s * s + offset_variance;
+      // The footprint's spread is in the map frame and the closure in the creator's:
+      // its largest variance, in every direction.
+      // A component's spread is in the map frame and the closure in the creator's: the
+      // strongest component's largest axis, in every direction.
+      double spread = 0.0;
+      if (options_.appearance_offset_spread) {
+        const ViewComponent* strongest = &view.components.front();
+        for (const ViewComponent& c : view.components) {
+          if (c.weight > strongest->weight) strongest = &c;
+        }
+        spread = LargestEigenvalue2(SpreadBeyond(strongest->spread, SpreadFloor()));
+      }
+      const double v = s * s + offset_variance + spread;
       pose_graph_->AddRelativeClosure(
           view.stats.created_frame, t, MakePose(0.0, 0.0, *best.relative_heading_rad),
           Eigen::Vector3d(v, v, g.closure_sigma_rad * g.closure_sigma_rad).asDiagonal());
@@ -76,6 +89,8 @@ void CmlEngine::UpdatePoseGraph(std::int64_t t, const std::vector<ViewMatch>& ma
       Eigen::Matrix3d covariance = strongest->covariance;
       covariance(0, 0) += offset_variance;
       covariance(1, 1) += offset_variance;
+      if (options_.appearance_offset_spread)
+        covariance.topLeftCorner<2, 2>() += SpreadBeyond(strongest->spread, SpreadFloor());
       pose_graph_->AddClosure(view.stats.created_frame, t, m, covariance);
     }
   }

@@ -38,6 +38,15 @@ ViewComponent Merged(const ViewComponent& keep, const ViewComponent& other,
   ViewComponent out = keep;
   out.covariance = merged.covariance;
   out.mean = merged.mean;
+  // docs/design.md (S1): the spread about the merged mean, by eta shares (how often each
+  // side matched), whatever weights gave the mean.
+  const double eta_total = keep.eta + other.eta;
+  const double share = eta_total > 0 ? other.eta / eta_total : 0.5;
+  const Eigen::Vector2d dk = keep.mean.head<2>() - merged.mean.head<2>();
+  const Eigen::Vector2d d_o = other.mean.head<2>() - merged.mean.head<2>();
+  const Eigen::Matrix2d spread = (1.0 - share) * (keep.spread + dk * dk.transpose()) +
+                                 share * (other.spread + d_o * d_o.transpose());
+  out.spread = 0.5 * (spread + spread.transpose());
   out.eta += other.eta;
   out.weight = std::min(1.0, keep.weight + other.weight);
   return out;
@@ -221,9 +230,11 @@ std::uint64_t EnvironmentModel::AddView(const Descriptor& y, std::vector<ViewCom
     const ViewComponent& c = components[j];
     const bool spd = c.covariance.allFinite() &&
                      c.covariance.isApprox(c.covariance.transpose(), 1e-9) && IsSpd(c.covariance);
-    if (!(c.weight >= 0 && c.weight <= 1) || !(c.eta > 0) || !c.mean.allFinite() || !spd) {
+    if (!(c.weight >= 0 && c.weight <= 1) || !(c.eta > 0) || !c.mean.allFinite() || !spd ||
+        !IsValidSpread(c.spread)) {
       throw Error(StrCat("EnvironmentModel::AddView: component ", j,
-                         " is invalid (weight in [0, 1], eta > 0, finite mean, SPD covariance)"));
+                         " is invalid (weight in [0, 1], eta > 0, finite mean, SPD covariance, "
+                         "symmetric positive semi-definite spread)"));
     }
   }
   ReferenceView v;
@@ -266,6 +277,8 @@ void EnvironmentModel::MoveViewRigidly(std::size_t view_index, const Pose2& old_
     comp.mean = MakePose(xy.x(), xy.y(), comp.mean.z() + dphi);
     const Eigen::Matrix3d cov = j * comp.covariance * j.transpose();
     comp.covariance = 0.5 * (cov + cov.transpose());
+    const Eigen::Matrix2d spread = r * comp.spread * r.transpose();
+    comp.spread = 0.5 * (spread + spread.transpose());
     store_.ReplaceComponent(view_index, k, comp);
   }
   ViewFootprint& footprint = store_.view(view_index).footprint;

@@ -4,7 +4,7 @@
 //   u32 magic "OCEM", u32 version, u8 descriptor kind, u64 feature size,
 //   u64 next view id, u64 next component id,
 //   u64 n, n x View:      u64 id, Descriptor record, ViewStats, Footprint (version >= 2),
-//                         u64 m, m x Component
+//                         u64 m, m x Component (version >= 5: with its spread)
 //   u64 events logged, u64 s, s x (i32 session, 5 x i64 counts)        (version >= 3)
 //   u64 e, e x Event
 //   u64 r, r x RecentUpdate                                           (version >= 4)
@@ -28,7 +28,9 @@ constexpr std::uint32_t kModelMagic = 0x4D45434Fu;  // "OCEM" little-endian
 // their footprints estimated from the components. Version 3 adds the number of events
 // logged and the per-session event counts before the (bounded) event ring; earlier
 // versions rebuild the counts from their complete log. Version 4 adds the look-back's
-// recent updates after the events (none are read from earlier versions).
+// recent updates after the events (none are read from earlier versions). Version 5 adds
+// each component's spread (xx, xy, yy) after its covariance; earlier versions read it as
+// zero.
 constexpr std::uint32_t kModelVersion = EnvironmentModel::kFormatVersion;
 
 // The smallest encoding of each record, from the sizes of its fields: ReadCount's guard,
@@ -87,6 +89,9 @@ void WriteView(BinaryWriter& out, const ReferenceView& v) {
     out.Write(c.eta);
     WritePose(out, c.mean);
     WriteMatrix3(out, c.covariance);
+    out.Write(c.spread(0, 0));
+    out.Write(c.spread(0, 1));
+    out.Write(c.spread(1, 1));
   }
 }
 
@@ -154,7 +159,7 @@ ViewFootprint ReadFootprint(BinaryReader& in, std::uint64_t view_id) {
   return f;
 }
 
-ViewComponent ReadComponent(BinaryReader& in, std::uint64_t view_id) {
+ViewComponent ReadComponent(BinaryReader& in, std::uint32_t version, std::uint64_t view_id) {
   ViewComponent c;
   c.id = in.Read<std::uint64_t>("component id");
   c.weight = in.Read<double>("component weight");
@@ -166,6 +171,16 @@ ViewComponent ReadComponent(BinaryReader& in, std::uint64_t view_id) {
   if (!(c.weight >= 0 && c.weight <= 1) || !(c.eta > 0) || !c.mean.allFinite() || !spd ||
       std::abs(c.mean.z()) > kPi) {
     in.Fail("component", StrCat("component ", c.id, " of view ", view_id, " has invalid values"));
+  }
+  if (version >= 5) {
+    const double xx = in.Read<double>("component spread");
+    const double xy = in.Read<double>("component spread");
+    const double yy = in.Read<double>("component spread");
+    c.spread << xx, xy, xy, yy;
+    if (!IsValidSpread(c.spread)) {
+      in.Fail("component spread",
+              StrCat("component ", c.id, " of view ", view_id, " has an invalid spread"));
+    }
   }
   return c;
 }
@@ -182,7 +197,8 @@ ReferenceView ReadView(BinaryReader& in, std::uint32_t version, const Expected& 
   if (version >= 2) v.footprint = ReadFootprint(in, v.id);
   const std::size_t num_components = in.ReadCount("view components", kComponentBytes);
   if (num_components == 0) in.Fail("view components", StrCat("view ", v.id, " has no components"));
-  for (std::size_t j = 0; j < num_components; ++j) v.components.push_back(ReadComponent(in, v.id));
+  for (std::size_t j = 0; j < num_components; ++j)
+    v.components.push_back(ReadComponent(in, version, v.id));
   if (version < 2) v.footprint = FootprintFromComponents(v.components);
   return v;
 }

@@ -55,6 +55,12 @@ void ViewFootprint::NoteExpected(const UpdateContext& context, bool matched, int
   last_expected_session = context.session;
 }
 
+bool IsValidSpread(const Eigen::Matrix2d& s) {
+  const double scale = s(0, 0) + s(1, 1);
+  return s.allFinite() && s(0, 1) == s(1, 0) && s(0, 0) >= 0 && s(1, 1) >= 0 &&
+         s(0, 1) * s(0, 1) <= s(0, 0) * s(1, 1) + 1e-12 * scale * scale;
+}
+
 ViewFootprint FootprintFromComponents(const std::vector<ViewComponent>& components) {
   ViewFootprint f;
   for (const ViewComponent& c : components) f.Observe(c.mean.x(), c.mean.y(), c.eta);

@@ -670,6 +670,7 @@ nlohmann::ordered_json MapToJson(const CmlEngine& engine, const MapExportOptions
            {"eta", c.eta},
            {"mean", {c.mean.x(), c.mean.y(), c.mean.z()}},
            {"covariance", cov},
+           {"spread", {{c.spread(0, 0), c.spread(0, 1)}, {c.spread(1, 0), c.spread(1, 1)}}},
            {"ellipse",
             {{"major_m", e.major_m}, {"minor_m", e.minor_m}, {"angle_rad", e.angle_rad}}}});
     }

@@ -259,6 +259,63 @@ TEST(AppearanceOffset, EachViewsComponentsTakeTheirMatchsOffset) {
   for (std::size_t k = 0; k < 3; ++k) EXPECT_EQ(unchanged[k].covariance, plain[k].covariance);
 }
 
+// SpreadBeyond keeps the part of a spread beyond the floor along its own axes: an
+// elongated spread keeps its direction, an axis below the floor adds nothing.
+TEST(AppearanceOffset, SpreadBeyondTheFloorAlongItsAxes) {
+  const double a = 0.3;  // the spread's major axis, 0.3 rad from x
+  Eigen::Matrix2d r;
+  r << std::cos(a), -std::sin(a), std::sin(a), std::cos(a);
+  const Eigen::Matrix2d spread = r * Eigen::Vector2d(1.0, 0.04).asDiagonal() * r.transpose();
+  const Eigen::Matrix2d expected = r * Eigen::Vector2d(0.75, 0.0).asDiagonal() * r.transpose();
+  EXPECT_LT((SpreadBeyond(spread, 0.25) - expected).norm(), 1e-12);
+  EXPECT_LT((SpreadBeyond(spread, 0.0) - spread).norm(), 1e-12);
+  EXPECT_EQ(SpreadBeyond(spread, 2.0).norm(), 0.0);
+  EXPECT_EQ(SpreadBeyond(Eigen::Matrix2d::Zero(), 0.0).norm(), 0.0);
+}
+
+// Each matched component takes its own spread beyond the floor in its xy block, and
+// nothing else changes.
+TEST(AppearanceOffset, EachComponentTakesItsOwnSpread) {
+  CmlEngineOptions o;
+  std::shared_ptr<const DescriptorExtractor> extractor = MakeDescriptorExtractor(o.descriptor);
+  EnvironmentModel model(o.model, extractor);
+  Descriptor d;
+  d.kind = DescriptorKind::kFourier;
+  d.features.assign(extractor->FeatureSize(), 0.3f);
+  d.coefficients.assign(extractor->FeatureSize(), std::complex<float>(0.3f, 0.0f));
+  d.panorama_width = 720;
+  const auto component = [](double x, const Eigen::Matrix2d& spread) {
+    ViewComponent c;
+    c.weight = 0.5;
+    c.eta = 1.0;
+    c.mean = MakePose(x, 0.0, 0.0);
+    c.covariance = Eigen::Vector3d(0.01, 0.02, 0.001).asDiagonal();
+    c.spread = spread;
+    return c;
+  };
+  Eigen::Matrix2d along;
+  along << 0.5, 0.1, 0.1, 0.3;
+  model.AddView(d, {component(0.0, along), component(1.0, Eigen::Matrix2d::Zero())}, ViewStats{});
+  model.AddView(d, {component(5.0, 2.0 * along)}, ViewStats{});
+  const std::vector<ViewMatch> matches = {{1, model.views()[1].id, 0.1, 0.9, std::nullopt},
+                                          {0, model.views()[0].id, 0.3, 0.5, std::nullopt}};
+  const Mixture plain = model.Hypothesis(matches);
+  const double floor = 0.05;
+  Mixture widened = plain;
+  AddSpreadOffsets(model, matches, floor, &widened);
+  ASSERT_EQ(widened.size(), 3u);
+  const Eigen::Matrix2d added[3] = {SpreadBeyond(2.0 * along, floor), SpreadBeyond(along, floor),
+                                    Eigen::Matrix2d::Zero()};
+  for (std::size_t k = 0; k < 3; ++k) {
+    const Eigen::Matrix3d diff = widened[k].covariance - plain[k].covariance;
+    EXPECT_LT((diff.topLeftCorner<2, 2>() - added[k]).norm(), 1e-12) << k;
+    EXPECT_EQ(diff.col(2).norm(), 0.0) << k;
+    EXPECT_EQ(diff.row(2).norm(), 0.0) << k;
+    EXPECT_EQ(widened[k].mean, plain[k].mean);
+  }
+  EXPECT_GT(added[0].norm(), 0.0);
+}
+
 // Frames before any session are refused.
 TEST(CmlEngine, ProcessFrameNeedsSession) {
   CmlEngine engine(TestOptions());

@@ -529,6 +529,37 @@ TEST(EnvironmentModel, CovarianceIntersectionMergeDoesNotWidenWithScatter) {
   EXPECT_LT(offset[1], 0.06);
 }
 
+// A component's spread is the scatter of the estimates merged into it about its mean:
+// with equal covariances and one match each (equal eta), covariance intersection keeps
+// the estimates' running average as the mean and the spread is their population
+// covariance, whatever the order of the merges.
+TEST(EnvironmentModel, SpreadIsTheScatterOfTheMergedEstimates) {
+  auto fx = MakeFakeExtractor(2);
+  const Descriptor y = fx->Make({0, 0});
+  EnvironmentModelOptions o = TestOptions();
+  o.update.merge_delta = 25.0;  // every estimate below merges
+  o.update.merge_fusion = MergeFusion::kCovarianceIntersection;
+  EnvironmentModel m(o, fx);
+  std::mt19937 rng(5);
+  std::normal_distribution<double> along(0.0, 0.3), across(0.0, 0.05);
+  std::vector<Eigen::Vector2d> xy;
+  for (std::int64_t t = 0; t < 30; ++t) {
+    xy.emplace_back(1.0 + along(rng), 2.0 + across(rng));
+    m.Update(y, Est(xy.back().x(), xy.back().y(), 0, 0.4, 0.4, 0.05), {t, 0});
+    ASSERT_EQ(m.views()[0].components.size(), 1u);
+  }
+  Eigen::Vector2d mean = Eigen::Vector2d::Zero();
+  for (const Eigen::Vector2d& p : xy) mean += p / static_cast<double>(xy.size());
+  Eigen::Matrix2d scatter = Eigen::Matrix2d::Zero();
+  for (const Eigen::Vector2d& p : xy)
+    scatter += (p - mean) * (p - mean).transpose() / static_cast<double>(xy.size());
+  const ViewComponent& c = m.views()[0].components[0];
+  EXPECT_LT((c.mean.head<2>() - mean).norm(), 1e-9);
+  EXPECT_LT((c.spread - scatter).norm(), 1e-9) << c.spread << "\n" << scatter;
+  EXPECT_GT(c.spread(0, 0), 10.0 * c.spread(1, 1));  // elongated along x, as the draws
+  m.CheckInvariants();
+}
+
 // A component created below w_min survives the Update that created it and is removed
 // by a later Update that leaves it below w_min.
 TEST(EnvironmentModel, NewComponentExemptFromRemovalOnce) {
@@ -1336,6 +1367,26 @@ TEST_F(PoseGraphMapOps, MoveViewRigidlyFollowsTheAnchor) {
   EXPECT_TRUE(
       m_.views()[0].components.front().mean.isApprox(before0_.components.front().mean, 1e-12));
   EXPECT_TRUE(m_.views()[0].footprint.mean.isApprox(before0_.footprint.mean, 1e-12));
+  ExpectReadsBack();
+}
+
+// A component's spread turns with the view (it is a map-frame scatter) and is stored.
+TEST_F(PoseGraphMapOps, MoveViewRigidlyTurnsTheSpread) {
+  ViewComponent c;
+  c.weight = 0.5;
+  c.eta = 2.0;
+  c.mean = MakePose(2, 1, 0);
+  c.covariance = Eigen::Vector3d(0.01, 0.01, 0.001).asDiagonal();
+  c.spread = Eigen::Vector2d(0.2, 0.01).asDiagonal();
+  m_.AddView(fx_->Make({9, 9}), {c}, ViewStats{});
+  ASSERT_EQ(m_.NumViews(), 3u);
+  ExpectReadsBack();
+  m_.MoveViewRigidly(2, MakePose(1, 1, 0), MakePose(5, 5, kPi / 2));
+  const Eigen::Matrix2d& s = m_.views()[2].components.front().spread;
+  EXPECT_NEAR(s(0, 0), 0.01, kTol);
+  EXPECT_NEAR(s(1, 1), 0.2, kTol);
+  EXPECT_NEAR(s(0, 1), 0.0, kTol);
+  EXPECT_EQ(s(0, 1), s(1, 0));
   ExpectReadsBack();
 }
 

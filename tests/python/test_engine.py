@@ -97,6 +97,12 @@ class EngineTest(unittest.TestCase):
         self.assertTrue(np.all(m.views["observations"] >= 1))
         np.testing.assert_allclose(m.components["covariance"],
                                    np.transpose(m.components["covariance"], (0, 2, 1)))
+        # Spreads: symmetric positive semi-definite (2 x 2), not all zero once views merge.
+        spread = m.components["spread"]
+        self.assertEqual(spread.shape, (k, 2, 2))
+        np.testing.assert_array_equal(spread, np.transpose(spread, (0, 2, 1)))
+        self.assertTrue(np.all(np.linalg.eigvalsh(spread) >= -1e-12))
+        self.assertTrue(np.any(spread != 0))
         self.assertEqual(len(m.events["type"]), m.events["frame"].shape[0])
         self.assertIn("view_inserted", set(m.events["type"]))
         # A stored view's own panorama matches it.

@@ -214,6 +214,13 @@ struct CmlEngineOptions {
   //    extractor's units) points, travel increasing from > 0, E >= 0, as the first
   //    session's calibration measures it (appearance_offset_source). Empty: none.
   std::vector<std::array<double, 2>> appearance_offset_curve;
+  //  - ... and, when true, each matched component's spread (ViewComponent::spread, the
+  //    scatter of the positions merged into it) where it exceeds appearance_sigma_m^2
+  //    (per principal axis, SpreadBeyond): a component merged from matches along 3 m of
+  //    aisle says where the view matches, not where in those 3 m the robot stands. Also
+  //    added to a pose-graph closure from the match (its largest axis). docs/design.md
+  //    "Spread of a component".
+  bool appearance_offset_spread = false;
   // Global start: the smallest similarity S of the best matching view for p(x|y) to seed
   // the mixture. Dimensionless, in [0, 1].
   double global_seed_min_similarity = 0.3;
@@ -288,6 +295,7 @@ void VisitFields(V& v, CmlEngineOptions& o) {
     w.NamedEnum("appearance_offset_source", o.appearance_offset_source,
                 {{AppearanceOffsetSource::kConfigured, "configured"},
                  {AppearanceOffsetSource::kCalibrated, "calibrated"}});
+    w("appearance_offset_spread", o.appearance_offset_spread);
   });
 }
 
@@ -303,6 +311,16 @@ double AppearanceOffsetVariance(const std::vector<std::array<double, 2>>& curve,
 // curve or hypothesis.
 void AddAppearanceOffsets(const EnvironmentModel& model, const std::vector<ViewMatch>& matches,
                           const std::vector<std::array<double, 2>>& curve, Mixture* p_x_y);
+
+// The part of a spread (symmetric positive semi-definite, m^2) beyond `floor_m2` along
+// each of its principal axes: V diag(max(lambda_i - floor_m2, 0)) V^T.
+Eigen::Matrix2d SpreadBeyond(const Eigen::Matrix2d& spread, double floor_m2);
+
+// Adds SpreadBeyond(c.spread, floor_m2) of each matched component c to the xy block of its
+// Gaussian in `p_x_y`, which must be model.Hypothesis(matches) (match order, then
+// component order). Nothing for an empty hypothesis.
+void AddSpreadOffsets(const EnvironmentModel& model, const std::vector<ViewMatch>& matches,
+                      double floor_m2, Mixture* p_x_y);
 
 // Timing (microseconds, wall clock) and sizes of one ProcessFrame call.
 struct FrameStats {
@@ -498,6 +516,8 @@ class CmlEngine {
   void PushUpdate(std::int64_t t, std::int64_t frame, int session, const Descriptor& d,
                   const Gaussian& g, bool reconstructed, FrameStats* stats);
   void ShapeHypothesis(double best_similarity, Mixture* p_x_y) const;
+  // The variance a component's spread must exceed to widen p(x|y) (AddSpreadOffsets).
+  double SpreadFloor() const;
   // Sets result->prior, result->appearance_fix and result->stats.nis (see FrameResult).
   void NoteInnovation(const Mixture& p_x_u, const Mixture& p_x_y, FrameResult* result) const;
   // Global pose graph (cml_engine_pose_graph.cc): after the anchor frame t was queued

@@ -62,12 +62,15 @@ namespace omnicml {
 // 13: option descriptor.ifh.normalize_columns.
 // 14: the session camera's model (ring, fisheye, equirectangular), its fields and the
 //    user mask after the ring calibration.
-// Options added since 14 without a format bump are declared Since(15) in their
-// VisitFields: stored only when not default (tracker.fusion).
+// 15: the model section's version 5 (each component's spread) and the options declared
+//    Since(15) in their VisitFields (tracker.fusion, gate_confidence, the motion noise and
+//    spatial scale sources, the pose graph's closure model and marginals, the appearance
+//    offsets, ...). Options added after 15 without a format bump are declared Since(16):
+//    stored only when not default.
 // The model's options keep these flat names in the file (model.e_max, model.forgetting,
 // ...) although YAML and C++ group them in sections (environment_model_options.h
 // FlatModelOptionsValue), so files of every version keep their bytes and load as before.
-inline constexpr std::uint32_t kEngineFormatVersion = 14;
+inline constexpr std::uint32_t kEngineFormatVersion = 15;
 // The 8 magic bytes (including the terminating NUL).
 inline constexpr char kEngineMagic[8] = {'O', 'M', 'N', 'I', 'C', 'M', 'L', '\0'};
 

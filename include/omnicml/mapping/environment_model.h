@@ -124,7 +124,8 @@ class EnvironmentModel {
   // synthetic maps for benchmarks and tests). Component ids are assigned by the model
   // (the given ones are ignored); a kViewInserted event with reason "added" is logged.
   // Throws omnicml::Error on a descriptor of the wrong kind/length, no components, a
-  // weight outside [0, 1], eta <= 0, or a covariance that is not finite and SPD.
+  // weight outside [0, 1], eta <= 0, a covariance that is not finite and SPD, or a
+  // spread that is not finite, symmetric and positive semi-definite.
   // Returns the new view's id.
   std::uint64_t AddView(const Descriptor& y, std::vector<ViewComponent> components,
                         const ViewStats& stats);
@@ -134,7 +135,8 @@ class EnvironmentModel {
   // the rotation, every component mean p becomes new.xy + R(dphi) (p.xy - old.xy) with
   // heading wrap(p.phi + dphi) (the heading relative to the view's panorama turns with
   // the robot), its covariance J C J^T with J = diag(R(dphi), 1), the footprint's mean
-  // moves and its scatter rotates the same way, and the spatial index follows.
+  // moves and its scatter rotates the same way, each component's spread becomes R S R^T,
+  // and the spatial index follows.
   // Weights, ids, counters and events are unchanged. Poses in the map frame (m, m, rad).
   // Precondition: view_index < NumViews() (OMNICML_CHECK).
   void MoveViewRigidly(std::size_t view_index, const Pose2& old_anchor, const Pose2& new_anchor);
@@ -200,7 +202,7 @@ class EnvironmentModel {
                                       std::uint32_t min_version = kOldestFormatVersion);
   // Versions of the serialized model: Serialize writes kFormatVersion; Deserialize reads
   // kOldestFormatVersion..kFormatVersion (see environment_model_io.cc for the layouts).
-  static constexpr std::uint32_t kFormatVersion = 4;
+  static constexpr std::uint32_t kFormatVersion = 5;
   static constexpr std::uint32_t kOldestFormatVersion = 1;
 
   // Checks internal invariants (the store's, the indexes', weights in [0, 1], ids

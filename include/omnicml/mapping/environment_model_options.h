@@ -85,7 +85,8 @@ struct EnvironmentModelOptions {
     // TrackerOptions::delta). Must be >= 0 (0 disables merging). Components are compared
     // in the view's own frame with their stored covariances. A merge sums eta and w (w
     // capped at 1) and takes the weighted mean and covariance (13)-(14), the weights set
-    // by merge_precision_weighted.
+    // by merge_precision_weighted, and the spread about the merged mean by eta shares
+    // (ViewComponent::spread; docs/design.md "Spread of a component", (S1)).
     double merge_delta = 1.0;
     // Weights of the merge (13)-(14): false = [G]'s shares eta_n and eta_m; true = eta
     // times the component's xy precision, eta / sqrt(det C_xy) (1 / sigma^2 for a round

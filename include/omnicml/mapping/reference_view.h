@@ -25,9 +25,19 @@ struct ViewComponent {
   double eta = 0.0;            // eta_ij, accumulated (11) share, dimensionless (> 0)
   Pose2 mean = Pose2::Zero();  // (x_m, y_m) map frame; phi_rad relative to the view's panorama
   Eigen::Matrix3d covariance = Eigen::Matrix3d::Identity();  // SPD, (m^2, m^2, rad^2)
+  // The eta-weighted scatter of the xy of the observations merged into this component
+  // about its mean (m^2, symmetric positive semi-definite; zero for a single observation):
+  // how far from the component's place the robot stood when the view matched it.
+  // `covariance` is the uncertainty of the place itself.
+  Eigen::Matrix2d spread = Eigen::Matrix2d::Zero();
 
   bool operator==(const ViewComponent&) const = default;
 };
+
+// Whether `s` can be a ViewComponent::spread: finite, exactly symmetric, positive
+// semi-definite up to the rounding of the merges that build it (a rank-one spread's
+// determinant may come out a few ulps below zero).
+bool IsValidSpread(const Eigen::Matrix2d& s);
 
 // Per-view counters (frames and sessions as given in UpdateContext).
 struct ViewStats {

@@ -205,7 +205,7 @@ TEST(CmlEngineOptions, ValidateNamesField) {
 // d(E) is read off the appearance curve from (0 m, E 0): exact at its points, linear
 // between them, the first crossing when the curve is not monotone, its last travel beyond
 // it; the variance is (d / 2)^2.
-TEST(AppearanceOffset, VarianceReadsTheAppearanceCurve) {
+TEST(AppearanceOffsetCurve, VarianceReadsTheAppearanceCurve) {
   const std::vector<std::array<double, 2>> curve = {
       {0.2, 0.25}, {0.4, 0.35}, {0.6, 0.30}, {0.8, 0.45}};
   const auto d_of = [&](double e) { return 2.0 * std::sqrt(AppearanceOffsetVariance(curve, e)); };
@@ -219,26 +219,38 @@ TEST(AppearanceOffset, VarianceReadsTheAppearanceCurve) {
   EXPECT_EQ(AppearanceOffsetVariance({}, 0.3), 0.0);
 }
 
-// p(x|y) widens each view's components by the offset of that view's match, and only them.
-TEST(AppearanceOffset, EachViewsComponentsTakeTheirMatchsOffset) {
-  CmlEngineOptions o;
-  std::shared_ptr<const DescriptorExtractor> extractor = MakeDescriptorExtractor(o.descriptor);
-  EnvironmentModel model(o.model, extractor);
-  Descriptor d;
-  d.kind = DescriptorKind::kFourier;
-  d.features.assign(extractor->FeatureSize(), 0.3f);
-  d.coefficients.assign(extractor->FeatureSize(), std::complex<float>(0.3f, 0.0f));
-  d.panorama_width = 720;
-  const auto component = [](double x) {
+// A model with one descriptor for every view, and components with a weight, eta and
+// covariance of their own (the p(x|y) widening tests below).
+class AppearanceOffset : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    d_.kind = DescriptorKind::kFourier;
+    d_.features.assign(extractor_->FeatureSize(), 0.3f);
+    d_.coefficients.assign(extractor_->FeatureSize(), std::complex<float>(0.3f, 0.0f));
+    d_.panorama_width = 720;
+  }
+  static ViewComponent Component(double x,
+                                 const Eigen::Matrix2d& spread = Eigen::Matrix2d::Zero()) {
     ViewComponent c;
     c.weight = 0.5;
     c.eta = 1.0;
     c.mean = MakePose(x, 0.0, 0.0);
     c.covariance = Eigen::Vector3d(0.01, 0.02, 0.001).asDiagonal();
+    c.spread = spread;
     return c;
-  };
-  model.AddView(d, {component(0.0), component(1.0)}, ViewStats{});
-  model.AddView(d, {component(5.0)}, ViewStats{});
+  }
+
+  CmlEngineOptions o_;
+  std::shared_ptr<const DescriptorExtractor> extractor_ = MakeDescriptorExtractor(o_.descriptor);
+  EnvironmentModel model_{o_.model, extractor_};
+  Descriptor d_;
+};
+
+// p(x|y) widens each view's components by the offset of that view's match, and only them.
+TEST_F(AppearanceOffset, EachViewsComponentsTakeTheirMatchsOffset) {
+  EnvironmentModel& model = model_;
+  model.AddView(d_, {Component(0.0), Component(1.0)}, ViewStats{});
+  model.AddView(d_, {Component(5.0)}, ViewStats{});
   const std::vector<ViewMatch> matches = {{1, model.views()[1].id, 0.1, 0.9, std::nullopt},
                                           {0, model.views()[0].id, 0.3, 0.5, std::nullopt}};
   const std::vector<std::array<double, 2>> curve = {{0.4, 0.4}};  // d(E) = E m
@@ -261,7 +273,7 @@ TEST(AppearanceOffset, EachViewsComponentsTakeTheirMatchsOffset) {
 
 // SpreadBeyond keeps the part of a spread beyond the floor along its own axes: an
 // elongated spread keeps its direction, an axis below the floor adds nothing.
-TEST(AppearanceOffset, SpreadBeyondTheFloorAlongItsAxes) {
+TEST(AppearanceOffsetSpread, SpreadBeyondTheFloorAlongItsAxes) {
   const double a = 0.3;  // the spread's major axis, 0.3 rad from x
   Eigen::Matrix2d r;
   r << std::cos(a), -std::sin(a), std::sin(a), std::cos(a);
@@ -275,28 +287,12 @@ TEST(AppearanceOffset, SpreadBeyondTheFloorAlongItsAxes) {
 
 // Each matched component takes its own spread beyond the floor in its xy block, and
 // nothing else changes.
-TEST(AppearanceOffset, EachComponentTakesItsOwnSpread) {
-  CmlEngineOptions o;
-  std::shared_ptr<const DescriptorExtractor> extractor = MakeDescriptorExtractor(o.descriptor);
-  EnvironmentModel model(o.model, extractor);
-  Descriptor d;
-  d.kind = DescriptorKind::kFourier;
-  d.features.assign(extractor->FeatureSize(), 0.3f);
-  d.coefficients.assign(extractor->FeatureSize(), std::complex<float>(0.3f, 0.0f));
-  d.panorama_width = 720;
-  const auto component = [](double x, const Eigen::Matrix2d& spread) {
-    ViewComponent c;
-    c.weight = 0.5;
-    c.eta = 1.0;
-    c.mean = MakePose(x, 0.0, 0.0);
-    c.covariance = Eigen::Vector3d(0.01, 0.02, 0.001).asDiagonal();
-    c.spread = spread;
-    return c;
-  };
+TEST_F(AppearanceOffset, EachComponentTakesItsOwnSpread) {
+  EnvironmentModel& model = model_;
   Eigen::Matrix2d along;
   along << 0.5, 0.1, 0.1, 0.3;
-  model.AddView(d, {component(0.0, along), component(1.0, Eigen::Matrix2d::Zero())}, ViewStats{});
-  model.AddView(d, {component(5.0, 2.0 * along)}, ViewStats{});
+  model.AddView(d_, {Component(0.0, along), Component(1.0)}, ViewStats{});
+  model.AddView(d_, {Component(5.0, 2.0 * along)}, ViewStats{});
   const std::vector<ViewMatch> matches = {{1, model.views()[1].id, 0.1, 0.9, std::nullopt},
                                           {0, model.views()[0].id, 0.3, 0.5, std::nullopt}};
   const Mixture plain = model.Hypothesis(matches);

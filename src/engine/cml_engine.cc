@@ -388,21 +388,24 @@ void AddAppearanceOffsets(const EnvironmentModel& model, const std::vector<ViewM
   }
 }
 
-Eigen::Matrix2d SpreadBeyond(const Eigen::Matrix2d& spread, double floor_m2) {
-  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d> es(spread);
-  const Eigen::Vector2d excess = (es.eigenvalues().array() - floor_m2).max(0.0);
+Eigen::Matrix2d SpreadBeyond(const Eigen::Matrix2d& spread, const Eigen::Matrix2d& floor) {
+  const Eigen::Matrix2d d = spread - floor;
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d> es(0.5 * (d + d.transpose()));
+  const Eigen::Vector2d excess = es.eigenvalues().cwiseMax(0.0);
   const Eigen::Matrix2d out =
       es.eigenvectors() * excess.asDiagonal() * es.eigenvectors().transpose();
   return 0.5 * (out + out.transpose());
 }
 
 void AddSpreadOffsets(const EnvironmentModel& model, const std::vector<ViewMatch>& matches,
-                      double floor_m2, Mixture* p_x_y) {
+                      double neighbourhood_m2, Mixture* p_x_y) {
+  const Eigen::Matrix2d neighbourhood = neighbourhood_m2 * Eigen::Matrix2d::Identity();
   std::size_t k = 0;
   for (const ViewMatch& m : matches) {
     for (const ViewComponent& c : model.views()[m.view_index].components) {
       if (k >= p_x_y->size()) return;
-      (*p_x_y)[k++].covariance.topLeftCorner<2, 2>() += SpreadBeyond(c.spread, floor_m2);
+      (*p_x_y)[k++].covariance.topLeftCorner<2, 2>() +=
+          SpreadBeyond(c.spread - c.covariance.topLeftCorner<2, 2>(), neighbourhood);
     }
   }
 }

@@ -61,17 +61,17 @@ void CmlEngine::UpdatePoseGraph(std::int64_t t, const std::vector<ViewMatch>& ma
       // The view's panorama was taken at its creator's pose: the current frame is at that
       // place, turned by the relative heading (design.md "Global pose graph").
       const double s = g.closure_sigma_m > 0.0 ? g.closure_sigma_m : options_.appearance_sigma_m;
-      // The footprint's spread is in the map frame and the closure in the creator's:
-      // its largest variance, in every direction.
       // A component's spread is in the map frame and the closure in the creator's: the
-      // strongest component's largest axis, in every direction.
+      // strongest component's largest axis beyond the neighbourhood, in every direction
+      // (the closure holds no component covariance that could explain part of it).
       double spread = 0.0;
       if (options_.appearance_offset_spread) {
         const ViewComponent* strongest = &view.components.front();
         for (const ViewComponent& c : view.components) {
           if (c.weight > strongest->weight) strongest = &c;
         }
-        spread = LargestEigenvalue2(SpreadBeyond(strongest->spread, SpreadFloor()));
+        spread = LargestEigenvalue2(
+            SpreadBeyond(strongest->spread, SpreadFloor() * Eigen::Matrix2d::Identity()));
       }
       const double v = s * s + offset_variance + spread;
       pose_graph_->AddRelativeClosure(
@@ -90,7 +90,9 @@ void CmlEngine::UpdatePoseGraph(std::int64_t t, const std::vector<ViewMatch>& ma
       covariance(0, 0) += offset_variance;
       covariance(1, 1) += offset_variance;
       if (options_.appearance_offset_spread)
-        covariance.topLeftCorner<2, 2>() += SpreadBeyond(strongest->spread, SpreadFloor());
+        covariance.topLeftCorner<2, 2>() +=
+            SpreadBeyond(strongest->spread, strongest->covariance.topLeftCorner<2, 2>() +
+                                                SpreadFloor() * Eigen::Matrix2d::Identity());
       pose_graph_->AddClosure(view.stats.created_frame, t, m, covariance);
     }
   }

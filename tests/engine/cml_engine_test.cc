@@ -271,22 +271,26 @@ TEST_F(AppearanceOffset, EachViewsComponentsTakeTheirMatchsOffset) {
   for (std::size_t k = 0; k < 3; ++k) EXPECT_EQ(unchanged[k].covariance, plain[k].covariance);
 }
 
-// SpreadBeyond keeps the part of a spread beyond the floor along its own axes: an
-// elongated spread keeps its direction, an axis below the floor adds nothing.
+// SpreadBeyond keeps the part of a spread the floor does not explain, along its own axes:
+// an elongated spread keeps its direction, an axis the floor covers adds nothing.
 TEST(AppearanceOffsetSpread, SpreadBeyondTheFloorAlongItsAxes) {
   const double a = 0.3;  // the spread's major axis, 0.3 rad from x
   Eigen::Matrix2d r;
   r << std::cos(a), -std::sin(a), std::sin(a), std::cos(a);
-  const Eigen::Matrix2d spread = r * Eigen::Vector2d(1.0, 0.04).asDiagonal() * r.transpose();
-  const Eigen::Matrix2d expected = r * Eigen::Vector2d(0.75, 0.0).asDiagonal() * r.transpose();
-  EXPECT_LT((SpreadBeyond(spread, 0.25) - expected).norm(), 1e-12);
-  EXPECT_LT((SpreadBeyond(spread, 0.0) - spread).norm(), 1e-12);
-  EXPECT_EQ(SpreadBeyond(spread, 2.0).norm(), 0.0);
-  EXPECT_EQ(SpreadBeyond(Eigen::Matrix2d::Zero(), 0.0).norm(), 0.0);
+  const auto along_axes = [&](double major, double minor) {
+    return Eigen::Matrix2d(r * Eigen::Vector2d(major, minor).asDiagonal() * r.transpose());
+  };
+  const Eigen::Matrix2d spread = along_axes(1.0, 0.04);
+  const Eigen::Matrix2d id = Eigen::Matrix2d::Identity();
+  EXPECT_LT((SpreadBeyond(spread, 0.25 * id) - along_axes(0.75, 0.0)).norm(), 1e-12);
+  EXPECT_LT((SpreadBeyond(spread, Eigen::Matrix2d::Zero()) - spread).norm(), 1e-12);
+  EXPECT_LT((SpreadBeyond(spread, along_axes(0.5, 0.5)) - along_axes(0.5, 0.0)).norm(), 1e-12);
+  EXPECT_LT(SpreadBeyond(spread, 2.0 * id).norm(), 1e-15);
+  EXPECT_EQ(SpreadBeyond(Eigen::Matrix2d::Zero(), Eigen::Matrix2d::Zero()).norm(), 0.0);
 }
 
-// Each matched component takes its own spread beyond the floor in its xy block, and
-// nothing else changes.
+// Each matched component takes the part of its own spread that its covariance and the
+// neighbourhood do not explain, in its xy block, and nothing else changes.
 TEST_F(AppearanceOffset, EachComponentTakesItsOwnSpread) {
   EnvironmentModel& model = model_;
   Eigen::Matrix2d along;
@@ -296,12 +300,12 @@ TEST_F(AppearanceOffset, EachComponentTakesItsOwnSpread) {
   const std::vector<ViewMatch> matches = {{1, model.views()[1].id, 0.1, 0.9, std::nullopt},
                                           {0, model.views()[0].id, 0.3, 0.5, std::nullopt}};
   const Mixture plain = model.Hypothesis(matches);
-  const double floor = 0.05;
   Mixture widened = plain;
-  AddSpreadOffsets(model, matches, floor, &widened);
+  AddSpreadOffsets(model, matches, 0.05, &widened);
   ASSERT_EQ(widened.size(), 3u);
-  const Eigen::Matrix2d added[3] = {SpreadBeyond(2.0 * along, floor), SpreadBeyond(along, floor),
-                                    Eigen::Matrix2d::Zero()};
+  // Floor: C_xy = diag(0.01, 0.02) plus 0.05 m^2; both spreads exceed it on both axes.
+  const Eigen::Matrix2d floor = Eigen::Vector2d(0.06, 0.07).asDiagonal();
+  const Eigen::Matrix2d added[3] = {2.0 * along - floor, along - floor, Eigen::Matrix2d::Zero()};
   for (std::size_t k = 0; k < 3; ++k) {
     const Eigen::Matrix3d diff = widened[k].covariance - plain[k].covariance;
     EXPECT_LT((diff.topLeftCorner<2, 2>() - added[k]).norm(), 1e-12) << k;
@@ -309,7 +313,6 @@ TEST_F(AppearanceOffset, EachComponentTakesItsOwnSpread) {
     EXPECT_EQ(diff.row(2).norm(), 0.0) << k;
     EXPECT_EQ(widened[k].mean, plain[k].mean);
   }
-  EXPECT_GT(added[0].norm(), 0.0);
 }
 
 // Frames before any session are refused.

@@ -214,12 +214,12 @@ struct CmlEngineOptions {
   //    extractor's units) points, travel increasing from > 0, E >= 0, as the first
   //    session's calibration measures it (appearance_offset_source). Empty: none.
   std::vector<std::array<double, 2>> appearance_offset_curve;
-  //  - ... and, when true, each matched component's spread (ViewComponent::spread, the
-  //    scatter of the positions merged into it) where it exceeds appearance_sigma_m^2
-  //    (per principal axis, SpreadBeyond): a component merged from matches along 3 m of
-  //    aisle says where the view matches, not where in those 3 m the robot stands. Also
-  //    added to a pose-graph closure from the match (its largest axis). docs/design.md
-  //    "Spread of a component".
+  //  - ... and, when true, the part of each matched component's spread
+  //    (ViewComponent::spread, the scatter of the positions merged into it) that neither
+  //    its own covariance nor appearance_sigma_m^2 explains (per principal axis,
+  //    SpreadBeyond): a component merged from matches along 3 m of aisle says where the
+  //    view matches, not where in those 3 m the robot stands. Also added to a pose-graph
+  //    closure from the match (its largest axis). docs/design.md "Spread of a component".
   bool appearance_offset_spread = false;
   // Global start: the smallest similarity S of the best matching view for p(x|y) to seed
   // the mixture. Dimensionless, in [0, 1].
@@ -312,15 +312,17 @@ double AppearanceOffsetVariance(const std::vector<std::array<double, 2>>& curve,
 void AddAppearanceOffsets(const EnvironmentModel& model, const std::vector<ViewMatch>& matches,
                           const std::vector<std::array<double, 2>>& curve, Mixture* p_x_y);
 
-// The part of a spread (symmetric positive semi-definite, m^2) beyond `floor_m2` along
-// each of its principal axes: V diag(max(lambda_i - floor_m2, 0)) V^T.
-Eigen::Matrix2d SpreadBeyond(const Eigen::Matrix2d& spread, double floor_m2);
+// The part of a spread (symmetric positive semi-definite, m^2) that `floor` (symmetric,
+// m^2) does not explain: the positive part V diag(max(l_i, 0)) V^T of spread - floor =
+// V diag(l) V^T.
+Eigen::Matrix2d SpreadBeyond(const Eigen::Matrix2d& spread, const Eigen::Matrix2d& floor);
 
-// Adds SpreadBeyond(c.spread, floor_m2) of each matched component c to the xy block of its
-// Gaussian in `p_x_y`, which must be model.Hypothesis(matches) (match order, then
-// component order). Nothing for an empty hypothesis.
+// docs/design.md (S2): adds SpreadBeyond(c.spread, C_xy + neighbourhood_m2 I) of each
+// matched component c (C its covariance) to the xy block of its Gaussian in `p_x_y`, which
+// must be model.Hypothesis(matches) (match order, then component order). Nothing for an
+// empty hypothesis.
 void AddSpreadOffsets(const EnvironmentModel& model, const std::vector<ViewMatch>& matches,
-                      double floor_m2, Mixture* p_x_y);
+                      double neighbourhood_m2, Mixture* p_x_y);
 
 // Timing (microseconds, wall clock) and sizes of one ProcessFrame call.
 struct FrameStats {

@@ -1370,7 +1370,8 @@ TEST_F(PoseGraphMapOps, MoveViewRigidlyFollowsTheAnchor) {
   ExpectReadsBack();
 }
 
-// A component's spread turns with the view (it is a map-frame scatter) and is stored.
+// A component's spread turns with the view (it is a map-frame scatter) and is stored; a
+// spread that is not positive semi-definite is refused.
 TEST_F(PoseGraphMapOps, MoveViewRigidlyTurnsTheSpread) {
   ViewComponent c;
   c.weight = 0.5;
@@ -1378,6 +1379,9 @@ TEST_F(PoseGraphMapOps, MoveViewRigidlyTurnsTheSpread) {
   c.mean = MakePose(2, 1, 0);
   c.covariance = Eigen::Vector3d(0.01, 0.01, 0.001).asDiagonal();
   c.spread = Eigen::Vector2d(0.2, 0.01).asDiagonal();
+  ViewComponent indefinite = c;
+  indefinite.spread << 0.1, 0.5, 0.5, 0.1;  // eigenvalues 0.6 and -0.4
+  EXPECT_THROW(m_.AddView(fx_->Make({9, 9}), {indefinite}, ViewStats{}), Error);
   m_.AddView(fx_->Make({9, 9}), {c}, ViewStats{});
   ASSERT_EQ(m_.NumViews(), 3u);
   ExpectReadsBack();

@@ -518,7 +518,8 @@ class CmlEngine {
   void PushUpdate(std::int64_t t, std::int64_t frame, int session, const Descriptor& d,
                   const Gaussian& g, bool reconstructed, FrameStats* stats);
   void ShapeHypothesis(double best_similarity, Mixture* p_x_y) const;
-  // The variance a component's spread must exceed to widen p(x|y) (AddSpreadOffsets).
+  // The appearance neighbourhood's variance (m^2) that, with a component's own covariance,
+  // explains part of its spread (AddSpreadOffsets, docs/design.md (S2)).
   double SpreadFloor() const;
   // Sets result->prior, result->appearance_fix and result->stats.nis (see FrameResult).
   void NoteInnovation(const Mixture& p_x_u, const Mixture& p_x_y, FrameResult* result) const;

@@ -39,6 +39,15 @@ Gaussian MoveRigidly(const Gaussian& g, const Pose2& before, const Pose2& after)
   return out;
 }
 
+// The view's component of largest weight (the first of equal ones).
+const ViewComponent& StrongestOf(const ReferenceView& view) {
+  const ViewComponent* strongest = &view.components.front();
+  for (const ViewComponent& c : view.components) {
+    if (c.weight > strongest->weight) strongest = &c;
+  }
+  return *strongest;
+}
+
 }  // namespace
 
 void CmlEngine::UpdatePoseGraph(std::int64_t t, const std::vector<ViewMatch>& matches,
@@ -64,15 +73,11 @@ void CmlEngine::UpdatePoseGraph(std::int64_t t, const std::vector<ViewMatch>& ma
       // A component's spread is in the map frame and the closure in the creator's: the
       // strongest component's largest axis beyond the neighbourhood, in every direction
       // (the closure holds no component covariance that could explain part of it).
-      double spread = 0.0;
-      if (options_.appearance_offset_spread) {
-        const ViewComponent* strongest = &view.components.front();
-        for (const ViewComponent& c : view.components) {
-          if (c.weight > strongest->weight) strongest = &c;
-        }
-        spread = LargestEigenvalue2(
-            SpreadBeyond(strongest->spread, SpreadFloor() * Eigen::Matrix2d::Identity()));
-      }
+      const double spread =
+          options_.appearance_offset_spread
+              ? LargestEigenvalue2(SpreadBeyond(StrongestOf(view).spread,
+                                                SpreadFloor() * Eigen::Matrix2d::Identity()))
+              : 0.0;
       const double v = s * s + offset_variance + spread;
       pose_graph_->AddRelativeClosure(
           view.stats.created_frame, t, MakePose(0.0, 0.0, *best.relative_heading_rad),
@@ -80,19 +85,17 @@ void CmlEngine::UpdatePoseGraph(std::int64_t t, const std::vector<ViewMatch>& ma
     } else {
       // The pose the view says the robot is at, as in p(x|y): its strongest component
       // rotated by the relative heading.
-      const ViewComponent* strongest = &view.components.front();
-      for (const ViewComponent& c : view.components) {
-        if (c.weight > strongest->weight) strongest = &c;
-      }
-      const Pose2 m = MakePose(strongest->mean.x(), strongest->mean.y(),
-                               strongest->mean.z() + *best.relative_heading_rad);
-      Eigen::Matrix3d covariance = strongest->covariance;
+      const ViewComponent& strongest = StrongestOf(view);
+      const Pose2 m = MakePose(strongest.mean.x(), strongest.mean.y(),
+                               strongest.mean.z() + *best.relative_heading_rad);
+      Eigen::Matrix3d covariance = strongest.covariance;
       covariance(0, 0) += offset_variance;
       covariance(1, 1) += offset_variance;
+      // (S2), computed as AddSpreadOffsets does for p(x|y).
       if (options_.appearance_offset_spread)
         covariance.topLeftCorner<2, 2>() +=
-            SpreadBeyond(strongest->spread, strongest->covariance.topLeftCorner<2, 2>() +
-                                                SpreadFloor() * Eigen::Matrix2d::Identity());
+            SpreadBeyond(strongest.spread - strongest.covariance.topLeftCorner<2, 2>(),
+                         SpreadFloor() * Eigen::Matrix2d::Identity());
       pose_graph_->AddClosure(view.stats.created_frame, t, m, covariance);
     }
   }

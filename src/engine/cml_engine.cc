@@ -397,15 +397,18 @@ Eigen::Matrix2d SpreadBeyond(const Eigen::Matrix2d& spread, const Eigen::Matrix2
   return 0.5 * (out + out.transpose());
 }
 
+Eigen::Matrix2d SpreadExcess(const ViewComponent& c, double neighbourhood_m2) {
+  return SpreadBeyond(c.spread - c.covariance.topLeftCorner<2, 2>(),
+                      neighbourhood_m2 * Eigen::Matrix2d::Identity());
+}
+
 void AddSpreadOffsets(const EnvironmentModel& model, const std::vector<ViewMatch>& matches,
                       double neighbourhood_m2, Mixture* p_x_y) {
-  const Eigen::Matrix2d neighbourhood = neighbourhood_m2 * Eigen::Matrix2d::Identity();
   std::size_t k = 0;
   for (const ViewMatch& m : matches) {
     for (const ViewComponent& c : model.views()[m.view_index].components) {
       if (k >= p_x_y->size()) return;
-      (*p_x_y)[k++].covariance.topLeftCorner<2, 2>() +=
-          SpreadBeyond(c.spread - c.covariance.topLeftCorner<2, 2>(), neighbourhood);
+      (*p_x_y)[k++].covariance.topLeftCorner<2, 2>() += SpreadExcess(c, neighbourhood_m2);
     }
   }
 }

@@ -91,11 +91,9 @@ void CmlEngine::UpdatePoseGraph(std::int64_t t, const std::vector<ViewMatch>& ma
       Eigen::Matrix3d covariance = strongest.covariance;
       covariance(0, 0) += offset_variance;
       covariance(1, 1) += offset_variance;
-      // (S2), computed as AddSpreadOffsets does for p(x|y).
+      // (S2), as p(x|y) takes it.
       if (options_.appearance_offset_spread)
-        covariance.topLeftCorner<2, 2>() +=
-            SpreadBeyond(strongest.spread - strongest.covariance.topLeftCorner<2, 2>(),
-                         SpreadFloor() * Eigen::Matrix2d::Identity());
+        covariance.topLeftCorner<2, 2>() += SpreadExcess(strongest, SpreadFloor());
       pose_graph_->AddClosure(view.stats.created_frame, t, m, covariance);
     }
   }

@@ -289,6 +289,19 @@ TEST(AppearanceOffsetSpread, SpreadBeyondTheFloorAlongItsAxes) {
   EXPECT_EQ(SpreadBeyond(Eigen::Matrix2d::Zero(), Eigen::Matrix2d::Zero()).norm(), 0.0);
 }
 
+// SpreadExcess: the spread beyond the component's own covariance plus the neighbourhood,
+// along the spread's axes (the covariance is isotropic here, so the floor is too).
+TEST(AppearanceOffsetSpread, SpreadExcessIsBeyondCovarianceAndNeighbourhood) {
+  ViewComponent c;
+  c.spread << 1.0, 0.0, 0.0, 0.09;
+  c.covariance = Eigen::Vector3d(0.04, 0.04, 0.01).asDiagonal();
+  const Eigen::Matrix2d excess = SpreadExcess(c, 0.01);
+  EXPECT_NEAR(excess(0, 0), 1.0 - 0.04 - 0.01, 1e-12);
+  EXPECT_NEAR(excess(1, 1), 0.09 - 0.04 - 0.01, 1e-12);
+  EXPECT_NEAR(excess(0, 1), 0.0, 1e-12);
+  EXPECT_LT(SpreadExcess(c, 1.0).norm(), 1e-15);  // the neighbourhood covers the spread
+}
+
 // Each matched component takes the part of its own spread that its covariance and the
 // neighbourhood do not explain, in its xy block, and nothing else changes.
 TEST_F(AppearanceOffset, EachComponentTakesItsOwnSpread) {

@@ -317,10 +317,15 @@ void AddAppearanceOffsets(const EnvironmentModel& model, const std::vector<ViewM
 // V diag(l) V^T.
 Eigen::Matrix2d SpreadBeyond(const Eigen::Matrix2d& spread, const Eigen::Matrix2d& floor);
 
-// docs/design.md (S2): adds SpreadBeyond(c.spread, C_xy + neighbourhood_m2 I) of each
-// matched component c (C its covariance) to the xy block of its Gaussian in `p_x_y`, which
-// must be model.Hypothesis(matches) (match order, then component order). Nothing for an
-// empty hypothesis.
+// docs/design.md (S2): the part of component c's spread that neither its covariance C nor
+// the appearance neighbourhood (neighbourhood_m2 I, m^2) explains,
+// SpreadBeyond(c.spread - C_xy, neighbourhood_m2 I) (m^2, symmetric positive
+// semi-definite).
+Eigen::Matrix2d SpreadExcess(const ViewComponent& c, double neighbourhood_m2);
+
+// Adds SpreadExcess(c, neighbourhood_m2) of each matched component c to the xy block of
+// its Gaussian in `p_x_y`, which must be model.Hypothesis(matches) (match order, then
+// component order). Nothing for an empty hypothesis.
 void AddSpreadOffsets(const EnvironmentModel& model, const std::vector<ViewMatch>& matches,
                       double neighbourhood_m2, Mixture* p_x_y);
 

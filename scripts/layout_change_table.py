@@ -14,9 +14,10 @@ markdown tables for docs/results.md "Layout changes":
 
 With --curve-svg PATH it also writes the curve itself: static, passive and active mean
 error over days 2..N against the intensity (mean over seeds solid, worst seed dashed)
-beside the map size at the end (mean over seeds).
+beside the map size at the end (mean over seeds). A sweep of several configurations needs
+--config NAME (the configuration file's name without .yaml): the tables are of one.
 
-Usage: scripts/layout_change_table.py SWEEP_DIR [--curve-svg PATH]
+Usage: scripts/layout_change_table.py SWEEP_DIR [--config NAME] [--curve-svg PATH]
 """
 import csv
 import math
@@ -84,9 +85,18 @@ def write_curve(path, inputs, summary):
 def main() -> int:
     args = sys.argv[1:]
     curve = None
-    if len(args) == 3 and args[1] == "--curve-svg":
-        curve = args[2]
-        args = args[:1]
+    config = None
+    for flag in ("--curve-svg", "--config"):
+        if flag in args[1:]:
+            i = args.index(flag, 1)
+            if i + 1 >= len(args):
+                print(f"{flag}: missing value", file=sys.stderr)
+                return 2
+            if flag == "--curve-svg":
+                curve = args[i + 1]
+            else:
+                config = args[i + 1]
+            args = args[:i] + args[i + 2:]
     if len(args) != 1:
         print(__doc__.strip().splitlines()[-1], file=sys.stderr)
         return 2
@@ -96,6 +106,21 @@ def main() -> int:
             rows = list(csv.DictReader(f))
     except OSError as e:
         print(f"{path}: {e.strerror}", file=sys.stderr)
+        return 2
+    def config_name(r):
+        c = (r.get("config") or "").rsplit("/", 1)[-1]
+        return c[:-5] if c.endswith(".yaml") else c
+
+    names = sorted({config_name(r) for r in rows})
+    if config is not None:
+        rows = [r for r in rows if config_name(r) == config]
+        if not rows:
+            print(f"{path}: no runs with config {config!r} (configs: {', '.join(names)})",
+                  file=sys.stderr)
+            return 2
+    elif len(names) > 1:
+        print(f"{path}: runs of {len(names)} configs ({', '.join(names)}); pass --config NAME",
+              file=sys.stderr)
         return 2
     # (input, mode, seed) -> list of day rows, by day.
     runs = defaultdict(dict)

@@ -9,7 +9,9 @@ Each odometry increment (in the robot frame of the previous odometry pose) is sc
 Images are symlinked, ground truth is kept, session.yaml is copied with the start mode
 set to `global` (no prior) unless --start keep.
 """
-import argparse, csv, math, os, re, shutil
+import argparse, math, os, re
+
+import session_frames
 
 ap = argparse.ArgumentParser()
 ap.add_argument("src"); ap.add_argument("dst")
@@ -19,12 +21,7 @@ ap.add_argument("--start", choices=["global", "keep"], default="global")
 ap.add_argument("--day-label", default=None)
 a = ap.parse_args()
 os.makedirs(a.dst, exist_ok=True)
-with open(os.path.join(a.src, "frames.csv")) as f:
-    lines = f.read().splitlines()
-header_lines = [l for l in lines if l.startswith("#")]
-rows = [l for l in lines if l and not l.startswith("#")]
-head = rows[0].split(",")
-body = [r.split(",") for r in rows[1:]]
+header_lines, head, body = session_frames.read(a.src)
 ix, iy, ip = head.index("odom_x_m"), head.index("odom_y_m"), head.index("odom_phi_rad")
 out = []
 prev = None
@@ -47,11 +44,8 @@ for r in body:
     prev = [x, y, p]
     r = list(r)
     r[ix], r[iy], r[ip] = f"{cur[0]:.6f}", f"{cur[1]:.6f}", f"{cur[2]:.6f}"
-    out.append(",".join(r))
-with open(os.path.join(a.dst, "frames.csv"), "w") as f:
-    for l in header_lines: f.write(l + "\n")
-    f.write(rows[0] + "\n")
-    for l in out: f.write(l + "\n")
+    out.append(r)
+session_frames.write(a.dst, header_lines, head, out)
 for name in os.listdir(a.src):
     if name in ("frames.csv", "session.yaml"): continue
     src = os.path.join(os.path.abspath(a.src), name)

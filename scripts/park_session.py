@@ -10,6 +10,8 @@ across file systems); session.yaml is copied unchanged. docs/results.md "The map
 """
 import argparse, os, shutil
 
+import session_frames
+
 ap = argparse.ArgumentParser()
 ap.add_argument("src"); ap.add_argument("dst")
 ap.add_argument("--at", required=True, help="comma-separated 0-based rows to park at")
@@ -18,12 +20,7 @@ a = ap.parse_args()
 if a.frames < 1:
     ap.error(f"--frames must be >= 1, got {a.frames}")
 at = {int(v) for v in a.at.split(",") if v.strip()}
-with open(os.path.join(a.src, "frames.csv")) as f:
-    lines = f.read().splitlines()
-header_lines = [l for l in lines if l.startswith("#")]
-rows = [l for l in lines if l and not l.startswith("#")]
-head = rows[0].split(",")
-body = [r.split(",") for r in rows[1:]]
+header_lines, head, body = session_frames.read(a.src)
 if "stamp_s" not in head:
     raise SystemExit(f"{a.src}/frames.csv: no stamp_s column")
 bad = sorted(k for k in at if not 0 <= k < len(body))
@@ -37,12 +34,9 @@ for k, r in enumerate(body):
     for _ in range(a.frames if k in at else 1):
         rr = list(r)
         rr[it] = repr(t0 + dt * len(out))
-        out.append(",".join(rr))
+        out.append(rr)
 os.makedirs(a.dst, exist_ok=True)
-with open(os.path.join(a.dst, "frames.csv"), "w") as f:
-    for l in header_lines: f.write(l + "\n")
-    f.write(rows[0] + "\n")
-    for l in out: f.write(l + "\n")
+session_frames.write(a.dst, header_lines, head, out)
 for name in os.listdir(a.src):
     if name == "frames.csv": continue
     src = os.path.join(os.path.abspath(a.src), name)

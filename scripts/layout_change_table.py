@@ -19,6 +19,7 @@ beside the map size at the end (mean over seeds). A sweep of several configurati
 
 Usage: scripts/layout_change_table.py SWEEP_DIR [--config NAME] [--curve-svg PATH]
 """
+import argparse
 import csv
 import math
 import sys
@@ -83,30 +84,20 @@ def write_curve(path, inputs, summary):
 
 
 def main() -> int:
-    args = sys.argv[1:]
-    curve = None
-    config = None
-    for flag in ("--curve-svg", "--config"):
-        if flag in args[1:]:
-            i = args.index(flag, 1)
-            if i + 1 >= len(args):
-                print(f"{flag}: missing value", file=sys.stderr)
-                return 2
-            if flag == "--curve-svg":
-                curve = args[i + 1]
-            else:
-                config = args[i + 1]
-            args = args[:i] + args[i + 2:]
-    if len(args) != 1:
-        print(__doc__.strip().splitlines()[-1], file=sys.stderr)
-        return 2
-    path = args[0].rstrip("/") + "/summary_days.csv"
+    ap = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
+    ap.add_argument("sweep_dir")
+    ap.add_argument("--config", help="the configuration file's name without .yaml")
+    ap.add_argument("--curve-svg", help="also write the curve to this SVG")
+    a = ap.parse_args()  # a bad command line exits 2 with its usage
+    curve, config = a.curve_svg, a.config
+    path = a.sweep_dir.rstrip("/") + "/summary_days.csv"
     try:
         with open(path, newline="") as f:
             rows = list(csv.DictReader(f))
     except OSError as e:
         print(f"{path}: {e.strerror}", file=sys.stderr)
         return 2
+
     def config_name(r):
         c = (r.get("config") or "").rsplit("/", 1)[-1]
         return c[:-5] if c.endswith(".yaml") else c

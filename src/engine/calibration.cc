@@ -92,6 +92,7 @@ std::vector<SessionLoopPair> FindLoopPairs(const DescriptorExtractor& extractor,
 void MultiplySpatialThresholds(double s, CmlEngineOptions* options) {
   options->appearance_sigma_m *= s;
   options->anchor_max_sigma_m *= s;
+  options->map_update_spacing_m *= s;
   options->model.forgetting.d_for_m *= s;
   options->model.index.spatial_cell_m *= s;
 }
@@ -325,6 +326,8 @@ std::string Calibration::ToYaml() const {
   MultiplySpatialThresholds(scale, &scaled);
   s << "appearance_sigma_m: " << scaled.appearance_sigma_m << "\n";
   s << "anchor_max_sigma_m: " << scaled.anchor_max_sigma_m << "\n";
+  if (scaled.map_update_spacing_m > 0.0)
+    s << "map_update_spacing_m: " << scaled.map_update_spacing_m << "\n";
   if (m.identified) {
     s << "tracker:\n  motion: {a1: " << m.noise.a1 << ", a2: " << m.noise.a2
       << ", a3: " << m.noise.a3 << ", a4: " << m.noise.a4 << "}\n";

@@ -110,6 +110,10 @@ void CmlEngineOptions::Validate() const {
     throw Error(StrCat("CmlEngineOptions.motion_noise_joint_pairs must be >= 0, got ",
                        motion_noise_joint_pairs));
   }
+  if (!(map_update_spacing_m >= 0.0 && std::isfinite(map_update_spacing_m))) {
+    throw Error(StrCat("CmlEngineOptions.map_update_spacing_m must be finite and >= 0, got ",
+                       map_update_spacing_m));
+  }
   if (!(appearance_sigma_m >= 0.0) || !std::isfinite(appearance_sigma_m)) {
     throw Error(StrCat("CmlEngineOptions.appearance_sigma_m must be finite and >= 0, got ",
                        appearance_sigma_m));
@@ -177,6 +181,15 @@ void CmlEngine::MakeUnwrapper() {
 
 void CmlEngine::PushUpdate(std::int64_t t, std::int64_t frame, int session, const Descriptor& d,
                            const Gaussian& g, bool reconstructed, FrameStats* stats) {
+  const double spacing = options_.map_update_spacing_m;
+  if (spacing > 0.0) {
+    if (last_map_update_ && last_map_update_->session == session &&
+        std::hypot(g.mean.x() - last_map_update_->x_m, g.mean.y() - last_map_update_->y_m) <
+            spacing) {
+      return;
+    }
+    last_map_update_ = LastMapUpdate{session, g.mean.x(), g.mean.y()};
+  }
   MapUpdate u;
   u.frame = frame;
   u.session_index = session;

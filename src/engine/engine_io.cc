@@ -1,6 +1,7 @@
 #include "omnicml/engine/engine_io.h"
 
 #include <cerrno>
+#include <cmath>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -222,6 +223,16 @@ void EngineStateAccess::Write(BinaryWriter& out, const CmlEngine& e) {
   WritePose(out, s.prev_odom);
   out.Write<bool>(s.awaiting_global_seed);
   out.Write<std::int64_t>(e.next_frame_);
+  // The last map update's place, only with map_update_spacing_m (an option stored only when
+  // not the default, so files without it keep their layout).
+  if (e.options_.map_update_spacing_m > 0.0) {
+    out.Write<bool>(e.last_map_update_.has_value());
+    if (e.last_map_update_) {
+      out.Write<std::int32_t>(e.last_map_update_->session);
+      out.Write<double>(e.last_map_update_->x_m);
+      out.Write<double>(e.last_map_update_->y_m);
+    }
+  }
   // Tracker mixture.
   const Mixture& m = e.tracker_.state();
   out.Write<std::uint64_t>(m.size());
@@ -285,6 +296,15 @@ std::unique_ptr<CmlEngine> EngineStateAccess::Read(BinaryReader& in) {
   s.awaiting_global_seed = in.Read<bool>("session.awaiting_global_seed");
   e->next_frame_ = in.Read<std::int64_t>("next_frame");
   if (e->next_frame_ < 0) in.Fail("next_frame", "negative frame index");
+  if (e->options_.map_update_spacing_m > 0.0 && in.Read<bool>("last_map_update")) {
+    CmlEngine::LastMapUpdate last;
+    last.session = in.Read<std::int32_t>("last_map_update.session");
+    last.x_m = in.Read<double>("last_map_update.x_m");
+    last.y_m = in.Read<double>("last_map_update.y_m");
+    if (!std::isfinite(last.x_m) || !std::isfinite(last.y_m))
+      in.Fail("last_map_update", "position is not finite");
+    e->last_map_update_ = last;
+  }
 
   const std::size_t components = in.ReadCount("tracker.state", 13 * 8);
   Mixture m;

@@ -5,7 +5,9 @@
 #include <cmath>
 #include <complex>
 #include <cstdint>
+#include <limits>
 #include <memory>
+#include <optional>
 #include <random>
 #include <set>
 #include <vector>
@@ -181,6 +183,10 @@ TEST(CmlEngineOptions, ValidateNamesField) {
                "hypothesis_weight_scale");
   expect_named([](CmlEngineOptions& o) { o.appearance_sigma_m = -1.0; }, "appearance_sigma_m");
   expect_named([](CmlEngineOptions& o) { o.anchor_max_sigma_m = -1.0; }, "anchor_max_sigma_m");
+  expect_named([](CmlEngineOptions& o) { o.map_update_spacing_m = -0.1; }, "map_update_spacing_m");
+  expect_named(
+      [](CmlEngineOptions& o) { o.map_update_spacing_m = std::numeric_limits<double>::infinity(); },
+      "map_update_spacing_m");
   expect_named([](CmlEngineOptions& o) { o.gated_matching.gate_sigmas = 0.0; },
                "gated_matching: gate_sigmas");
   expect_named([](CmlEngineOptions& o) { o.gated_matching.full_search_every_frames = 0; },
@@ -613,6 +619,57 @@ TEST(CmlEngine, UnconfidentUnimodalFramesWaitForTheNextAnchor) {
     } else {
       EXPECT_EQ(waited, 0);
     }
+  }
+}
+
+// map_update_spacing_m: a localized frame reaches the map exactly when its estimate lies
+// at least the spacing from the session's previous map update (the first update of each
+// session always does), so the map sees about one update per spacing of travel whatever
+// the distance between frames; every frame is still localized.
+TEST(CmlEngine, MapUpdatesAreSpacedByTravel) {
+  const std::vector<RouteFrame> day1 = MakeLaps(2, 0.1, 12);
+  const std::vector<RouteFrame> day2 = MakeLaps(1, 0.1, 13, 17);
+  for (double spacing : {0.25, 0.45}) {
+    CmlEngineOptions o = TestOptions();
+    o.map_update_spacing_m = spacing;
+    o.reconstruct_multimodal = false;  // each update is its own frame's (no reconstruction)
+    CmlEngine engine(o);
+    std::int64_t frames = 0, updates = 0, localized = 0;
+    for (int day = 0; day < 2; ++day) {
+      const std::vector<RouteFrame>& route = day == 0 ? day1 : day2;
+      engine.BeginSession(
+          PanoramaSession(StrCat("d", day), SessionStartMode::kKnownPose, route[0].truth));
+      std::optional<Eigen::Vector2d> last;  // position of the session's last map update
+      for (std::size_t i = 0; i < route.size(); ++i) {
+        const FrameResult r =
+            engine.ProcessFrame(MakeFrame(route[i], day, static_cast<std::int64_t>(i)));
+        ASSERT_TRUE(r.estimate.has_value());
+        ++frames;
+        ++localized;
+        if (!r.map_state) {
+          EXPECT_EQ(r.stats.updates_queued, 0) << "frame " << r.frame;
+          continue;
+        }
+        const Eigen::Vector2d xy = r.map_state->mean.head<2>();
+        const bool due = !last || (xy - *last).norm() >= spacing;
+        EXPECT_EQ(r.stats.updates_queued, due ? 1 : 0)
+            << "spacing " << spacing << " frame " << r.frame << " at "
+            << (last ? (xy - *last).norm() : -1.0) << " m from the last update";
+        if (due) last = xy;
+        updates += r.stats.updates_queued;
+      }
+    }
+    engine.Finish();
+    engine.model().CheckInvariants();
+    EXPECT_EQ(engine.counters().updates_queued, updates);
+    EXPECT_EQ(localized, frames);
+    // Frames 0.1 m apart: at most one update in two (0.25 m) or in four (0.45 m) frames
+    // beyond the sessions' first ones.
+    const double frames_per_update = std::ceil(spacing / 0.1 - 1e-9);
+    EXPECT_LE(static_cast<double>(updates), frames / frames_per_update + 2.0 + 0.1 * frames)
+        << "spacing " << spacing;
+    EXPECT_GT(updates, frames / (2.0 * frames_per_update)) << "spacing " << spacing;
+    EXPECT_GT(engine.model().NumViews(), 3u);
   }
 }
 

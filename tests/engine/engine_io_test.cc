@@ -198,6 +198,45 @@ TEST(EngineIo, SaveLoadBetweenDaysIsBitIdentical) {
   }
 }
 
+// With map_update_spacing_m the place of the last map update is part of the state: a save
+// and load in the middle of a session continues bit-identically to one run.
+TEST(EngineIo, SaveLoadMidSessionWithSpacingIsBitIdentical) {
+  const fs::path dir = ScratchDir("spacing");
+  const std::vector<RouteFrame> route = MakeLaps(1, 0.15, 34, 0);
+  const std::size_t half = route.size() / 2 + 1;
+  const SessionInfo s1 = PanoramaSession("d1", SessionStartMode::kKnownPose, route[0].truth);
+  CmlEngineOptions o = TestOptions();
+  o.map_update_spacing_m = 0.4;
+  const auto run = [&](CmlEngine& engine, std::size_t begin, std::size_t end) {
+    std::vector<FrameResult> out;
+    for (std::size_t i = begin; i < end; ++i)
+      out.push_back(engine.ProcessFrame(MakeFrame(route[i], 0, static_cast<std::int64_t>(i))));
+    return out;
+  };
+  CmlEngine whole(o);
+  whole.BeginSession(s1);
+  const std::vector<FrameResult> expected = run(whole, 0, route.size());
+  whole.Finish();
+  EXPECT_LT(whole.counters().updates_queued, whole.counters().frames / 2);
+
+  CmlEngine first(o);
+  first.BeginSession(s1);
+  run(first, 0, half);
+  const fs::path file = dir / "mid_session.omnicml";
+  SaveEngine(first, file.string());
+  const std::unique_ptr<CmlEngine> second = LoadEngine(file.string());
+  EXPECT_EQ(EncodeEngine(*second), EncodeEngine(first));
+  const std::vector<FrameResult> got = run(*second, half, route.size());
+  second->Finish();
+  ASSERT_EQ(got.size(), route.size() - half);
+  for (std::size_t i = 0; i < got.size(); ++i) {
+    EXPECT_EQ(got[i].stats.updates_queued, expected[half + i].stats.updates_queued)
+        << "frame " << got[i].frame;
+    ExpectSameEstimate(got[i], expected[half + i]);
+  }
+  EXPECT_EQ(EncodeEngine(*second), EncodeEngine(whole));
+}
+
 // Truncated, corrupted, foreign and future-version files are rejected, naming the file.
 TEST(EngineIo, RejectsDamagedFiles) {
   const fs::path dir = ScratchDir("damaged");

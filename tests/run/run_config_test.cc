@@ -288,6 +288,11 @@ TEST(RunConfig, CalibratedSpatialThresholdsFollowTheWorldsScale) {
   EXPECT_DOUBLE_EQ(o.model.forgetting.d_for_m, 2 * defaults.model.forgetting.d_for_m);
   EXPECT_DOUBLE_EQ(o.model.index.spatial_cell_m, 2 * defaults.model.index.spatial_cell_m);
   EXPECT_EQ(o.tracker.motion.a3, defaults.tracker.motion.a3);  // not asked to identify
+  // A map update spacing in the base options is a spatial threshold too.
+  CmlEngineOptions spaced_base;
+  spaced_base.map_update_spacing_m = 0.15;
+  const CmlEngineOptions spaced = ResolveNewMapOptions(file.overrides, input, &note, spaced_base);
+  EXPECT_DOUBLE_EQ(spaced.map_update_spacing_m, 0.3);
 
   file.Write("spatial_scale_source: calibrated\nmodel: {forgetting: {d_for_m: 0.7}}\n");
   const CmlEngineOptions f = ResolveNewMapOptions(file.overrides, input, &note);

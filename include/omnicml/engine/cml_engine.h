@@ -116,7 +116,7 @@ enum class MotionNoiseSource { kConfigured, kIdentified };
 // kCalibrated: at the start of a new map, the run first reads the log's first session,
 // measures the match length L (the odometry path over which the descriptor distance to a
 // frame reaches e_max, engine/calibration.h) and multiplies the spatial thresholds
-// (appearance_sigma_m, anchor_max_sigma_m, model.forgetting.d_for_m,
+// (appearance_sigma_m, anchor_max_sigma_m, map_update_spacing_m, model.forgetting.d_for_m,
 // model.index.spatial_cell_m) by s = L / L_ref rounded to a half octave (docs/design.md
 // "Spatial thresholds scaled to the log"; on the simulated worlds the defaults were
 // measured on, s rounds to 1). A first session whose appearance never changes by e_max
@@ -176,6 +176,18 @@ struct CmlEngineOptions {
   // Metres, >= 0; 0 disables (every unimodal estimate is an anchor, as in [G]). Only
   // with reconstruct_multimodal.
   double anchor_max_sigma_m = 0.5;
+  // Map updates spaced by travel (a motion filter, as Cartographer's before it inserts a
+  // scan): a frame's (y_t, N(mu_t, C_t)) reaches the map (EnvironmentModel::Update and,
+  // with the pose graph, a node) only when mu_t lies at least map_update_spacing_m from
+  // the position of the session's previous map update; a session's first update always
+  // does. Every frame is still localized. The phases of [G 2.3] (insertion, the mixture
+  // update, rules (16)-(19)) act once per update, so without spacing a camera twice as
+  // fast confirms, decays and forgets twice per metre of travel and the map depends on the
+  // frame rate (docs/results.md "The map against the frame rate"); with it, on the path.
+  // A spacing below the distance between frames changes nothing; a parked robot stops
+  // updating the map. Metres, finite, >= 0; 0: every localized frame updates the map. A
+  // spatial threshold (spatial_scale_source scales it).
+  double map_update_spacing_m = 0.0;
   // Panoramas (delivered or unwrapped) are resized to this size when both are > 0
   // (PreparePanorama); 0 keeps the size. Pixels.
   int panorama_width = 0;
@@ -297,6 +309,8 @@ void VisitFields(V& v, CmlEngineOptions& o) {
                  {AppearanceOffsetSource::kCalibrated, "calibrated"}});
     w("appearance_offset_spread", o.appearance_offset_spread);
   });
+  // After engine file format 15, without a bump: stored only when not the default.
+  v.Since(16, [&](auto& w) { w("map_update_spacing_m", o.map_update_spacing_m); });
 }
 
 // (d(E) / 2)^2 in m^2 (CmlEngineOptions::appearance_offset_curve): d(E) the travel at
@@ -520,6 +534,7 @@ class CmlEngine {
   // are queued with their filtered estimate. `t` is the frame producing the updates.
   void DropPending(std::int64_t t, FrameStats* stats);
   bool IsConfidentAnchor(const Estimate& estimate, bool appearance_fix) const;
+  // Queues (d, g) of `frame` for the map unless map_update_spacing_m spaces it out.
   void PushUpdate(std::int64_t t, std::int64_t frame, int session, const Descriptor& d,
                   const Gaussian& g, bool reconstructed, FrameStats* stats);
   void ShapeHypothesis(double best_similarity, Mixture* p_x_y) const;
@@ -559,6 +574,14 @@ class CmlEngine {
   std::unique_ptr<PoseGraph> pose_graph_;
   // Set while ProcessSurveyFrame queues its frame: the prior of that frame's node.
   std::optional<std::pair<std::int64_t, Gaussian>> survey_prior_;
+  // The last map update pushed (map_update_spacing_m > 0 only): its session and map-frame
+  // position (m).
+  struct LastMapUpdate {
+    int session = 0;
+    double x_m = 0.0;
+    double y_m = 0.0;
+  };
+  std::optional<LastMapUpdate> last_map_update_;
 };
 
 }  // namespace omnicml

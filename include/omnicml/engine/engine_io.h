@@ -66,7 +66,10 @@ namespace omnicml {
 //    Since(15) in their VisitFields (tracker.fusion, gate_confidence, the motion noise and
 //    spatial scale sources, the pose graph's closure model and marginals, the appearance
 //    offsets, ...). Options added after 15 without a format bump are declared Since(16):
-//    stored only when not default.
+//    stored only when not default. map_update_spacing_m is one: when it is set, the
+//    session state after next_frame also holds the last map update's session and
+//    position, so files without it keep their layout and older builds refuse files with
+//    it by the unknown option.
 // The model's options keep these flat names in the file (model.e_max, model.forgetting,
 // ...) although YAML and C++ group them in sections (environment_model_options.h
 // FlatModelOptionsValue), so files of every version keep their bytes and load as before.

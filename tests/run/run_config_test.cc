@@ -300,6 +300,29 @@ TEST(RunConfig, CalibratedSpatialThresholdsFollowTheWorldsScale) {
   EXPECT_DOUBLE_EQ(f.appearance_sigma_m, 2 * defaults.appearance_sigma_m);
 }
 
+// `omnicml calibrate`'s YAML loads as a configuration: the default spatial thresholds
+// times s, and the map update spacing for that scale as a comment only.
+TEST(RunConfig, CalibrationYamlLoadsWithTheSpacingAsAComment) {
+  Calibration c;
+  c.frames_used = 100;
+  c.e_max = 0.45;
+  c.median_step_m = 0.4;
+  c.match_length_m = 0.54;
+  c.measured_scale = 2.0;
+  c.scale = 2.0;
+  const std::string yaml = c.ToYaml();
+  EXPECT_NE(yaml.find(StrCat("# map_update_spacing_m: ", 2.0 * kReferenceMapUpdateSpacingM)),
+            std::string::npos)
+      << yaml;
+  TempConfig file("omnicml_calibration_yaml_test");
+  file.Write(yaml);
+  const CmlEngineOptions o = ResolveEngineOptions(file.overrides);
+  const CmlEngineOptions defaults;
+  EXPECT_DOUBLE_EQ(o.appearance_sigma_m, 2 * defaults.appearance_sigma_m);
+  EXPECT_DOUBLE_EQ(o.model.forgetting.d_for_m, 2 * defaults.model.forgetting.d_for_m);
+  EXPECT_EQ(o.map_update_spacing_m, 0.0);
+}
+
 TEST(RunInput, ValidatesTheInput) {
   // Exactly one input kind; missing log directories and unknown worlds are named.
   RunInput none;

@@ -69,6 +69,11 @@ struct CalibrationOptions {
   void Validate() const;
 };
 
+// CmlEngineOptions::map_update_spacing_m at the reference match length
+// (CalibrationOptions::reference_match_length_m), metres: the spacing measured in
+// docs/results.md "Map updates spaced by travel". Calibration::ToYaml suggests it times s.
+inline constexpr double kReferenceMapUpdateSpacingM = 0.15;
+
 // One point of the distance-versus-travel curve.
 struct CalibrationPoint {
   int lag_frames = 0;
@@ -94,7 +99,8 @@ struct Calibration {
 
   // The derived values as an engine configuration (YAML, loadable with --config): the
   // spatial thresholds of the default CmlEngineOptions times s, and the identified motion
-  // noise; the measurements as comments above them.
+  // noise; the measurements as comments above them, and, as a comment, the map update
+  // spacing kReferenceMapUpdateSpacingM times s.
   std::string ToYaml() const;
 };
 

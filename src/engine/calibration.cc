@@ -326,13 +326,10 @@ std::string Calibration::ToYaml() const {
   MultiplySpatialThresholds(scale, &scaled);
   s << "appearance_sigma_m: " << scaled.appearance_sigma_m << "\n";
   s << "anchor_max_sigma_m: " << scaled.anchor_max_sigma_m << "\n";
-  if (scaled.map_update_spacing_m > 0.0) {
-    s << "map_update_spacing_m: " << scaled.map_update_spacing_m << "\n";
-  } else {
-    s << "# map updates spaced by travel, for frames closer than this (docs/guide.md \"Your "
-         "camera's frame rate\"):\n# map_update_spacing_m: "
-      << kReferenceMapUpdateSpacingM * scale << "\n";
-  }
+  // The default spacing is 0 (every frame), so the scaled one is a suggestion only.
+  s << "# map updates spaced by travel, for frames closer than this (docs/guide.md \"Your "
+       "camera's frame rate\"):\n# map_update_spacing_m: "
+    << kReferenceMapUpdateSpacingM * scale << "\n";
   if (m.identified) {
     s << "tracker:\n  motion: {a1: " << m.noise.a1 << ", a2: " << m.noise.a2
       << ", a3: " << m.noise.a3 << ", a4: " << m.noise.a4 << "}\n";

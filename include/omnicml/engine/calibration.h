@@ -2,17 +2,18 @@
 // with travelled distance, and the engine's spatial thresholds derived from it.
 //
 // The engine's spatial defaults (appearance_sigma_m, d_for_m, spatial_cell_m,
-// anchor_max_sigma_m, map_update_spacing_m) were tuned on the simulator, where views keep matching
-// (descriptor distance E below e_max) over about reference_match_length_m of travel. Calibrate
-// reads the first session of a log, computes the descriptor of every frame (up to max_frames) with
-// the engine's descriptor options, and measures, for frame lags 1..max_lag_frames, the median E
-// between frames t and t + lag against the median odometry path length between them. The match
-// length L is the path length at which the median E first reaches e_max (linear interpolation
-// between lags). Each spatial threshold is then its default times s = L / reference_match_length_m,
-// clamped to [min_scale, max_scale] and rounded to the nearest 1 / scale_steps_per_octave of an
-// octave (logs of one place differ in L by a few percent; rounding gives them the same thresholds,
-// and the worlds the defaults were measured on s = 1 exactly). Descriptor thresholds (e_max) stay:
-// they are in descriptor units, not the world's.
+// anchor_max_sigma_m) were tuned on the simulator, where views keep matching (descriptor
+// distance E below e_max) over about reference_match_length_m of travel. Calibrate reads
+// the first session of a log, computes the descriptor of every frame (up to max_frames)
+// with the engine's descriptor options, and measures, for frame lags 1..max_lag_frames,
+// the median E between frames t and t + lag against the median odometry path length
+// between them. The match length L is the path length at which the median E first
+// reaches e_max (linear interpolation between lags). Each spatial threshold is then its
+// default times s = L / reference_match_length_m, clamped to [min_scale, max_scale] and
+// rounded to the nearest 1 / scale_steps_per_octave of an octave (logs of one place differ
+// in L by a few percent; rounding gives them the same thresholds, and the worlds the
+// defaults were measured on s = 1 exactly).
+// Descriptor thresholds (e_max) stay: they are in descriptor units, not the world's.
 //
 // Motion noise (tracking/motion_noise_identification.h): the log is read on (every
 // session, up to max_frames in all); a frame t and its nearest frame in appearance among
@@ -117,8 +118,8 @@ Calibration Calibrate(FrameSource& source, const CmlEngineOptions& options,
 
 // Multiplies the spatial thresholds of `options` (appearance_sigma_m, anchor_max_sigma_m,
 // map_update_spacing_m, model.forgetting.d_for_m, model.index.spatial_cell_m) by
-// calibration.scale; returns
-// false and leaves them when the match length was not measured (saturated).
+// calibration.scale; returns false and leaves them when the match length was not
+// measured (saturated).
 bool ScaleSpatialThresholds(const Calibration& calibration, CmlEngineOptions* options);
 
 // Writes the identified motion noise into options->tracker.motion (and

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <memory>
+#include <optional>
 #include <sstream>
 
 #include "omnicml/common/common.h"
@@ -252,6 +253,29 @@ Calibration Calibrate(FrameSource& source, const CmlEngineOptions& options,
   c.loop_frames = static_cast<int>(y.size());
   c.loop_sessions = static_cast<int>(sessions.size());
   return c;
+}
+
+double MedianOdometryStep(FrameSource& source, int max_frames, double min_step_m) {
+  if (max_frames < 2)
+    throw Error(StrCat("MedianOdometryStep: max_frames must be >= 2, got ", max_frames));
+  std::vector<double> steps;
+  Frame frame;
+  std::optional<Pose2> last;
+  for (int read = 0; read < max_frames && source.Next(&frame); ++read) {
+    if (frame.session_index != 0) break;
+    if (last) {
+      const double step =
+          std::hypot(frame.odom_T_robot.x() - last->x(), frame.odom_T_robot.y() - last->y());
+      if (step > min_step_m) steps.push_back(step);
+    }
+    last = frame.odom_T_robot;
+  }
+  return steps.size() < 2 ? 0.0 : Median(steps);
+}
+
+double MotionNoiseStepScale(double reference_step_m, double step_m) {
+  if (!(reference_step_m > 0.0) || !(step_m > 0.0)) return 1.0;
+  return std::exp2(std::round(2.0 * std::log2(reference_step_m / step_m)) / 2.0);
 }
 
 bool ScaleSpatialThresholds(const Calibration& calibration, CmlEngineOptions* options) {

@@ -114,6 +114,11 @@ void CmlEngineOptions::Validate() const {
     throw Error(StrCat("CmlEngineOptions.map_update_spacing_m must be finite and >= 0, got ",
                        map_update_spacing_m));
   }
+  if (!(motion_noise_reference_step_m >= 0.0 && std::isfinite(motion_noise_reference_step_m))) {
+    throw Error(
+        StrCat("CmlEngineOptions.motion_noise_reference_step_m must be finite and >= 0, got ",
+               motion_noise_reference_step_m));
+  }
   if (!(appearance_sigma_m >= 0.0) || !std::isfinite(appearance_sigma_m)) {
     throw Error(StrCat("CmlEngineOptions.appearance_sigma_m must be finite and >= 0, got ",
                        appearance_sigma_m));

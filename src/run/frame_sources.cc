@@ -164,11 +164,14 @@ std::unique_ptr<FrameSource> PrefetchFrames(std::unique_ptr<FrameSource> inner, 
   return std::make_unique<PrefetchingSource>(std::move(inner), depth);
 }
 
-std::unique_ptr<FrameSource> OpenFrameSource(const RunInput& input) {
+namespace {
+
+std::unique_ptr<FrameSource> OpenSource(const RunInput& input, bool images) {
   input.Validate();
   if (!input.log_dirs.empty()) {
     LogReaderOptions options;
     options.skip_unreadable_frames = input.skip_unreadable_frames;
+    options.load_images = images;
     return std::make_unique<LogReader>(input.log_dirs, options);
   }
   const std::vector<std::string> names = BuiltinWorldNames();
@@ -189,11 +192,22 @@ std::unique_ptr<FrameSource> OpenFrameSource(const RunInput& input) {
   if (input.frames_per_day > 0) options.frames_per_day = input.frames_per_day;
   options.seed = input.seed;
   options.output = input.sim_image;
+  options.render_images = images;
   std::unique_ptr<FrameSource> source = std::make_unique<SimulatedFrameSource>(options);
   if (input.first_day != 0)
     source = std::make_unique<SkipDaysSource>(std::move(source), input.first_day);
-  if (input.prefetch_frames) source = PrefetchFrames(std::move(source));
+  if (images && input.prefetch_frames) source = PrefetchFrames(std::move(source));
   return source;
+}
+
+}  // namespace
+
+std::unique_ptr<FrameSource> OpenFrameSource(const RunInput& input) {
+  return OpenSource(input, /*images=*/true);
+}
+
+std::unique_ptr<FrameSource> OpenPoseOnlySource(const RunInput& input) {
+  return OpenSource(input, /*images=*/false);
 }
 
 std::optional<std::int64_t> CountFrames(const RunInput& input, const FrameSource& source) {

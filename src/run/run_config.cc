@@ -114,7 +114,38 @@ CmlEngineOptions ResolveNewMapOptions(const OptionOverrides& overrides, const Ru
   const bool scale = resolved.spatial_scale_source == SpatialScaleSource::kCalibrated;
   const bool identify = resolved.motion_noise_source == MotionNoiseSource::kIdentified;
   const bool offsets = resolved.appearance_offset_source == AppearanceOffsetSource::kCalibrated;
-  if (!scale && !identify && !offsets) return resolved;
+  const double reference_step = resolved.motion_noise_reference_step_m;
+  CmlEngineOptions calibrated = base;  // with the derived values
+  std::string joined;                  // "; "-separated notes
+  const auto add_note = [&joined](const std::string& line) {
+    joined += (joined.empty() ? "" : "; ") + line;
+  };
+  if (!identify && reference_step > 0.0) {
+    // Thrun's variances per frame, restated per metre (CmlEngineOptions::
+    // motion_noise_reference_step_m); the median of a few hundred steps is stable.
+    const std::unique_ptr<FrameSource> poses = OpenPoseOnlySource(input);
+    const double step = MedianOdometryStep(*poses, 300, 0.01 * reference_step);
+    const double k = MotionNoiseStepScale(reference_step, step);
+    if (step <= 0.0) {
+      add_note(
+          StrCat("motion noise per frame as configured (the first session's odometry "
+                 "has fewer than two steps above ",
+                 0.01 * reference_step, " m)"));
+    } else if (k != 1.0) {
+      MotionNoise& m = calibrated.tracker.motion;
+      m.a1 *= k;
+      m.a2 *= k;
+      m.a3 *= k;
+      m.a4 *= k;
+      add_note(StrCat("motion noise a1..a4 x ", k, " for frames ", step,
+                      " m apart (median step of the first session; the noise is stated for ",
+                      reference_step, " m)"));
+    }
+  }
+  if (!scale && !identify && !offsets) {
+    if (note != nullptr) *note = joined;
+    return joined.empty() ? resolved : ResolveEngineOptions(overrides, calibrated);
+  }
   const std::unique_ptr<FrameSource> source = OpenFrameSource(input);
   // The match length's median over a few hundred frames is stable; the motion noise needs
   // the whole first session's loops.
@@ -122,11 +153,6 @@ CmlEngineOptions ResolveNewMapOptions(const OptionOverrides& overrides, const Ru
   if (!identify) calibration.max_frames = 600;
   UseEngineIdentificationOptions(resolved, &calibration.identification);
   const Calibration c = Calibrate(*source, resolved, calibration);
-  CmlEngineOptions calibrated = base;  // with the derived values
-  std::string joined;                  // "; "-separated notes
-  const auto add_note = [&joined](const std::string& line) {
-    joined += (joined.empty() ? "" : "; ") + line;
-  };
   if (scale) {
     if (ScaleSpatialThresholds(c, &calibrated)) {
       add_note(StrCat("spatial scale ", c.scale, " (match length ", c.match_length_m, " m over ",

@@ -300,6 +300,45 @@ TEST(RunConfig, CalibratedSpatialThresholdsFollowTheWorldsScale) {
   EXPECT_DOUBLE_EQ(f.appearance_sigma_m, 2 * defaults.appearance_sigma_m);
 }
 
+// A new map's motion noise is restated for the log's frame step
+// (motion_noise_reference_step_m): unchanged at the step it is stated for, times
+// reference / step rounded to a half octave otherwise; explicit a's, identified noise
+// and a reference of 0 are not scaled.
+TEST(RunConfig, MotionNoiseFollowsTheFrameStep) {
+  TempConfig file("omnicml_motion_step_test");
+  const RunInput input = SimulatedInput("home_store", 1, 60);  // frames 0.2 m apart
+  std::string note;
+  const CmlEngineOptions defaults;
+  file.Write("threads: 1\n");
+  EXPECT_TRUE(SameEngineOptions(ResolveNewMapOptions(file.overrides, input, &note),
+                                ResolveEngineOptions(file.overrides)));
+  EXPECT_EQ(note, "");
+
+  // Noise stated for frames 0.4 m apart: twice per frame at 0.2 m per frame.
+  CmlEngineOptions sparse;
+  sparse.motion_noise_reference_step_m = 0.4;
+  const CmlEngineOptions o = ResolveNewMapOptions(file.overrides, input, &note, sparse);
+  EXPECT_NE(note.find("motion noise a1..a4 x 2 for frames "), std::string::npos) << note;
+  EXPECT_DOUBLE_EQ(o.tracker.motion.a1, 2 * defaults.tracker.motion.a1);
+  EXPECT_DOUBLE_EQ(o.tracker.motion.a2, 2 * defaults.tracker.motion.a2);
+  EXPECT_DOUBLE_EQ(o.tracker.motion.a3, 2 * defaults.tracker.motion.a3);
+  EXPECT_DOUBLE_EQ(o.tracker.motion.a4, 2 * defaults.tracker.motion.a4);
+  EXPECT_EQ(o.appearance_sigma_m, defaults.appearance_sigma_m);
+
+  file.Write("tracker: {motion: {a3: 0.07}}\n");
+  const CmlEngineOptions e = ResolveNewMapOptions(file.overrides, input, &note, sparse);
+  EXPECT_DOUBLE_EQ(e.tracker.motion.a3, 0.07);  // explicit
+  EXPECT_DOUBLE_EQ(e.tracker.motion.a1, 2 * defaults.tracker.motion.a1);
+
+  file.Write("motion_noise_reference_step_m: 0\n");
+  EXPECT_EQ(ResolveNewMapOptions(file.overrides, input, &note, sparse).tracker.motion.a1,
+            defaults.tracker.motion.a1);
+
+  file.Write("motion_noise_source: identified\n");
+  ResolveNewMapOptions(file.overrides, input, &note, sparse);
+  EXPECT_EQ(note.find("x 2"), std::string::npos) << note;
+}
+
 // `omnicml calibrate`'s YAML loads as a configuration: the default spatial thresholds
 // times s, and the map update spacing for that scale as a comment only.
 TEST(RunConfig, CalibrationYamlLoadsWithTheSpacingAsAComment) {

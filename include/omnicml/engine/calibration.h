@@ -75,6 +75,20 @@ struct CalibrationOptions {
 // docs/results.md "Map updates spaced by travel". Calibration::ToYaml suggests it times s.
 inline constexpr double kReferenceMapUpdateSpacingM = 0.15;
 
+// The median odometry step of `source`'s first session (it must be at its start), over
+// its moving frames: consecutive frames whose odometry positions lie more than
+// min_step_m apart (a parked robot's frames do not count). Reads at most max_frames
+// frames (>= 2); images are not looked at, so a pose-only source will do. 0 when fewer
+// than two moving steps were read. Throws omnicml::Error on a bad frame.
+double MedianOdometryStep(FrameSource& source, int max_frames, double min_step_m);
+
+// The factor for CmlEngineOptions::motion_noise_reference_step_m: reference / step
+// rounded to a half octave (2^(round(2 log2 x) / 2); 1 for x in [0.841, 1.189)), so that
+// Thrun's per-increment variances (a trans^2 per frame, motion_model.h) give the same
+// variance per metre at frames `step` apart as the unscaled a's at frames `reference`
+// apart. 1 when either is <= 0.
+double MotionNoiseStepScale(double reference_step_m, double step_m);
+
 // One point of the distance-versus-travel curve.
 struct CalibrationPoint {
   int lag_frames = 0;

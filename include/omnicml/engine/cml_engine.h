@@ -254,6 +254,21 @@ struct CmlEngineOptions {
   // Where appearance_offset_curve comes from when a run starts a new map
   // (AppearanceOffsetSource); read by the run layer with the motion noise above.
   AppearanceOffsetSource appearance_offset_source = AppearanceOffsetSource::kConfigured;
+  // The frame step tracker.motion's a1..a4 are stated for. Metres, finite, >= 0; 0: the
+  // motion noise is used per increment as configured. Thrun's variances grow with the
+  // square of an increment (motion_model.h), so the same a1..a4 give frames twice as
+  // dense half the variance per metre of travel; odometry errors do not depend on how
+  // often the camera takes a frame. When a run starts a new map with motion_noise_source
+  // configured, it first reads the odometry of the log's first session (no images),
+  // takes the median step d of its moving frames (steps above 1 % of this reference)
+  // and multiplies a1..a4 by k = reference / d rounded to a half octave
+  // (MotionNoiseStepScale, engine/calibration.h): the variance per metre is then the
+  // one the a's give at frames `reference` apart (docs/design.md "Motion noise per metre
+  // of travel"). The default is the simulator's step, at which the defaults were chosen;
+  // k rounds to 1 for steps within about 19 % of it. Values of a1..a4 given explicitly in
+  // the configuration file or by flags are not scaled; identified noise is measured at
+  // the log's own step and is not scaled either; a run that loads a map keeps the map's.
+  double motion_noise_reference_step_m = 0.2;
   // With motion_noise_source identified: the degrees of freedom of the Student t refit
   // that gives appearance_sigma_m (MotionNoiseIdentificationOptions::offset_dof; 0 takes
   // it from the Gaussian fit). Finite, >= 0.
@@ -310,7 +325,10 @@ void VisitFields(V& v, CmlEngineOptions& o) {
     w("appearance_offset_spread", o.appearance_offset_spread);
   });
   // After engine file format 15, without a bump: stored only when not the default.
-  v.Since(16, [&](auto& w) { w("map_update_spacing_m", o.map_update_spacing_m); });
+  v.Since(16, [&](auto& w) {
+    w("map_update_spacing_m", o.map_update_spacing_m);
+    w("motion_noise_reference_step_m", o.motion_noise_reference_step_m);
+  });
 }
 
 // (d(E) / 2)^2 in m^2 (CmlEngineOptions::appearance_offset_curve): d(E) the travel at

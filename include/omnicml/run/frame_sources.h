@@ -48,6 +48,11 @@ struct RunInput {
 // and frames.csv header; for worlds the simulator is built. Throws omnicml::Error.
 std::unique_ptr<FrameSource> OpenFrameSource(const RunInput& input);
 
+// OpenFrameSource without images (Frame::image empty): the log's frames.csv rows, or
+// the simulator's trajectory and odometry without rendering; for pose-only passes such as
+// the median odometry step. Throws omnicml::Error as OpenFrameSource.
+std::unique_ptr<FrameSource> OpenPoseOnlySource(const RunInput& input);
+
 // A source that reads `inner` on a thread of its own, at most `depth` (>= 1) frames
 // ahead of the consumer, and delivers exactly inner's frames in inner's order (so the
 // output does not depend on whether frames are prefetched). inner's NumSessions and

@@ -97,14 +97,18 @@ struct RunInput;  // frame_sources.h
 
 // The options of a run that starts a new map: ResolveEngineOptions(overrides, base), with
 // the values derived from the first session of `input` (engine/calibration.h Calibrate)
-// under the configuration file and the flags (explicit values win): when they say
+// under the configuration file and the flags (explicit values win): unless the motion
+// noise is identified, tracker.motion's a1..a4 times MotionNoiseStepScale(
+// motion_noise_reference_step_m, the first session's MedianOdometryStep) (a pose-only
+// read; nothing when the reference is 0); when they say
 // spatial_scale_source: calibrated, base's spatial thresholds times the
 // calibrated scale (ScaleSpatialThresholds); when they say motion_noise_source:
 // identified, the identified motion noise and appearance_sigma_m (ApplyMotionCalibration);
 // when they say appearance_offset_source: calibrated, the first session's appearance
 // curve as appearance_offset_curve (AppearanceOffsetCurve).
-// *note (if not null) gets one line on what was derived, or "" when nothing was asked.
-// Reads the first session once more (a second FrameSource). Throws omnicml::Error.
+// *note (if not null) gets one line on what was derived, or "" when nothing was asked or
+// changed. Reads the first session once more (a second FrameSource). Throws
+// omnicml::Error.
 CmlEngineOptions ResolveNewMapOptions(const OptionOverrides& overrides, const RunInput& input,
                                       std::string* note, const CmlEngineOptions& base = {});
 

@@ -353,7 +353,7 @@ std::string Calibration::ToYaml() const {
   // The default spacing is 0 (every frame), so the scaled one is a suggestion only.
   s << "# map updates spaced by travel, for frames closer than this (docs/guide.md \"Your "
        "camera's frame rate\"):\n# map_update_spacing_m: "
-    << kReferenceMapUpdateSpacingM * scale << "\n";
+    << kReferenceMapUpdateSpacingM * std::min(scale, 1.0) << "\n";
   if (m.identified) {
     s << "tracker:\n  motion: {a1: " << m.noise.a1 << ", a2: " << m.noise.a2
       << ", a3: " << m.noise.a3 << ", a4: " << m.noise.a4 << "}\n";

@@ -89,8 +89,7 @@ TEST(MotionNoiseStep, ScaleRoundsToAHalfOctave) {
 // Frames from a list of (session, odometry pose).
 class PoseListSource : public FrameSource {
  public:
-  explicit PoseListSource(std::vector<std::pair<int, Pose2>> frames)
-      : frames_(std::move(frames)) {
+  explicit PoseListSource(std::vector<std::pair<int, Pose2>> frames) : frames_(std::move(frames)) {
     for (const auto& f : frames_) sessions_.resize(static_cast<std::size_t>(f.first) + 1);
   }
   int NumSessions() const override { return static_cast<int>(sessions_.size()); }

@@ -350,9 +350,15 @@ TEST(RunConfig, CalibrationYamlLoadsWithTheSpacingAsAComment) {
   c.measured_scale = 2.0;
   c.scale = 2.0;
   const std::string yaml = c.ToYaml();
-  EXPECT_NE(yaml.find(StrCat("# map_update_spacing_m: ", 2.0 * kReferenceMapUpdateSpacingM)),
+  // Not wider than at the reference scale: a larger place does not afford sparser views.
+  EXPECT_NE(yaml.find(StrCat("# map_update_spacing_m: ", kReferenceMapUpdateSpacingM, "\n")),
             std::string::npos)
       << yaml;
+  Calibration small = c;
+  small.scale = 0.5;
+  EXPECT_NE(small.ToYaml().find(
+                StrCat("# map_update_spacing_m: ", 0.5 * kReferenceMapUpdateSpacingM, "\n")),
+            std::string::npos);
   TempConfig file("omnicml_calibration_yaml_test");
   file.Write(yaml);
   const CmlEngineOptions o = ResolveEngineOptions(file.overrides);

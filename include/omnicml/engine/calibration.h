@@ -72,7 +72,10 @@ struct CalibrationOptions {
 
 // CmlEngineOptions::map_update_spacing_m at the reference match length
 // (CalibrationOptions::reference_match_length_m), metres: the spacing measured in
-// docs/results.md "Map updates spaced by travel". Calibration::ToYaml suggests it times s.
+// docs/results.md "Map updates spaced by travel". Calibration::ToYaml suggests it times s
+// for s < 1 and as it is otherwise: a spacing wider than the frame step the defaults were
+// chosen at costs accuracy at any match length (docs/results.md "The spacing is not a
+// fraction of the match length").
 inline constexpr double kReferenceMapUpdateSpacingM = 0.15;
 
 // The median odometry step of `source`'s first session (it must be at its start), over
@@ -115,7 +118,7 @@ struct Calibration {
   // The derived values as an engine configuration (YAML, loadable with --config): the
   // spatial thresholds of the default CmlEngineOptions times s, and the identified motion
   // noise; the measurements as comments above them, and, as a comment, the map update
-  // spacing kReferenceMapUpdateSpacingM times s.
+  // spacing kReferenceMapUpdateSpacingM times min(s, 1).
   std::string ToYaml() const;
 };
 

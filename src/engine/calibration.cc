@@ -273,7 +273,7 @@ double MedianOdometryStep(FrameSource& source, int max_frames, double min_step_m
   return steps.size() < 2 ? 0.0 : Median(steps);
 }
 
-double MotionNoiseStepScale(double reference_step_m, double step_m) {
+double FrameStepScale(double reference_step_m, double step_m) {
   if (!(reference_step_m > 0.0) || !(step_m > 0.0)) return 1.0;
   return std::exp2(std::round(2.0 * std::log2(reference_step_m / step_m)) / 2.0);
 }

@@ -114,10 +114,13 @@ void CmlEngineOptions::Validate() const {
     throw Error(StrCat("CmlEngineOptions.map_update_spacing_m must be finite and >= 0, got ",
                        map_update_spacing_m));
   }
-  if (!(motion_noise_reference_step_m >= 0.0 && std::isfinite(motion_noise_reference_step_m))) {
-    throw Error(
-        StrCat("CmlEngineOptions.motion_noise_reference_step_m must be finite and >= 0, got ",
-               motion_noise_reference_step_m));
+  if (!(hypothesis_evidence_scale > 0.0 && hypothesis_evidence_scale <= 1.0)) {
+    throw Error(StrCat("CmlEngineOptions.hypothesis_evidence_scale must be in (0, 1], got ",
+                       hypothesis_evidence_scale));
+  }
+  if (!(reference_frame_step_m >= 0.0 && std::isfinite(reference_frame_step_m))) {
+    throw Error(StrCat("CmlEngineOptions.reference_frame_step_m must be finite and >= 0, got ",
+                       reference_frame_step_m));
   }
   if (!(appearance_sigma_m >= 0.0) || !std::isfinite(appearance_sigma_m)) {
     throw Error(StrCat("CmlEngineOptions.appearance_sigma_m must be finite and >= 0, got ",
@@ -581,7 +584,8 @@ FrameResult CmlEngine::ProcessFrame(const Frame& frame) {
         }
       }
       if (total_u > 0.0) prior /= total_u;
-      b.weight *= std::max(prior, options_.hypothesis_weight_scale);
+      b.weight *=
+          std::max(prior, options_.hypothesis_weight_scale) * options_.hypothesis_evidence_scale;
     }
     sources.push_back(std::move(p_x_y));
   }

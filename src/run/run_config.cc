@@ -114,32 +114,44 @@ CmlEngineOptions ResolveNewMapOptions(const OptionOverrides& overrides, const Ru
   const bool scale = resolved.spatial_scale_source == SpatialScaleSource::kCalibrated;
   const bool identify = resolved.motion_noise_source == MotionNoiseSource::kIdentified;
   const bool offsets = resolved.appearance_offset_source == AppearanceOffsetSource::kCalibrated;
-  const double reference_step = resolved.motion_noise_reference_step_m;
+  const double reference_step = resolved.reference_frame_step_m;
   CmlEngineOptions calibrated = base;  // with the derived values
   std::string joined;                  // "; "-separated notes
   const auto add_note = [&joined](const std::string& line) {
     joined += (joined.empty() ? "" : "; ") + line;
   };
-  if (!identify && reference_step > 0.0) {
-    // Thrun's variances per frame, restated per metre (CmlEngineOptions::
-    // motion_noise_reference_step_m); the median of a few hundred steps is stable.
+  if (reference_step > 0.0) {
+    // The options' per-frame quantities restated for the log's frame step
+    // (CmlEngineOptions::reference_frame_step_m); the median of a few hundred steps is
+    // stable.
     const std::unique_ptr<FrameSource> poses = OpenPoseOnlySource(input);
     const double step = MedianOdometryStep(*poses, 300, 0.01 * reference_step);
-    const double k = MotionNoiseStepScale(reference_step, step);
+    const double k = FrameStepScale(reference_step, step);
     if (step <= 0.0) {
       add_note(
-          StrCat("motion noise per frame as configured (the first session's odometry "
-                 "has fewer than two steps above ",
+          StrCat("motion noise and appearance evidence per frame as configured (the "
+                 "first session's odometry has fewer than two steps above ",
                  0.01 * reference_step, " m)"));
     } else if (k != 1.0) {
-      MotionNoise& m = calibrated.tracker.motion;
-      m.a1 *= k;
-      m.a2 *= k;
-      m.a3 *= k;
-      m.a4 *= k;
-      add_note(StrCat("motion noise a1..a4 x ", k, " for frames ", step,
-                      " m apart (median step of the first session; the noise is stated for ",
-                      reference_step, " m)"));
+      std::string what;
+      if (!identify) {
+        MotionNoise& m = calibrated.tracker.motion;
+        m.a1 *= k;
+        m.a2 *= k;
+        m.a3 *= k;
+        m.a4 *= k;
+        what = StrCat("motion noise a1..a4 x ", k);
+      }
+      if (k > 1.0) {
+        calibrated.hypothesis_evidence_scale /= k;
+        what += StrCat(what.empty() ? "" : ", ", "appearance evidence per frame x ", 1.0 / k);
+      }
+      if (!what.empty()) {
+        add_note(StrCat(what, " for frames ", step,
+                        " m apart (median step of the first session; the options are stated "
+                        "for ",
+                        reference_step, " m)"));
+      }
     }
   }
   if (!scale && !identify && !offsets) {

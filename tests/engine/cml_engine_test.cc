@@ -187,13 +187,17 @@ TEST(CmlEngineOptions, ValidateNamesField) {
   expect_named(
       [](CmlEngineOptions& o) { o.map_update_spacing_m = std::numeric_limits<double>::infinity(); },
       "map_update_spacing_m");
-  expect_named([](CmlEngineOptions& o) { o.motion_noise_reference_step_m = -0.2; },
-               "motion_noise_reference_step_m");
+  expect_named([](CmlEngineOptions& o) { o.hypothesis_evidence_scale = 0.0; },
+               "hypothesis_evidence_scale");
+  expect_named([](CmlEngineOptions& o) { o.hypothesis_evidence_scale = 1.5; },
+               "hypothesis_evidence_scale");
+  expect_named([](CmlEngineOptions& o) { o.reference_frame_step_m = -0.2; },
+               "reference_frame_step_m");
   expect_named(
       [](CmlEngineOptions& o) {
-        o.motion_noise_reference_step_m = std::numeric_limits<double>::quiet_NaN();
+        o.reference_frame_step_m = std::numeric_limits<double>::quiet_NaN();
       },
-      "motion_noise_reference_step_m");
+      "reference_frame_step_m");
   expect_named([](CmlEngineOptions& o) { o.gated_matching.gate_sigmas = 0.0; },
                "gated_matching: gate_sigmas");
   expect_named([](CmlEngineOptions& o) { o.gated_matching.full_search_every_frames = 0; },

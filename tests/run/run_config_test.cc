@@ -300,11 +300,12 @@ TEST(RunConfig, CalibratedSpatialThresholdsFollowTheWorldsScale) {
   EXPECT_DOUBLE_EQ(f.appearance_sigma_m, 2 * defaults.appearance_sigma_m);
 }
 
-// A new map's motion noise is restated for the log's frame step
-// (motion_noise_reference_step_m): unchanged at the step it is stated for, times
-// reference / step rounded to a half octave otherwise; explicit a's, identified noise
-// and a reference of 0 are not scaled.
-TEST(RunConfig, MotionNoiseFollowsTheFrameStep) {
+// A new map's per-frame quantities are restated for the log's frame step
+// (reference_frame_step_m): unchanged at the step they are stated for; otherwise, with k
+// = reference / step rounded to a half octave, the motion noise times k and the
+// appearance evidence per frame times 1 / k (only for k > 1). Explicit values, a
+// reference of 0 and identified noise (for the a's) are not scaled.
+TEST(RunConfig, PerFrameOptionsFollowTheFrameStep) {
   TempConfig file("omnicml_motion_step_test");
   const RunInput input = SimulatedInput("home_store", 1, 60);  // frames 0.2 m apart
   std::string note;
@@ -314,29 +315,46 @@ TEST(RunConfig, MotionNoiseFollowsTheFrameStep) {
                                 ResolveEngineOptions(file.overrides)));
   EXPECT_EQ(note, "");
 
-  // Noise stated for frames 0.4 m apart: twice per frame at 0.2 m per frame.
+  // Stated for frames 0.4 m apart: twice the noise and half the evidence per frame at
+  // 0.2 m per frame.
   CmlEngineOptions sparse;
-  sparse.motion_noise_reference_step_m = 0.4;
+  sparse.reference_frame_step_m = 0.4;
   const CmlEngineOptions o = ResolveNewMapOptions(file.overrides, input, &note, sparse);
-  EXPECT_NE(note.find("motion noise a1..a4 x 2 for frames "), std::string::npos) << note;
+  EXPECT_NE(note.find("motion noise a1..a4 x 2, appearance evidence per frame x 0.5 for "
+                      "frames "),
+            std::string::npos)
+      << note;
   EXPECT_DOUBLE_EQ(o.tracker.motion.a1, 2 * defaults.tracker.motion.a1);
   EXPECT_DOUBLE_EQ(o.tracker.motion.a2, 2 * defaults.tracker.motion.a2);
   EXPECT_DOUBLE_EQ(o.tracker.motion.a3, 2 * defaults.tracker.motion.a3);
   EXPECT_DOUBLE_EQ(o.tracker.motion.a4, 2 * defaults.tracker.motion.a4);
+  EXPECT_DOUBLE_EQ(o.hypothesis_evidence_scale, 0.5);
   EXPECT_EQ(o.appearance_sigma_m, defaults.appearance_sigma_m);
 
-  file.Write("tracker: {motion: {a3: 0.07}}\n");
+  // Stated for frames 0.1 m apart: half the noise per frame, the evidence as it is (a
+  // frame never counts for more than one).
+  CmlEngineOptions dense;
+  dense.reference_frame_step_m = 0.1;
+  const CmlEngineOptions d = ResolveNewMapOptions(file.overrides, input, &note, dense);
+  EXPECT_DOUBLE_EQ(d.tracker.motion.a3, 0.5 * defaults.tracker.motion.a3);
+  EXPECT_EQ(d.hypothesis_evidence_scale, 1.0);
+
+  file.Write("tracker: {motion: {a3: 0.07}}\nhypothesis_evidence_scale: 0.8\n");
   const CmlEngineOptions e = ResolveNewMapOptions(file.overrides, input, &note, sparse);
   EXPECT_DOUBLE_EQ(e.tracker.motion.a3, 0.07);  // explicit
+  EXPECT_DOUBLE_EQ(e.hypothesis_evidence_scale, 0.8);
   EXPECT_DOUBLE_EQ(e.tracker.motion.a1, 2 * defaults.tracker.motion.a1);
 
-  file.Write("motion_noise_reference_step_m: 0\n");
-  EXPECT_EQ(ResolveNewMapOptions(file.overrides, input, &note, sparse).tracker.motion.a1,
-            defaults.tracker.motion.a1);
+  file.Write("reference_frame_step_m: 0\n");
+  const CmlEngineOptions off = ResolveNewMapOptions(file.overrides, input, &note, sparse);
+  EXPECT_EQ(off.tracker.motion.a1, defaults.tracker.motion.a1);
+  EXPECT_EQ(off.hypothesis_evidence_scale, 1.0);
 
   file.Write("motion_noise_source: identified\n");
-  ResolveNewMapOptions(file.overrides, input, &note, sparse);
-  EXPECT_EQ(note.find("x 2"), std::string::npos) << note;
+  const CmlEngineOptions id = ResolveNewMapOptions(file.overrides, input, &note, sparse);
+  EXPECT_EQ(note.find("motion noise a1..a4 x"), std::string::npos) << note;
+  EXPECT_NE(note.find("appearance evidence per frame x 0.5"), std::string::npos) << note;
+  EXPECT_DOUBLE_EQ(id.hypothesis_evidence_scale, 0.5);
 }
 
 // `omnicml calibrate`'s YAML loads as a configuration: the default spatial thresholds

@@ -85,12 +85,12 @@ inline constexpr double kReferenceMapUpdateSpacingM = 0.15;
 // than two moving steps were read. Throws omnicml::Error on a bad frame.
 double MedianOdometryStep(FrameSource& source, int max_frames, double min_step_m);
 
-// The factor for CmlEngineOptions::motion_noise_reference_step_m: reference / step
-// rounded to a half octave (2^(round(2 log2 x) / 2); 1 for x in [0.841, 1.189)), so that
-// Thrun's per-increment variances (a trans^2 per frame, motion_model.h) give the same
+// The factor k for CmlEngineOptions::reference_frame_step_m: reference / step rounded to
+// a half octave (2^(round(2 log2 x) / 2); 1 for x in [0.841, 1.189)). Thrun's
+// per-increment variances times k (a trans^2 per frame, motion_model.h) give the same
 // variance per metre at frames `step` apart as the unscaled a's at frames `reference`
-// apart. 1 when either is <= 0.
-double MotionNoiseStepScale(double reference_step_m, double step_m);
+// apart, and k frames then share one frame's appearance evidence. 1 when either is <= 0.
+double FrameStepScale(double reference_step_m, double step_m);
 
 // One point of the distance-versus-travel curve.
 struct CalibrationPoint {

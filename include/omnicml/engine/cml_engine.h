@@ -233,6 +233,14 @@ struct CmlEngineOptions {
   //    view matches, not where in those 3 m the robot stands. Also added to a pose-graph
   //    closure from the match (its largest axis). docs/design.md "Spread of a component".
   bool appearance_offset_spread = false;
+  //  - ... and, while tracking, by this factor in (0, 1]: the weight one frame's
+  //    appearance evidence adds to the hypotheses it supports ([G] (8): w_a + w_b) and
+  //    gives a new one, and its pull in covariance intersection ((5)). Neighbouring
+  //    frames match the same views, so their evidence is not independent; at frames k
+  //    times denser than the step the defaults were chosen at, 1 / k keeps the evidence
+  //    per metre of travel (reference_frame_step_m sets it so at a new map). 1: [G]'s
+  //    per-frame evidence.
+  double hypothesis_evidence_scale = 1.0;
   // Global start: the smallest similarity S of the best matching view for p(x|y) to seed
   // the mixture. Dimensionless, in [0, 1].
   double global_seed_min_similarity = 0.3;
@@ -254,21 +262,27 @@ struct CmlEngineOptions {
   // Where appearance_offset_curve comes from when a run starts a new map
   // (AppearanceOffsetSource); read by the run layer with the motion noise above.
   AppearanceOffsetSource appearance_offset_source = AppearanceOffsetSource::kConfigured;
-  // The frame step tracker.motion's a1..a4 are stated for. Metres, finite, >= 0; 0: the
-  // motion noise is used per increment as configured. Thrun's variances grow with the
-  // square of an increment (motion_model.h), so the same a1..a4 give frames twice as
-  // dense half the variance per metre of travel; odometry errors do not depend on how
-  // often the camera takes a frame. When a run starts a new map with motion_noise_source
-  // configured, it first reads the odometry of the log's first session (no images),
-  // takes the median step d of its moving frames (steps above 1 % of this reference)
-  // and multiplies a1..a4 by k = reference / d rounded to a half octave
-  // (MotionNoiseStepScale, engine/calibration.h): the variance per metre is then the
-  // one the a's give at frames `reference` apart (docs/design.md "Motion noise per metre
-  // of travel"). The default is the simulator's step, at which the defaults were chosen;
-  // k rounds to 1 for steps within about 19 % of it. Values of a1..a4 given explicitly in
-  // the configuration file or by flags are not scaled; identified noise is measured at
-  // the log's own step and is not scaled either; a run that loads a map keeps the map's.
-  double motion_noise_reference_step_m = 0.2;
+  // The frame step the per-frame quantities of the options are stated for: the motion
+  // noise a1..a4 and the weight of one frame's appearance evidence
+  // (hypothesis_evidence_scale). Metres, finite, >= 0; 0: both are used per frame as
+  // configured. When a run starts a new map it first reads the odometry of the log's
+  // first session (no images), takes the median step d of its moving frames (steps above
+  // 1 % of this reference) and k = reference / d rounded to a half octave
+  // (FrameStepScale, engine/calibration.h), then
+  //  - multiplies a1..a4 by k: Thrun's variances grow with the square of an increment
+  //    (motion_model.h), so the same a's give frames twice as dense half the variance per
+  //    metre, while odometry errors do not depend on how often the camera takes a frame
+  //    (not with motion_noise_source identified, whose a's are measured at the log's own
+  //    step);
+  //  - multiplies hypothesis_evidence_scale by min(1, 1 / k): neighbouring frames match
+  //    the same views, so k times as many frames per metre would count the same
+  //    evidence k times.
+  // (docs/design.md "Per-frame quantities restated per metre of travel"). The default is
+  // the simulator's step, at which the defaults were chosen; k rounds to 1 for steps
+  // within about 19 % of it, so those logs run as configured. Values given explicitly in
+  // the configuration file or by flags are not scaled; a run that loads a map keeps the
+  // map's.
+  double reference_frame_step_m = 0.2;
   // With motion_noise_source identified: the degrees of freedom of the Student t refit
   // that gives appearance_sigma_m (MotionNoiseIdentificationOptions::offset_dof; 0 takes
   // it from the Gaussian fit). Finite, >= 0.
@@ -327,7 +341,8 @@ void VisitFields(V& v, CmlEngineOptions& o) {
   // After engine file format 15, without a bump: stored only when not the default.
   v.Since(16, [&](auto& w) {
     w("map_update_spacing_m", o.map_update_spacing_m);
-    w("motion_noise_reference_step_m", o.motion_noise_reference_step_m);
+    w("reference_frame_step_m", o.reference_frame_step_m);
+    w("hypothesis_evidence_scale", o.hypothesis_evidence_scale);
   });
 }
 

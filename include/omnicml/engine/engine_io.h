@@ -69,8 +69,9 @@ namespace omnicml {
 //    stored only when not default. map_update_spacing_m is one: when it is set, the
 //    session state after next_frame also holds the last map update's session and
 //    position, so files without it keep their layout and older builds refuse files with
-//    it by the unknown option. motion_noise_reference_step_m is another (read only when
-//    a run starts a new map).
+//    it by the unknown option. reference_frame_step_m and
+//    hypothesis_evidence_scale are others (the first read only when a run starts a new
+//    map).
 // The model's options keep these flat names in the file (model.e_max, model.forgetting,
 // ...) although YAML and C++ group them in sections (environment_model_options.h
 // FlatModelOptionsValue), so files of every version keep their bytes and load as before.

@@ -97,10 +97,11 @@ struct RunInput;  // frame_sources.h
 
 // The options of a run that starts a new map: ResolveEngineOptions(overrides, base), with
 // the values derived from the first session of `input` (engine/calibration.h Calibrate)
-// under the configuration file and the flags (explicit values win): unless the motion
-// noise is identified, tracker.motion's a1..a4 times MotionNoiseStepScale(
-// motion_noise_reference_step_m, the first session's MedianOdometryStep) (a pose-only
-// read; nothing when the reference is 0); when they say
+// under the configuration file and the flags (explicit values win): with k =
+// FrameStepScale(reference_frame_step_m, the first session's MedianOdometryStep) (a
+// pose-only read; nothing when the reference is 0), tracker.motion's a1..a4 times k
+// unless the motion noise is identified, and hypothesis_evidence_scale times 1 / k when
+// k > 1; when they say
 // spatial_scale_source: calibrated, base's spatial thresholds times the
 // calibrated scale (ScaleSpatialThresholds); when they say motion_noise_source:
 // identified, the identified motion noise and appearance_sigma_m (ApplyMotionCalibration);

@@ -1,5 +1,5 @@
 // Tests of the motion noise stated per metre of travel (CmlEngineOptions::
-// motion_noise_reference_step_m): the scale restores the variance per metre that Thrun's
+// reference_frame_step_m): the scale restores the variance per metre that Thrun's
 // per-increment model loses at denser frames, its half-octave rounding, and the median
 // odometry step it is measured from.
 #include <cmath>
@@ -50,12 +50,12 @@ MotionNoise Scaled(MotionNoise m, double k) {
   return m;
 }
 
-TEST(MotionNoiseStep, ScaledNoiseKeepsTheVariancePerMetre) {
+TEST(FrameStep, ScaledNoiseKeepsTheVariancePerMetre) {
   const MotionNoise noise;  // the defaults, stated for frames 0.2 m apart
   for (const double curvature : {0.0, 0.5}) {
     SCOPED_TRACE(StrCat("curvature ", curvature));
     const Eigen::Matrix3d reference = PropagatedCovariance(6.0, curvature, 0.2, noise);
-    const double k = MotionNoiseStepScale(0.2, 0.05);
+    const double k = FrameStepScale(0.2, 0.05);
     ASSERT_EQ(k, 4.0);
     const Eigen::Matrix3d dense = PropagatedCovariance(6.0, curvature, 0.05, noise);
     const Eigen::Matrix3d scaled = PropagatedCovariance(6.0, curvature, 0.05, Scaled(noise, k));
@@ -73,17 +73,17 @@ TEST(MotionNoiseStep, ScaledNoiseKeepsTheVariancePerMetre) {
   }
 }
 
-TEST(MotionNoiseStep, ScaleRoundsToAHalfOctave) {
-  EXPECT_EQ(MotionNoiseStepScale(0.2, 0.199), 1.0);  // the simulator's frames
-  EXPECT_EQ(MotionNoiseStepScale(0.2, 0.17), 1.0);
-  EXPECT_EQ(MotionNoiseStepScale(0.2, 0.23), 1.0);
-  EXPECT_EQ(MotionNoiseStepScale(0.2, 0.1), 2.0);
-  EXPECT_EQ(MotionNoiseStepScale(0.2, 0.0496), 4.0);
-  EXPECT_DOUBLE_EQ(MotionNoiseStepScale(0.2, 0.0099), std::exp2(4.5));  // AntWorld
-  EXPECT_EQ(MotionNoiseStepScale(0.2, 0.4), 0.5);  // sparser frames: less per frame
-  EXPECT_DOUBLE_EQ(MotionNoiseStepScale(0.2, 0.14), std::sqrt(2.0));
-  EXPECT_EQ(MotionNoiseStepScale(0.0, 0.05), 1.0);  // off
-  EXPECT_EQ(MotionNoiseStepScale(0.2, 0.0), 1.0);   // not measured
+TEST(FrameStep, ScaleRoundsToAHalfOctave) {
+  EXPECT_EQ(FrameStepScale(0.2, 0.199), 1.0);  // the simulator's frames
+  EXPECT_EQ(FrameStepScale(0.2, 0.17), 1.0);
+  EXPECT_EQ(FrameStepScale(0.2, 0.23), 1.0);
+  EXPECT_EQ(FrameStepScale(0.2, 0.1), 2.0);
+  EXPECT_EQ(FrameStepScale(0.2, 0.0496), 4.0);
+  EXPECT_DOUBLE_EQ(FrameStepScale(0.2, 0.0099), std::exp2(4.5));  // AntWorld
+  EXPECT_EQ(FrameStepScale(0.2, 0.4), 0.5);                       // sparser frames: less per frame
+  EXPECT_DOUBLE_EQ(FrameStepScale(0.2, 0.14), std::sqrt(2.0));
+  EXPECT_EQ(FrameStepScale(0.0, 0.05), 1.0);  // off
+  EXPECT_EQ(FrameStepScale(0.2, 0.0), 1.0);   // not measured
 }
 
 // Frames from a list of (session, odometry pose).
@@ -111,7 +111,7 @@ class PoseListSource : public FrameSource {
   std::size_t next_ = 0;
 };
 
-TEST(MotionNoiseStep, MedianOdometryStepCountsMovingFramesOfTheFirstSession) {
+TEST(FrameStep, MedianOdometryStepCountsMovingFramesOfTheFirstSession) {
   std::vector<std::pair<int, Pose2>> frames;
   // Parked for 20 frames (odometry jitter of 0.1 mm), turning on the spot for 5, then
   // 7 steps of 0.05 m and 2 of 0.3 m; the second session drives 1 m steps.

@@ -14,6 +14,11 @@
 namespace omnicml {
 namespace {
 
+// x > 0 rounded to the nearest of 2^(n / steps_per_octave), n an integer.
+double RoundToOctaveSteps(double x, double steps_per_octave) {
+  return std::exp2(std::round(std::log2(x) * steps_per_octave) / steps_per_octave);
+}
+
 double Median(std::vector<double> v) {
   if (v.empty()) return 0.0;
   const std::size_t mid = v.size() / 2;
@@ -223,8 +228,7 @@ Calibration Calibrate(FrameSource& source, const CmlEngineOptions& options,
   c.scale =
       std::clamp(c.measured_scale, calibration_options.min_scale, calibration_options.max_scale);
   if (calibration_options.scale_steps_per_octave > 0) {
-    const double steps = calibration_options.scale_steps_per_octave;
-    c.scale = std::exp2(std::round(std::log2(c.scale) * steps) / steps);
+    c.scale = RoundToOctaveSteps(c.scale, calibration_options.scale_steps_per_octave);
   }
 
   c.loop_e_max = DistanceAtPath(c.curve, 0.5 * c.match_length_m);
@@ -275,7 +279,7 @@ double MedianOdometryStep(FrameSource& source, int max_frames, double min_step_m
 
 double FrameStepScale(double reference_step_m, double step_m) {
   if (!(reference_step_m > 0.0) || !(step_m > 0.0)) return 1.0;
-  return std::exp2(std::round(2.0 * std::log2(reference_step_m / step_m)) / 2.0);
+  return RoundToOctaveSteps(reference_step_m / step_m, 2.0);
 }
 
 bool ScaleSpatialThresholds(const Calibration& calibration, CmlEngineOptions* options) {

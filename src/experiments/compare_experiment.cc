@@ -123,10 +123,10 @@ std::string ModeMapSvg(const CmlEngine& engine, const std::vector<FrameRecord>& 
   std::map<std::uint64_t, bool> last_loss_active;  // view -> its latest component removal
   for (const MapEvent& e : events) {
     if (e.type == MapEventType::kComponentRemoved) {
-      last_loss_active[e.view_id] = e.reason == kActiveForgettingReason;
+      last_loss_active[e.view_id] = IsActiveForgettingReason(e.reason);
     } else if (e.type == MapEventType::kViewRemoved) {
       pic.removed_m.push_back(e.position.head<2>());
-      const bool active = e.reason == kActiveForgettingReason || last_loss_active[e.view_id];
+      const bool active = IsActiveForgettingReason(e.reason) || last_loss_active[e.view_id];
       auto& [by_active, otherwise] = (*removed_by_session)[e.session];
       (active ? by_active : otherwise) += 1;
     }

@@ -156,14 +156,14 @@ json ViewsJson(const std::vector<MapEvent>& events, int max_weakening) {
         last_loss_active.resize(index.size(), 0);
         died[k] = e.frame;
         // A view goes when its last component goes: that removal tells why.
-        why[k] = e.reason == kActiveForgettingReason || last_loss_active[k] ? 1 : 0;
+        why[k] = IsActiveForgettingReason(e.reason) || last_loss_active[k] ? 1 : 0;
         break;
       }
       case MapEventType::kComponentRemoved: {
         const std::size_t k = view(e);
         last_loss_active.resize(index.size(), 0);
         weak.emplace_back(e.frame, k);
-        last_loss_active[k] = e.reason == kActiveForgettingReason ? 1 : 0;
+        last_loss_active[k] = IsActiveForgettingReason(e.reason) ? 1 : 0;
         break;
       }
       default:

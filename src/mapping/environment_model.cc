@@ -320,7 +320,13 @@ UpdateStats EnvironmentModel::Update(const Descriptor& y, const Gaussian& estima
 
   // Phase 3: the weight rules of the forgetting policy.
   WeightChanges changes;
-  policy_->Apply(WeightUpdate{&matches, mu_t, c_t, context}, store_, &changes);
+  const bool persistence = options_.forgetting.persistence_min_probability > 0;
+  if (persistence) persistence_.MaybeRefit();
+  policy_->Apply(WeightUpdate{&matches, mu_t, c_t, context, persistence ? &persistence_ : nullptr},
+                 store_, &changes);
+  if (persistence) {
+    for (const auto& [run, matched] : changes.pass_outcomes) persistence_.Record(run, matched);
+  }
   stats.components_increased += changes.increased;
   stats.components_passive_forgotten += changes.passive_forgotten;
   stats.components_active_forgotten += changes.active_forgotten;
@@ -408,7 +414,12 @@ std::vector<std::uint64_t> EnvironmentModel::AddObservations(const std::vector<V
     view.stats.last_seen_frame = context.frame;
     view.stats.last_seen_session = context.session;
     view.footprint.Observe(mu_t.x(), mu_t.y(), m.similarity);
-    view.footprint.NoteExpected(context, /*matched=*/true, options_.forgetting.pass_gap_frames);
+    const PassOutcomes outcomes =
+        view.footprint.NoteExpected(context, /*matched=*/true, options_.forgetting.pass_gap_frames);
+    if (options_.forgetting.persistence_min_probability > 0) {
+      if (outcomes.closed_missed_run >= 0) persistence_.Record(outcomes.closed_missed_run, false);
+      if (outcomes.matched_run >= 0) persistence_.Record(outcomes.matched_run, true);
+    }
 
     ViewComponent added;
     added.weight = 0.0;

@@ -8,7 +8,10 @@
 //   u64 events logged, u64 s, s x (i32 session, 5 x i64 counts)        (version >= 3)
 //   u64 e, e x Event
 //   u64 r, r x RecentUpdate                                           (version >= 4)
+//   with forgetting.persistence_min_probability > 0 (an option, not a version):
+//   16 x i64 passes, 16 x i64 matched, i64 passes at fit, 16 x f64 belief, f64 h, f64 P_M
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <deque>
 #include <map>
@@ -302,6 +305,16 @@ void EnvironmentModel::Serialize(BinaryWriter& out) const {
     out.Write(r.context.frame);
     out.Write<std::int32_t>(r.context.session);
   }
+  // With view persistence on (an option of engine format 16, stored only when set): its
+  // counts and belief, so that a resumed run equals one run.
+  if (options_.forgetting.persistence_min_probability > 0) {
+    for (const std::int64_t n : persistence_.passes_by_run()) out.Write(n);
+    for (const std::int64_t k : persistence_.matched_by_run()) out.Write(k);
+    out.Write(persistence_.passes_at_fit());
+    for (const double u : persistence_.upper_existence()) out.Write(u);
+    out.Write(persistence_.hazard());
+    out.Write(persistence_.miss_probability());
+  }
 }
 
 EnvironmentModel EnvironmentModel::Deserialize(BinaryReader& in,
@@ -335,10 +348,24 @@ EnvironmentModel EnvironmentModel::Deserialize(BinaryReader& in,
   for (std::size_t i = 0; i < num_views; ++i) views.push_back(ReadView(in, version, expected));
   ReadEvents(in, version, &model.events_);
   if (version >= 4) model.ReadRecentUpdates(in, expected.kind);
+  if (options.forgetting.persistence_min_probability > 0) model.ReadViewPersistence(in);
   CheckIds(in, views, next_view_id, next_component_id);
   model.store_.Restore(std::move(views), next_view_id, next_component_id);
   model.retrieval_.Rebuild(model.store_);
   return model;
+}
+
+void EnvironmentModel::ReadViewPersistence(BinaryReader& in) {
+  constexpr int kBins = ViewPersistence::kRunBins;
+  std::array<std::int64_t, kBins> passes{}, matched{};
+  std::array<double, kBins> upper{};
+  for (auto& n : passes) n = in.Read<std::int64_t>("view persistence passes");
+  for (auto& k : matched) k = in.Read<std::int64_t>("view persistence matched passes");
+  const auto at_fit = in.Read<std::int64_t>("view persistence passes at fit");
+  for (auto& u : upper) u = in.Read<double>("view persistence belief");
+  const auto hazard = in.Read<double>("view persistence hazard");
+  const auto miss = in.Read<double>("view persistence miss probability");
+  persistence_.Restore(passes, matched, at_fit, upper, hazard, miss, in.source().c_str());
 }
 
 void EnvironmentModel::ReadRecentUpdates(BinaryReader& in, DescriptorKind kind) {

@@ -110,6 +110,9 @@ void EnvironmentModelOptions::Validate() const {
   }
   if (f.pass_gap_frames < 0) fail("forgetting.pass_gap_frames", ">= 0", f.pass_gap_frames);
   finite_above("forgetting.footprint_confidence", f.footprint_confidence, true);
+  if (!(f.persistence_min_probability >= 0 && f.persistence_min_probability < 1)) {
+    fail("forgetting.persistence_min_probability", "in [0, 1)", f.persistence_min_probability);
+  }
   const Index& i = index;
   finite_above("index.spatial_cell_m", i.spatial_cell_m, false);
   if (i.index_min_views < 0) fail("index.index_min_views", ">= 0", i.index_min_views);

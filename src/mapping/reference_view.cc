@@ -39,20 +39,30 @@ double ViewFootprint::SquaredDistance(const Eigen::Vector2d& p, const Eigen::Mat
   return llt.matrixL().solve(d).squaredNorm();
 }
 
-void ViewFootprint::NoteExpected(const UpdateContext& context, bool matched, int gap_frames) {
-  const bool new_pass = last_expected_frame < 0 || last_expected_session != context.session ||
+PassOutcomes ViewFootprint::NoteExpected(const UpdateContext& context, bool matched,
+                                         int gap_frames) {
+  PassOutcomes out;
+  const bool passed_before = last_expected_frame >= 0;
+  const bool new_pass = !passed_before || last_expected_session != context.session ||
                         std::abs(context.frame - last_expected_frame) > gap_frames;
   if (new_pass) {
-    if (last_expected_frame >= 0 && !pass_matched) ++missed_passes;
+    if (passed_before && !pass_matched) {
+      out.closed_missed_run = missed_passes;
+      ++missed_passes;
+    }
     pass_matched = false;
   }
   if (matched) {
-    if (!pass_matched) ++matched_passes;
+    if (!pass_matched) {
+      ++matched_passes;
+      if (passed_before) out.matched_run = missed_passes;
+    }
     pass_matched = true;
     missed_passes = 0;
   }
   last_expected_frame = context.frame;
   last_expected_session = context.session;
+  return out;
 }
 
 bool IsValidSpread(const Eigen::Matrix2d& s) {

@@ -820,7 +820,7 @@ MapHealth ComputeMapHealth(const EnvironmentModel& model, int latest_session,
     if (e.type == MapEventType::kViewRemoved || e.type == MapEventType::kComponentRemoved) {
       it->second.cell.removals_recent += 1;
     }
-    if (e.type == MapEventType::kComponentRemoved && e.reason == kActiveForgettingReason) {
+    if (e.type == MapEventType::kComponentRemoved && IsActiveForgettingReason(e.reason)) {
       it->second.cell.forgotten_recent += 1;
     }
   }

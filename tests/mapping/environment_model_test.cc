@@ -127,9 +127,13 @@ TEST(EnvironmentModelOptions, FlatTreeGroupsBackToTheSameOptions) {
     if (v.kind == OptionValue::Kind::kMap) {
       // Options added after the flat layout (Since) have no flat key; they stay in their
       // section, and the section merges back into the grouped one.
-      EXPECT_EQ(k, "update");
-      ASSERT_EQ(v.members.size(), 1u);
-      EXPECT_EQ(v.members[0].first, "merge_fusion");
+      ASSERT_EQ(v.members.size(), 1u) << k;
+      if (k == "update") {
+        EXPECT_EQ(v.members[0].first, "merge_fusion");
+      } else {
+        EXPECT_EQ(k, "forgetting");
+        EXPECT_EQ(v.members[0].first, "persistence_min_probability");
+      }
       continue;
     }
     EXPECT_EQ(v.kind, OptionValue::Kind::kScalar) << k;
@@ -961,6 +965,112 @@ TEST(EnvironmentModel, ChangedWorldIsForgotten) {
       EXPECT_EQ(old_left, old_views.size());
     }
   }
+}
+
+// View persistence (persistence_min_probability): a corridor of 30 places, one pass per
+// session, each place seen by 3 Updates. The world either changes for good (from session 4
+// on, every other place shows a new appearance) or toggles (every place alternates between
+// two appearances, a light switched on one day and off the next). (18)-(19) are made
+// nearly inert (beta_for 0.01), so what removes views is the persistence belief.
+struct CorridorResult {
+  std::size_t old_changed_left = 0;  // views of the changed places' first appearance
+  std::size_t old_kept_left = 0;     // views of the unchanged places
+  std::size_t views = 0;
+  double hazard = 0.0;
+};
+
+CorridorResult RunCorridor(bool toggling, double min_probability, int sessions,
+                           std::vector<std::uint8_t>* saved_at_half = nullptr,
+                           std::vector<std::uint8_t>* final_bytes = nullptr) {
+  auto fx = MakeFakeExtractor(2);
+  EnvironmentModelOptions o = EngineLikeOptions();
+  o.forgetting.beta_for = 0.01;
+  o.forgetting.forget_unconfirmed_views = false;
+  o.forgetting.persistence_min_probability = min_probability;
+  EnvironmentModel m(o, fx);
+  constexpr int kPlaces = 30;
+  std::set<std::uint64_t> changed_views, kept_views;
+  std::int64_t frame = 0;
+  for (int session = 0; session < sessions; ++session) {
+    for (int k = 0; k < kPlaces; ++k) {
+      const double x = 0.6 * k;
+      float appearance = 0.0f;
+      if (toggling) {
+        appearance = (session % 2 == 0) ? 0.0f : 5.0f;
+      } else if (k % 2 == 1 && session >= 4) {
+        appearance = 10.0f;
+      }
+      for (int u = 0; u < 3; ++u) {
+        m.Update(fx->Make({static_cast<float>(2.5 * x), appearance}), Est(x, 0, 0),
+                 {frame++, session});
+      }
+      frame += 10;
+    }
+    frame += 100;
+    if (session == 0) {
+      for (const ReferenceView& v : m.views()) {
+        const int k = static_cast<int>(std::lround(v.components.front().mean.x() / 0.6));
+        (k % 2 == 1 ? changed_views : kept_views).insert(v.id);
+      }
+    }
+    if (saved_at_half != nullptr && session == sessions / 2) *saved_at_half = Bytes(m);
+  }
+  m.CheckInvariants();
+  CorridorResult r;
+  for (const ReferenceView& v : m.views()) {
+    r.old_changed_left += changed_views.count(v.id);
+    r.old_kept_left += kept_views.count(v.id);
+  }
+  r.views = m.NumViews();
+  r.hazard = m.view_persistence().hazard();
+  if (final_bytes != nullptr) *final_bytes = Bytes(m);
+  return r;
+}
+
+// Places that changed for good are removed once the map's passes show that misses do not
+// come back; unchanged places stay; without the option the old views stay.
+TEST(EnvironmentModel, PersistenceRemovesPlacesThatChangedForGood) {
+  const CorridorResult with = RunCorridor(false, 0.5, 12);
+  const CorridorResult without = RunCorridor(false, 0.0, 12);
+  EXPECT_EQ(with.old_kept_left, 15u);
+  EXPECT_EQ(with.old_changed_left, 0u);
+  EXPECT_EQ(without.old_changed_left, 15u);
+  EXPECT_GT(with.hazard, 0.0);
+}
+
+// Places whose appearance comes back every other session keep every view: the map's own
+// passes say that a miss is followed by a match.
+TEST(EnvironmentModel, PersistenceKeepsPlacesThatComeBack) {
+  const CorridorResult with = RunCorridor(true, 0.5, 12);
+  const CorridorResult without = RunCorridor(true, 0.0, 12);
+  EXPECT_EQ(with.views, without.views);
+  EXPECT_EQ(with.old_kept_left + with.old_changed_left, 30u);
+}
+
+// The counts and the belief are saved with the map: a model loaded halfway goes on as the
+// one that never stopped.
+TEST(EnvironmentModel, PersistenceSurvivesSerialize) {
+  std::vector<std::uint8_t> half, end;
+  RunCorridor(false, 0.5, 12, &half, &end);
+  auto fx = MakeFakeExtractor(2);
+  EnvironmentModelOptions o = EngineLikeOptions();
+  o.forgetting.beta_for = 0.01;
+  o.forgetting.forget_unconfirmed_views = false;
+  o.forgetting.persistence_min_probability = 0.5;
+  BinaryReader in(half, "half");
+  EnvironmentModel copy = EnvironmentModel::Deserialize(in, o, fx);
+  EXPECT_EQ(in.remaining(), 0u);
+  EXPECT_EQ(Bytes(copy), half);
+  EXPECT_GT(copy.view_persistence().passes(), 0);
+  // Without the option the section is not there: the bytes left over are an error.
+  o.forgetting.persistence_min_probability = 0.0;
+  BinaryReader in2(half, "half");
+  EXPECT_THROW(
+      {
+        EnvironmentModel other = EnvironmentModel::Deserialize(in2, o, fx);
+        in2.ExpectEnd("model");
+      },
+      Error);
 }
 
 // Footprints survive Serialize/Deserialize and grow with the matches.

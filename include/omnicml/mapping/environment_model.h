@@ -56,6 +56,7 @@
 #include "omnicml/mapping/reference_view.h"
 #include "omnicml/mapping/spatial_index.h"
 #include "omnicml/mapping/view_index.h"
+#include "omnicml/mapping/view_persistence.h"
 #include "omnicml/mapping/view_retrieval.h"
 #include "omnicml/mapping/view_store.h"
 
@@ -181,6 +182,9 @@ class EnvironmentModel {
   const ViewStore& store() const { return store_; }
   const ViewRetrieval& retrieval() const { return retrieval_; }
   const ForgettingPolicy& forgetting_policy() const { return *policy_; }
+  // The pass statistics and belief of view persistence (view_persistence.h); kept only
+  // while forgetting.persistence_min_probability > 0 (else empty).
+  const ViewPersistence& view_persistence() const { return persistence_; }
   // Switches the weight rules (e.g. build on day 1 with active forgetting, then freeze
   // with static).
   void SetForgettingMode(ForgettingMode mode);
@@ -190,7 +194,9 @@ class EnvironmentModel {
 
   // Appends the model's state to `out`: views (descriptors, components, counters) in
   // storage order, next ids, the event counts and the event ring, the look-back's recent
-  // updates. Options are NOT written (the caller stores them). Same model => same bytes.
+  // updates, and with forgetting.persistence_min_probability > 0 the view persistence
+  // counts and belief. Options are NOT written (the caller stores them; Deserialize must
+  // get the same persistence_min_probability). Same model => same bytes.
   void Serialize(BinaryWriter& out) const;
   // Reads what Serialize wrote. Throws omnicml::Error on truncated or malformed bytes, or
   // when the stored descriptor kind / feature length differ from `extractor`'s. A section
@@ -259,6 +265,8 @@ class EnvironmentModel {
   void RemoveViewAt(std::size_t row);
   // Deserialize's last section (environment_model_io.cc).
   void ReadRecentUpdates(BinaryReader& in, DescriptorKind kind);
+  // ... then, with view persistence on, its counts and belief.
+  void ReadViewPersistence(BinaryReader& in);
 
   EnvironmentModelOptions options_;
   std::shared_ptr<const DescriptorExtractor> extractor_;
@@ -269,6 +277,7 @@ class EnvironmentModel {
   MapEventLog events_;
   // The latest updates of the current session, oldest first (look_back_frames).
   std::deque<RecentUpdate> recent_updates_;
+  ViewPersistence persistence_;
 };
 
 }  // namespace omnicml

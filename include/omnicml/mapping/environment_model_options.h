@@ -159,6 +159,12 @@ struct EnvironmentModelOptions {
     // view that matched on two passes, or one made in an earlier session (its next pass
     // is on another day), keeps the grace.
     bool forget_unconfirmed_views = true;
+    // View persistence (docs/forgetting.md "View persistence", view_persistence.h): when a
+    // pass through a view's footprint closes without a match and the belief that its place
+    // still looks like it (the 95 % upper posterior bound of P(exists | missed run), with
+    // the hazard and miss probability estimated from the map's own passes) is below this
+    // probability, the whole view is removed. A probability in [0, 1); 0 disables.
+    double persistence_min_probability = 0.0;
   };
 
   // The spatial grid over component positions and the retrieval indexes
@@ -270,6 +276,8 @@ void VisitFields(V& v, EnvironmentModelOptions::Forgetting& o) {
   v("footprint_confidence", o.footprint_confidence);
   v("forget_by_matched_passes", o.forget_by_matched_passes);
   v("forget_unconfirmed_views", o.forget_unconfirmed_views);
+  // After engine file format 15, without a bump: stored only when not the default.
+  v.Since(16, [&](auto& w) { w("persistence_min_probability", o.persistence_min_probability); });
 }
 
 template <class V>

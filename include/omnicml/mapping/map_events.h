@@ -27,6 +27,13 @@ enum class MapEventType : std::uint8_t {
 std::string ToString(MapEventType type);
 // MapEvent::reason of a component removed after active forgetting (18)-(19) lowered it.
 inline constexpr const char* kActiveForgettingReason = "active forgetting (18)-(19)";
+// ... of a view removed whole because its persistence belief fell below
+// forgetting.persistence_min_probability (view_persistence.h).
+inline constexpr const char* kPersistenceReason = "view persistence";
+// Whether a removal `reason` is one of active forgetting's (either of the two above).
+inline bool IsActiveForgettingReason(const std::string& reason) {
+  return reason == kActiveForgettingReason || reason == kPersistenceReason;
+}
 
 // One change of the map, so a user can tell a changed place (components forgotten at a
 // place, then a new view inserted there) from a newly visited one (insertion only).

@@ -57,6 +57,16 @@ struct UpdateContext {
   int session = 0;
 };
 
+// The passes NoteExpected closed or matched, as outcomes for the view persistence
+// statistics (view_persistence.h); -1: none.
+struct PassOutcomes {
+  // The previous pass closed without a match; the run of missed passes before it.
+  int closed_missed_run = -1;
+  // The view matched for the first time in this pass, and it had passed before (its
+  // creation pass is no outcome); the run of missed passes before this pass.
+  int matched_run = -1;
+};
+
 // Where a view has been observed to match (docs/forgetting.md): the similarity-weighted
 // mean and scatter of the xy of the estimates mu_t of the Updates in which it matched
 // (its creation included), and the pass bookkeeping of rule (18).
@@ -80,8 +90,8 @@ struct ViewFootprint {
   // expected to match (it matched, or mu_t lies inside the footprint): one more than
   // gap_frames frames after the last such Update, or in another session, starts a new
   // pass; the pass it closes adds to missed_passes if the view never matched during it.
-  // A match counts the pass as matched and resets missed_passes.
-  void NoteExpected(const UpdateContext& context, bool matched, int gap_frames);
+  // A match counts the pass as matched and resets missed_passes. Returns the outcomes.
+  PassOutcomes NoteExpected(const UpdateContext& context, bool matched, int gap_frames);
   bool operator==(const ViewFootprint&) const = default;
 };
 

@@ -17,6 +17,7 @@
 #include <Eigen/Core>
 
 #include "omnicml/mapping/environment_model.h"
+#include "omnicml/mapping/view_persistence.h"
 
 #include "omnicml/descriptors/descriptor_factory.h"
 
@@ -187,6 +188,23 @@ void Sizes(benchmark::internal::Benchmark* b) {
   b->ArgNames({"views", "fourier"});
   b->Unit(benchmark::kMicrosecond);
 }
+
+// View persistence's refit (view_persistence.h): the grid posterior of (h, P_M) and the
+// upper quantiles of P(exists | m), from the counts of `passes` pass outcomes. Its cost
+// does not depend on the counts' size; the schedule refits after 2 % more passes.
+void BM_PersistenceRefit(benchmark::State& state) {
+  std::mt19937_64 rng(7);
+  std::bernoulli_distribution matched(0.6);
+  ViewPersistence p;
+  for (std::int64_t k = 0; k < state.range(0); ++k) {
+    p.Record(static_cast<int>(k % 5), matched(rng));
+  }
+  for (auto _ : state) {
+    p.Refit();
+    benchmark::DoNotOptimize(p.UpperExistence(2));
+  }
+}
+BENCHMARK(BM_PersistenceRefit)->Arg(1000)->Arg(100000)->Unit(benchmark::kMillisecond);
 
 BENCHMARK(BM_FindMatches)->Apply(Sizes);
 BENCHMARK(BM_Hypothesis)->Apply(Sizes);

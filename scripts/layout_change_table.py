@@ -17,7 +17,12 @@ error over days 2..N against the intensity (mean over seeds solid, worst seed da
 beside the map size at the end (mean over seeds). A sweep of several configurations needs
 --config NAME (the configuration file's name without .yaml): the tables are of one.
 
+With --active-from DIR the active rows come from another sweep's summary_days.csv (a
+`run` sweep of active forgetting under an option that changes active only), and static
+and passive from SWEEP_DIR: the same protocol, inputs and seeds.
+
 Usage: scripts/layout_change_table.py SWEEP_DIR [--config NAME] [--curve-svg PATH]
+                                      [--active-from DIR]
 """
 import argparse
 import csv
@@ -88,12 +93,25 @@ def main() -> int:
     ap.add_argument("sweep_dir")
     ap.add_argument("--config", help="the configuration file's name without .yaml")
     ap.add_argument("--curve-svg", help="also write the curve to this SVG")
+    ap.add_argument("--active-from", help="take the active rows from this sweep directory")
     a = ap.parse_args()  # a bad command line exits 2 with its usage
     curve, config = a.curve_svg, a.config
     path = a.sweep_dir.rstrip("/") + "/summary_days.csv"
     try:
         with open(path, newline="") as f:
             rows = list(csv.DictReader(f))
+        if a.active_from:
+            other = a.active_from.rstrip("/") + "/summary_days.csv"
+            path = other
+            with open(other, newline="") as f:
+                active = [r for r in csv.DictReader(f) if r["mode"] == "active"]
+            if not active:
+                print(f"{other}: no active runs", file=sys.stderr)
+                return 2
+            for r in active:
+                r["config"] = ""
+            rows = [r for r in rows if r["mode"] != "active"] + active
+            path = a.sweep_dir.rstrip("/") + "/summary_days.csv"
     except OSError as e:
         print(f"{path}: {e.strerror}", file=sys.stderr)
         return 2

@@ -8,8 +8,8 @@
 //   u64 events logged, u64 s, s x (i32 session, 5 x i64 counts)        (version >= 3)
 //   u64 e, e x Event
 //   u64 r, r x RecentUpdate                                           (version >= 4)
-//   with forgetting.persistence_min_probability > 0 (an option, not a version):
 //   16 x i64 passes, 16 x i64 matched, i64 passes at fit, 16 x f64 belief, f64 h, f64 P_M
+//                         (view persistence, version >= 6)
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -33,7 +33,8 @@ constexpr std::uint32_t kModelMagic = 0x4D45434Fu;  // "OCEM" little-endian
 // versions rebuild the counts from their complete log. Version 4 adds the look-back's
 // recent updates after the events (none are read from earlier versions). Version 5 adds
 // each component's spread (xx, xy, yy) after its covariance; earlier versions read it as
-// zero.
+// zero. Version 6 adds the view persistence counts and belief at the end (empty counts
+// and a belief of 1 from earlier versions).
 constexpr std::uint32_t kModelVersion = EnvironmentModel::kFormatVersion;
 
 // The smallest encoding of each record, from the sizes of its fields: ReadCount's guard,
@@ -305,16 +306,14 @@ void EnvironmentModel::Serialize(BinaryWriter& out) const {
     out.Write(r.context.frame);
     out.Write<std::int32_t>(r.context.session);
   }
-  // With view persistence on (an option of engine format 16, stored only when set): its
-  // counts and belief, so that a resumed run equals one run.
-  if (options_.forgetting.persistence_min_probability > 0) {
-    for (const std::int64_t n : persistence_.passes_by_run()) out.Write(n);
-    for (const std::int64_t k : persistence_.matched_by_run()) out.Write(k);
-    out.Write(persistence_.passes_at_fit());
-    for (const double u : persistence_.upper_existence()) out.Write(u);
-    out.Write(persistence_.hazard());
-    out.Write(persistence_.miss_probability());
-  }
+  // Version 6: the view persistence counts and belief, so that a resumed run equals one
+  // run.
+  for (const std::int64_t n : persistence_.passes_by_run()) out.Write(n);
+  for (const std::int64_t k : persistence_.matched_by_run()) out.Write(k);
+  out.Write(persistence_.passes_at_fit());
+  for (const double u : persistence_.upper_existence()) out.Write(u);
+  out.Write(persistence_.hazard());
+  out.Write(persistence_.miss_probability());
 }
 
 EnvironmentModel EnvironmentModel::Deserialize(BinaryReader& in,
@@ -348,7 +347,7 @@ EnvironmentModel EnvironmentModel::Deserialize(BinaryReader& in,
   for (std::size_t i = 0; i < num_views; ++i) views.push_back(ReadView(in, version, expected));
   ReadEvents(in, version, &model.events_);
   if (version >= 4) model.ReadRecentUpdates(in, expected.kind);
-  if (options.forgetting.persistence_min_probability > 0) model.ReadViewPersistence(in);
+  if (version >= 6) model.ReadViewPersistence(in);
   CheckIds(in, views, next_view_id, next_component_id);
   model.store_.Restore(std::move(views), next_view_id, next_component_id);
   model.retrieval_.Rebuild(model.store_);

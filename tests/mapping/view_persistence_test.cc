@@ -25,8 +25,7 @@ TEST(ViewPersistence, ExistenceEqualsTheEnumeratedPosterior) {
   for (const double h : {0.01, 0.1, 0.3, 0.7}) {
     for (const double p_miss : {0.05, 0.3, 0.6, 0.95}) {
       for (int m = 0; m <= 12; ++m) {
-        EXPECT_NEAR(PersistenceProbability(m, h, p_miss), EnumeratedExistence(m, h, p_miss),
-                    1e-12)
+        EXPECT_NEAR(PersistenceProbability(m, h, p_miss), EnumeratedExistence(m, h, p_miss), 1e-12)
             << "h " << h << " P_M " << p_miss << " m " << m;
       }
     }
@@ -38,8 +37,8 @@ TEST(ViewPersistence, ExistenceEqualsTheEnumeratedPosterior) {
 
 // Views simulated as the model says (geometric lifetimes, misses while they exist): the
 // pass outcomes recorded as the engine records them.
-ViewPersistence SimulatedHistory(double h, double p_miss, int views, int passes,
-                                 std::uint32_t seed, double* returned_after_one = nullptr) {
+ViewPersistence SimulatedHistory(double h, double p_miss, int views, int passes, std::uint32_t seed,
+                                 double* returned_after_one = nullptr) {
   std::mt19937_64 rng(seed);
   std::bernoulli_distribution dies(h), missed(p_miss);
   ViewPersistence p;
@@ -140,17 +139,16 @@ TEST(ViewPersistence, RestoreRejectsInconsistentState) {
   auto matched = fitted.matched_by_run();
   matched[0] = fitted.passes_by_run()[0] + 1;
   try {
-    copy.Restore(fitted.passes_by_run(), matched, 0, fitted.upper_existence(), 0.1, 0.1,
-                 "map.bin");
+    copy.Restore(fitted.passes_by_run(), matched, 0, fitted.upper_existence(), 0.1, 0.1, "map.bin");
     FAIL() << "more matched than passes accepted";
   } catch (const Error& e) {
     EXPECT_NE(std::string(e.what()).find("map.bin"), std::string::npos) << e.what();
   }
   auto upper = fitted.upper_existence();
   upper[2] = 1.5;
-  EXPECT_THROW(copy.Restore(fitted.passes_by_run(), fitted.matched_by_run(), 0, upper, 0.1, 0.1,
-                            "map.bin"),
-               Error);
+  EXPECT_THROW(
+      copy.Restore(fitted.passes_by_run(), fitted.matched_by_run(), 0, upper, 0.1, 0.1, "map.bin"),
+      Error);
 }
 
 }  // namespace

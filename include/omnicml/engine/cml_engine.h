@@ -338,7 +338,7 @@ void VisitFields(V& v, CmlEngineOptions& o) {
                  {AppearanceOffsetSource::kCalibrated, "calibrated"}});
     w("appearance_offset_spread", o.appearance_offset_spread);
   });
-  // After engine file format 15, without a bump: stored only when not the default.
+  // Engine file format 16 (added after 15 without a bump, then made part of 16).
   v.Since(16, [&](auto& w) {
     w("map_update_spacing_m", o.map_update_spacing_m);
     w("reference_frame_step_m", o.reference_frame_step_m);

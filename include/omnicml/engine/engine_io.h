@@ -65,17 +65,18 @@ namespace omnicml {
 // 15: the model section's version 5 (each component's spread) and the options declared
 //    Since(15) in their VisitFields (tracker.fusion, gate_confidence, the motion noise and
 //    spatial scale sources, the pose graph's closure model and marginals, the appearance
-//    offsets, ...). Options added after 15 without a format bump are declared Since(16):
-//    stored only when not default. map_update_spacing_m is one: when it is set, the
-//    session state after next_frame also holds the last map update's session and
-//    position, so files without it keep their layout and older builds refuse files with
-//    it by the unknown option. reference_frame_step_m and
-//    hypothesis_evidence_scale are others (the first read only when a run starts a new
-//    map).
+//    offsets, ...). Options added after 15 without a format bump were declared Since(16):
+//    map_update_spacing_m (when it is set, the session state after next_frame also holds
+//    the last map update's session and position), reference_frame_step_m and
+//    hypothesis_evidence_scale (the first read only when a run starts a new map).
+// 16: the model section's version 6 (the view persistence counts and belief) and the
+//    options declared Since(16), now part of the format (model.forgetting.
+//    persistence_min_probability added with it). Options added after 16 without a bump
+//    are declared Since(17): stored only when not default.
 // The model's options keep these flat names in the file (model.e_max, model.forgetting,
 // ...) although YAML and C++ group them in sections (environment_model_options.h
 // FlatModelOptionsValue), so files of every version keep their bytes and load as before.
-inline constexpr std::uint32_t kEngineFormatVersion = 15;
+inline constexpr std::uint32_t kEngineFormatVersion = 16;
 // The 8 magic bytes (including the terminating NUL).
 inline constexpr char kEngineMagic[8] = {'O', 'M', 'N', 'I', 'C', 'M', 'L', '\0'};
 

@@ -182,8 +182,8 @@ class EnvironmentModel {
   const ViewStore& store() const { return store_; }
   const ViewRetrieval& retrieval() const { return retrieval_; }
   const ForgettingPolicy& forgetting_policy() const { return *policy_; }
-  // The pass statistics and belief of view persistence (view_persistence.h); kept only
-  // while forgetting.persistence_min_probability > 0 (else empty).
+  // The pass statistics and belief of view persistence (view_persistence.h); counted
+  // only while forgetting.persistence_min_probability > 0 (else empty).
   const ViewPersistence& view_persistence() const { return persistence_; }
   // Switches the weight rules (e.g. build on day 1 with active forgetting, then freeze
   // with static).
@@ -194,9 +194,8 @@ class EnvironmentModel {
 
   // Appends the model's state to `out`: views (descriptors, components, counters) in
   // storage order, next ids, the event counts and the event ring, the look-back's recent
-  // updates, and with forgetting.persistence_min_probability > 0 the view persistence
-  // counts and belief. Options are NOT written (the caller stores them; Deserialize must
-  // get the same persistence_min_probability). Same model => same bytes.
+  // updates, the view persistence counts and belief. Options are NOT written (the caller
+  // stores them). Same model => same bytes.
   void Serialize(BinaryWriter& out) const;
   // Reads what Serialize wrote. Throws omnicml::Error on truncated or malformed bytes, or
   // when the stored descriptor kind / feature length differ from `extractor`'s. A section
@@ -208,7 +207,7 @@ class EnvironmentModel {
                                       std::uint32_t min_version = kOldestFormatVersion);
   // Versions of the serialized model: Serialize writes kFormatVersion; Deserialize reads
   // kOldestFormatVersion..kFormatVersion (see environment_model_io.cc for the layouts).
-  static constexpr std::uint32_t kFormatVersion = 5;
+  static constexpr std::uint32_t kFormatVersion = 6;
   static constexpr std::uint32_t kOldestFormatVersion = 1;
 
   // Checks internal invariants (the store's, the indexes', weights in [0, 1], ids
@@ -265,7 +264,7 @@ class EnvironmentModel {
   void RemoveViewAt(std::size_t row);
   // Deserialize's last section (environment_model_io.cc).
   void ReadRecentUpdates(BinaryReader& in, DescriptorKind kind);
-  // ... then, with view persistence on, its counts and belief.
+  // ... then (version >= 6) the view persistence counts and belief.
   void ReadViewPersistence(BinaryReader& in);
 
   EnvironmentModelOptions options_;

@@ -163,8 +163,10 @@ struct EnvironmentModelOptions {
     // pass through a view's footprint closes without a match and the belief that its place
     // still looks like it (the 95 % upper posterior bound of P(exists | missed run), with
     // the hazard and miss probability estimated from the map's own passes) is below this
-    // probability, the whole view is removed. A probability in [0, 1); 0 disables.
-    double persistence_min_probability = 0.0;
+    // probability, the whole view is removed. A probability in [0, 1); 0 disables. 0.5:
+    // remove a view whose place more likely changed for good than not, at the upper end
+    // of what the map's history allows.
+    double persistence_min_probability = 0.5;
   };
 
   // The spatial grid over component positions and the retrieval indexes
@@ -276,7 +278,7 @@ void VisitFields(V& v, EnvironmentModelOptions::Forgetting& o) {
   v("footprint_confidence", o.footprint_confidence);
   v("forget_by_matched_passes", o.forget_by_matched_passes);
   v("forget_unconfirmed_views", o.forget_unconfirmed_views);
-  // After engine file format 15, without a bump: stored only when not the default.
+  // Engine file format 16.
   v.Since(16, [&](auto& w) { w("persistence_min_probability", o.persistence_min_probability); });
 }
 

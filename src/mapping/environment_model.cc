@@ -320,12 +320,14 @@ UpdateStats EnvironmentModel::Update(const Descriptor& y, const Gaussian& estima
 
   // Phase 3: the weight rules of the forgetting policy.
   WeightChanges changes;
-  const bool persistence = options_.forgetting.persistence_min_probability > 0;
+  const bool persistence = options_.forgetting.persistence_min_probability > 0 &&
+                           options_.forgetting.mode == ForgettingMode::kActive;
   if (persistence) persistence_.MaybeRefit();
-  policy_->Apply(WeightUpdate{&matches, mu_t, c_t, context, persistence ? &persistence_ : nullptr},
-                 store_, &changes);
+  policy_->Apply(WeightUpdate{&matches, mu_t, c_t, context}, store_, &changes);
   if (persistence) {
     for (const auto& [run, matched] : changes.pass_outcomes) persistence_.Record(run, matched);
+    open_unmatched_.insert(changes.expected_unmatched.begin(), changes.expected_unmatched.end());
+    ClosePersistencePasses(context, &changes);
   }
   stats.components_increased += changes.increased;
   stats.components_passive_forgotten += changes.passive_forgotten;
@@ -416,7 +418,10 @@ std::vector<std::uint64_t> EnvironmentModel::AddObservations(const std::vector<V
     view.footprint.Observe(mu_t.x(), mu_t.y(), m.similarity);
     const PassOutcomes outcomes =
         view.footprint.NoteExpected(context, /*matched=*/true, options_.forgetting.pass_gap_frames);
-    if (options_.forgetting.persistence_min_probability > 0) {
+    // Only active forgetting observes the passes that miss; counting matches alone
+    // (passive) would make every place look permanent.
+    if (options_.forgetting.persistence_min_probability > 0 &&
+        options_.forgetting.mode == ForgettingMode::kActive) {
       if (outcomes.closed_missed_run >= 0) persistence_.Record(outcomes.closed_missed_run, false);
       if (outcomes.matched_run >= 0) persistence_.Record(outcomes.matched_run, true);
     }
@@ -462,6 +467,42 @@ void EnvironmentModel::MergeObservation(std::size_t row, std::size_t k, const Vi
     store_.ReplaceComponent(row, keep, merged);
     log_merge(comps[keep]);
     k = keep;
+  }
+}
+
+void EnvironmentModel::ClosePersistencePasses(const UpdateContext& context,
+                                              WeightChanges* changes) {
+  // A pass ends when the view has not been expected for more than pass_gap_frames frames
+  // (or the session changed): only then is it known that the view missed the whole pass,
+  // and the belief after one more missed pass decides (docs/design.md "View persistence").
+  const int gap = options_.forgetting.pass_gap_frames;
+  for (auto it = open_unmatched_.begin(); it != open_unmatched_.end();) {
+    const std::optional<std::size_t> row = store_.Find(*it);
+    if (!row) {
+      it = open_unmatched_.erase(it);
+      continue;
+    }
+    ReferenceView& view = store_.view(*row);
+    const ViewFootprint& f = view.footprint;
+    if (f.pass_matched) {
+      it = open_unmatched_.erase(it);
+      continue;
+    }
+    const bool ended = f.last_expected_session != context.session ||
+                       std::abs(context.frame - f.last_expected_frame) > gap;
+    if (!ended) {
+      ++it;
+      continue;
+    }
+    if (persistence_.UpperExistence(f.missed_passes + 1) <
+        options_.forgetting.persistence_min_probability) {
+      for (ViewComponent& c : view.components) {
+        c.weight = 0.0;
+        changes->last_rule[c.id] = WeightRule::kPersistence;
+      }
+      changes->touched_views.push_back(view.id);
+    }
+    it = open_unmatched_.erase(it);
   }
 }
 

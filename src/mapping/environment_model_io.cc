@@ -8,8 +8,8 @@
 //   u64 events logged, u64 s, s x (i32 session, 5 x i64 counts)        (version >= 3)
 //   u64 e, e x Event
 //   u64 r, r x RecentUpdate                                           (version >= 4)
-//   16 x i64 passes, 16 x i64 matched, i64 passes at fit, 16 x f64 belief, f64 h, f64 P_M
-//                         (view persistence, version >= 6)
+//   16 x i64 passes, 16 x i64 matched, i64 passes at fit, 16 x f64 belief, f64 h, f64 P_M,
+//   u64 k, k x u64 view id (open unmatched passes)      (view persistence, version >= 6)
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -314,6 +314,8 @@ void EnvironmentModel::Serialize(BinaryWriter& out) const {
   for (const double u : persistence_.upper_existence()) out.Write(u);
   out.Write(persistence_.hazard());
   out.Write(persistence_.miss_probability());
+  out.Write<std::uint64_t>(open_unmatched_.size());
+  for (const std::uint64_t id : open_unmatched_) out.Write(id);
 }
 
 EnvironmentModel EnvironmentModel::Deserialize(BinaryReader& in,
@@ -365,6 +367,13 @@ void EnvironmentModel::ReadViewPersistence(BinaryReader& in) {
   const auto hazard = in.Read<double>("view persistence hazard");
   const auto miss = in.Read<double>("view persistence miss probability");
   persistence_.Restore(passes, matched, at_fit, upper, hazard, miss, in.source().c_str());
+  const std::size_t n = in.ReadCount("view persistence open passes", kI64);
+  for (std::size_t i = 0; i < n; ++i) {
+    const auto id = in.Read<std::uint64_t>("view persistence open pass view id");
+    if (!open_unmatched_.insert(id).second) {
+      in.Fail("view persistence open pass view id", StrCat("view ", id, " listed twice"));
+    }
+  }
 }
 
 void EnvironmentModel::ReadRecentUpdates(BinaryReader& in, DescriptorKind kind) {

@@ -104,19 +104,8 @@ bool ActiveFootprintForgetting::ForgetView(const WeightUpdate& update, std::size
       footprint.NoteExpected(update.context, /*matched=*/false, options_.pass_gap_frames);
   if (outcomes.closed_missed_run >= 0) {
     changes->pass_outcomes.emplace_back(outcomes.closed_missed_run, false);
-    // View persistence: a pass just closed without a match; the view goes when even the
-    // upper bound of the belief that its place still looks like it is below the minimum.
-    if (options_.persistence_min_probability > 0 && update.persistence != nullptr &&
-        update.persistence->UpperExistence(footprint.missed_passes) <
-            options_.persistence_min_probability) {
-      for (ViewComponent& c : view.components) {
-        c.weight = 0.0;
-        changes->last_rule[c.id] = WeightRule::kPersistence;
-      }
-      ++changes->persistence_removed;
-      return true;
-    }
   }
+  changes->expected_unmatched.push_back(view.id);
   // Evidence over passes: only after forget_min_missed_passes whole passes through the
   // footprint without a match does a miss weaken the view; a view made in this session
   // and seen on its creation pass only, from the first pass that misses it.

@@ -39,6 +39,7 @@
 #include <map>
 #include <memory>
 #include <optional>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -183,7 +184,7 @@ class EnvironmentModel {
   const ViewRetrieval& retrieval() const { return retrieval_; }
   const ForgettingPolicy& forgetting_policy() const { return *policy_; }
   // The pass statistics and belief of view persistence (view_persistence.h); counted
-  // only while forgetting.persistence_min_probability > 0 (else empty).
+  // only in active mode while forgetting.persistence_min_probability > 0 (else empty).
   const ViewPersistence& view_persistence() const { return persistence_; }
   // Switches the weight rules (e.g. build on day 1 with active forgetting, then freeze
   // with static).
@@ -244,6 +245,10 @@ class EnvironmentModel {
   // no pair involving the result is closer than merge_delta.
   void MergeObservation(std::size_t row, std::size_t k, const ViewComponent& added,
                         const UpdateContext& context);
+  // After phase 3 with view persistence: the views in open_unmatched_ whose pass has
+  // ended without a match are removed (weights 0, touched) when the belief after one more
+  // missed pass is below persistence_min_probability.
+  void ClosePersistencePasses(const UpdateContext& context, WeightChanges* changes);
   // After phase 3: removes the components below w_min of the touched views (except
   // `fresh`), then the views left empty.
   void RemoveWeakComponents(const WeightChanges& changes, const std::vector<std::uint64_t>& fresh,
@@ -277,6 +282,9 @@ class EnvironmentModel {
   // The latest updates of the current session, oldest first (look_back_frames).
   std::deque<RecentUpdate> recent_updates_;
   ViewPersistence persistence_;
+  // Views whose current pass is open and unmatched (ids, sorted), for the removal at the
+  // pass's end (view persistence).
+  std::set<std::uint64_t> open_unmatched_;
 };
 
 }  // namespace omnicml

@@ -10,9 +10,9 @@
 //   ActiveFootprintForgetting  (16)-(17) as above, then (18)-(19) on the non-matching
 //                              views expected at mu_t: a component within d_for_m of mu_t
 //                              whose view's footprint holds mu_t (footprint_gate) after
-//                              enough missed passes loses a fraction b of its weight; with
-//                              persistence_min_probability, a view whose persistence
-//                              belief falls below it loses all its weight.
+//                              enough missed passes loses a fraction b of its weight.
+//                              (View persistence's removals are the model's:
+//                              EnvironmentModel::Update.)
 //   StaticForgetting           no rule: Update leaves the map unchanged.
 //
 // A policy only lowers weights, except (16) on the components of matching views; it never
@@ -35,7 +35,6 @@
 #include "omnicml/mapping/environment_model_options.h"
 #include "omnicml/mapping/map_events.h"
 #include "omnicml/mapping/reference_view.h"
-#include "omnicml/mapping/view_persistence.h"
 #include "omnicml/mapping/view_store.h"
 
 namespace omnicml {
@@ -52,9 +51,6 @@ struct WeightUpdate {
   Pose2 mu_t = Pose2::Zero();
   Eigen::Matrix3d c_t = Eigen::Matrix3d::Identity();
   UpdateContext context;
-  // The map's view persistence belief (read by active forgetting when
-  // forgetting.persistence_min_probability > 0); null: none.
-  const ViewPersistence* persistence = nullptr;
 };
 
 // What the weight rules did.
@@ -64,10 +60,11 @@ struct WeightChanges {
   int increased = 0;                         // (16) applications
   int passive_forgotten = 0;                 // (17) applications
   int active_forgotten = 0;                  // (18)-(19) applications with b > 0
-  int persistence_removed = 0;               // views whose persistence belief fell below
   // Passes the rules closed or matched, for the map's persistence counts: (missed run
   // before the pass, matched), in the order they happened.
   std::vector<std::pair<int, bool>> pass_outcomes;
+  // Views expected at mu_t that did not match (their current pass is open, unmatched).
+  std::vector<std::uint64_t> expected_unmatched;
 };
 
 class ForgettingPolicy {

@@ -105,8 +105,13 @@ RunSummary RunEngineOverSource(CmlEngine& engine, FrameSource& source, RunRecord
           engine.model().options().forgetting.mode == ForgettingMode::kActive) {
         // View persistence's fit so far (docs/forgetting.md "View persistence").
         const ViewPersistence& p = engine.model().view_persistence();
-        line << "; view persistence: h " << FormatFixed(p.hazard(), 3) << " per pass, P_M "
-             << FormatFixed(p.miss_probability(), 3) << " from " << p.passes_at_fit() << " passes";
+        if (p.passes_at_fit() == 0) {
+          line << "; view persistence: no fit yet (" << p.passes() << " passes)";
+        } else {
+          line << "; view persistence: h " << FormatFixed(p.hazard(), 3) << " per pass, P_M "
+               << FormatFixed(p.miss_probability(), 3) << " from " << p.passes_at_fit()
+               << " passes";
+        }
       }
       line << "\n";
       std::cerr << line.str();

@@ -320,12 +320,11 @@ UpdateStats EnvironmentModel::Update(const Descriptor& y, const Gaussian& estima
 
   // Phase 3: the weight rules of the forgetting policy.
   WeightChanges changes;
-  const bool persistence = options_.forgetting.persistence_min_probability > 0 &&
-                           options_.forgetting.mode == ForgettingMode::kActive;
+  const bool persistence = ViewPersistenceOn();
   if (persistence) persistence_.MaybeRefit();
   policy_->Apply(WeightUpdate{&matches, mu_t, c_t, context}, store_, &changes);
   if (persistence) {
-    for (const auto& [run, matched] : changes.pass_outcomes) persistence_.Record(run, matched);
+    for (const PassOutcomes& o : changes.pass_outcomes) RecordPassOutcomes(o);
     open_unmatched_.insert(changes.expected_unmatched.begin(), changes.expected_unmatched.end());
     ClosePersistencePasses(context, &changes);
   }
@@ -418,13 +417,7 @@ std::vector<std::uint64_t> EnvironmentModel::AddObservations(const std::vector<V
     view.footprint.Observe(mu_t.x(), mu_t.y(), m.similarity);
     const PassOutcomes outcomes =
         view.footprint.NoteExpected(context, /*matched=*/true, options_.forgetting.pass_gap_frames);
-    // Only active forgetting observes the passes that miss; counting matches alone
-    // (passive) would make every place look permanent.
-    if (options_.forgetting.persistence_min_probability > 0 &&
-        options_.forgetting.mode == ForgettingMode::kActive) {
-      if (outcomes.closed_missed_run >= 0) persistence_.Record(outcomes.closed_missed_run, false);
-      if (outcomes.matched_run >= 0) persistence_.Record(outcomes.matched_run, true);
-    }
+    if (ViewPersistenceOn()) RecordPassOutcomes(outcomes);
 
     ViewComponent added;
     added.weight = 0.0;
@@ -470,12 +463,23 @@ void EnvironmentModel::MergeObservation(std::size_t row, std::size_t k, const Vi
   }
 }
 
+bool EnvironmentModel::ViewPersistenceOn() const {
+  // Only active forgetting observes the passes that miss; counting matches alone
+  // (passive) would make every place look permanent.
+  return options_.forgetting.persistence_min_probability > 0 &&
+         options_.forgetting.mode == ForgettingMode::kActive;
+}
+
+void EnvironmentModel::RecordPassOutcomes(const PassOutcomes& o) {
+  if (o.closed_missed_run >= 0) persistence_.Record(o.closed_missed_run, false);
+  if (o.matched_run >= 0) persistence_.Record(o.matched_run, true);
+}
+
 void EnvironmentModel::ClosePersistencePasses(const UpdateContext& context,
                                               WeightChanges* changes) {
   // A pass ends when the view has not been expected for more than pass_gap_frames frames
   // (or the session changed): only then is it known that the view missed the whole pass,
   // and the belief after one more missed pass decides (docs/design.md "View persistence").
-  const int gap = options_.forgetting.pass_gap_frames;
   for (auto it = open_unmatched_.begin(); it != open_unmatched_.end();) {
     const std::optional<std::size_t> row = store_.Find(*it);
     if (!row) {
@@ -488,9 +492,7 @@ void EnvironmentModel::ClosePersistencePasses(const UpdateContext& context,
       it = open_unmatched_.erase(it);
       continue;
     }
-    const bool ended = f.last_expected_session != context.session ||
-                       std::abs(context.frame - f.last_expected_frame) > gap;
-    if (!ended) {
+    if (!f.PassEnded(context, options_.forgetting.pass_gap_frames)) {
       ++it;
       continue;
     }

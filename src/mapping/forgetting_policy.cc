@@ -100,11 +100,8 @@ bool ActiveFootprintForgetting::ForgetView(const WeightUpdate& update, std::size
                             confidence * confidence * LargestEigenvalue2(footprint.Covariance())) {
     return false;
   }
-  const PassOutcomes outcomes =
-      footprint.NoteExpected(update.context, /*matched=*/false, options_.pass_gap_frames);
-  if (outcomes.closed_missed_run >= 0) {
-    changes->pass_outcomes.emplace_back(outcomes.closed_missed_run, false);
-  }
+  changes->pass_outcomes.push_back(
+      footprint.NoteExpected(update.context, /*matched=*/false, options_.pass_gap_frames));
   changes->expected_unmatched.push_back(view.id);
   // Evidence over passes: only after forget_min_missed_passes whole passes through the
   // footprint without a match does a miss weaken the view; a view made in this session

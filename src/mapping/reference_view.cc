@@ -39,12 +39,16 @@ double ViewFootprint::SquaredDistance(const Eigen::Vector2d& p, const Eigen::Mat
   return llt.matrixL().solve(d).squaredNorm();
 }
 
+bool ViewFootprint::PassEnded(const UpdateContext& context, int gap_frames) const {
+  return last_expected_session != context.session ||
+         std::abs(context.frame - last_expected_frame) > gap_frames;
+}
+
 PassOutcomes ViewFootprint::NoteExpected(const UpdateContext& context, bool matched,
                                          int gap_frames) {
   PassOutcomes out;
   const bool passed_before = last_expected_frame >= 0;
-  const bool new_pass = !passed_before || last_expected_session != context.session ||
-                        std::abs(context.frame - last_expected_frame) > gap_frames;
+  const bool new_pass = !passed_before || PassEnded(context, gap_frames);
   if (new_pass) {
     if (passed_before && !pass_matched) {
       out.closed_missed_run = missed_passes;

@@ -101,8 +101,7 @@ RunSummary RunEngineOverSource(CmlEngine& engine, FrameSource& source, RunRecord
         line << ", mean error so far "
              << FormatFixed(error_sum / static_cast<double>(error_count), 3)
              << " m over localized frames (" << localized_text() << ")";
-      if (engine.model().options().forgetting.persistence_min_probability > 0 &&
-          engine.model().options().forgetting.mode == ForgettingMode::kActive) {
+      if (engine.model().ViewPersistenceOn()) {
         // View persistence's fit so far (docs/forgetting.md "View persistence").
         const ViewPersistence& p = engine.model().view_persistence();
         if (p.passes_at_fit() == 0) {

@@ -186,6 +186,9 @@ class EnvironmentModel {
   // The pass statistics and belief of view persistence (view_persistence.h); counted
   // only in active mode while forgetting.persistence_min_probability > 0 (else empty).
   const ViewPersistence& view_persistence() const { return persistence_; }
+  // Whether Update keeps and applies view persistence: active mode with
+  // forgetting.persistence_min_probability > 0.
+  bool ViewPersistenceOn() const;
   // Switches the weight rules (e.g. build on day 1 with active forgetting, then freeze
   // with static).
   void SetForgettingMode(ForgettingMode mode);
@@ -245,6 +248,8 @@ class EnvironmentModel {
   // no pair involving the result is closer than merge_delta.
   void MergeObservation(std::size_t row, std::size_t k, const ViewComponent& added,
                         const UpdateContext& context);
+  // Adds the outcomes of one NoteExpected call to the view persistence counts.
+  void RecordPassOutcomes(const PassOutcomes& o);
   // After phase 3 with view persistence: the views in open_unmatched_ whose pass has
   // ended without a match are removed (weights 0, touched) when the belief after one more
   // missed pass is below persistence_min_probability.

@@ -26,7 +26,6 @@
 #include <cstdint>
 #include <memory>
 #include <unordered_map>
-#include <utility>
 #include <vector>
 
 #include <Eigen/Core>
@@ -60,9 +59,9 @@ struct WeightChanges {
   int increased = 0;                         // (16) applications
   int passive_forgotten = 0;                 // (17) applications
   int active_forgotten = 0;                  // (18)-(19) applications with b > 0
-  // Passes the rules closed or matched, for the map's persistence counts: (missed run
-  // before the pass, matched), in the order they happened.
-  std::vector<std::pair<int, bool>> pass_outcomes;
+  // The pass outcomes of the rules' NoteExpected calls, for the map's persistence counts,
+  // in the order they happened.
+  std::vector<PassOutcomes> pass_outcomes;
   // Views expected at mu_t that did not match (their current pass is open, unmatched).
   std::vector<std::uint64_t> expected_unmatched;
 };

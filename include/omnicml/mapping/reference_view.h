@@ -92,6 +92,9 @@ struct ViewFootprint {
   // pass; the pass it closes adds to missed_passes if the view never matched during it.
   // A match counts the pass as matched and resets missed_passes. Returns the outcomes.
   PassOutcomes NoteExpected(const UpdateContext& context, bool matched, int gap_frames);
+  // Whether the pass of the last expectation is over at `context`: another session, or
+  // more than gap_frames frames since it. Meaningful once last_expected_frame >= 0.
+  bool PassEnded(const UpdateContext& context, int gap_frames) const;
   bool operator==(const ViewFootprint&) const = default;
 };
 

@@ -198,6 +198,11 @@ TEST(EnvironmentModelOptions, ValidateNamesTheField) {
   o = {};
   o.update.look_back_frames = -1;
   expect_field(o, "look_back_frames");
+  o = {};
+  o.forgetting.persistence_min_probability = 1.0;
+  expect_field(o, "forgetting.persistence_min_probability");
+  o.forgetting.persistence_min_probability = -0.1;
+  expect_field(o, "forgetting.persistence_min_probability");
   EXPECT_EQ(ForgettingModeFromString(ToString(ForgettingMode::kPassive)), ForgettingMode::kPassive);
   EXPECT_EQ(ForgettingModeFromString("static"), ForgettingMode::kStatic);
   EXPECT_THROW(ForgettingModeFromString("sometimes"), Error);

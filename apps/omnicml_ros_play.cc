@@ -2,14 +2,17 @@
 // omnicml_node and records the poses it publishes (the integration test's and the latency
 // measurement's publisher; `rosbag play` works too, without the pacing below).
 //
-//   omnicml_ros_play BAG [--lockstep | --rate HZ] [--poses-out CSV] [--pose-topic T]
+//   omnicml_ros_play BAG [--lockstep [--hold N] | --rate HZ] [--poses-out CSV] [--pose-topic T]
 //
 // Messages are published in groups of equal bag time (session, odometry and tf before the
 // image of the same time). --lockstep keeps the bag's stamps and waits, after each image,
 // for the node's pose of that stamp (at most --timeout seconds), so no frame is dropped
-// and the run equals `omnicml run` on the log; a session message is followed by a pause
-// of 0.3 s so that it reaches the node before the next image. --rate HZ publishes one
-// image group every 1/HZ s of wall time, restamped with the current time (the node's
+// and the run equals `omnicml run` on the log; a session message is preceded and followed
+// by a pause of 0.3 s so that it reaches the node after the images before it and before
+// the next image. --hold N does not wait for the first N images' poses: a node that
+// starts a new map holds the first frames of its first session (~frame_step_frames) and
+// publishes their poses once the frame step is measured (N frames, or the next session). --rate HZ
+// publishes one image group every 1/HZ s of wall time, restamped with the current time (the node's
 // latency is then image capture to pose publish). Exit codes: 0, 2 on bad input or a
 // node that never subscribes.
 #include <unistd.h>
@@ -72,6 +75,7 @@ struct Args {
   std::string poses_out;
   std::string pose_topic = "/omnicml_node/pose";
   double timeout_s = 20.0;
+  std::size_t hold_images = 0;
 };
 
 struct ReceivedPose {
@@ -216,6 +220,8 @@ class Player {
     double image_stamp = 0.0;
     for (const std::size_t k : order) {
       const rosbag::MessageInstance& m = (*group)[k];
+      if (rank(m) == 0 && args_.lockstep)
+        std::this_thread::sleep_for(std::chrono::milliseconds(300));
       Publish(m, restamp);
       if (rank(m) == 0 && args_.lockstep)
         std::this_thread::sleep_for(std::chrono::milliseconds(300));
@@ -230,7 +236,7 @@ class Player {
     if (!has_image) return;
     std::unique_lock<std::mutex> lock(mutex_);
     ++images_;
-    if (args_.lockstep) {
+    if (args_.lockstep && images_ > args_.hold_images) {
       const bool got = cv_.wait_for(lock, std::chrono::duration<double>(args_.timeout_s), [&] {
         return !poses_.empty() && std::abs(poses_.back().stamp_s - image_stamp) < 1e-6;
       });
@@ -281,6 +287,10 @@ int main(int argc, char** argv) {
   app.add_option("--poses-out", args.poses_out, "CSV of the poses received");
   app.add_option("--pose-topic", args.pose_topic)->capture_default_str();
   app.add_option("--timeout", args.timeout_s, "Seconds to wait for the node")
+      ->capture_default_str();
+  app.add_option("--hold", args.hold_images,
+                 "With --lockstep: images not waited for at the start (the node's "
+                 "~frame_step_frames when it starts a new map)")
       ->capture_default_str();
   try {
     app.parse(argc, argv);

@@ -3,7 +3,9 @@
 # home_store day with a 720x150 panorama and with a 1280x1024 raw ring camera, exports each
 # to a bag, and plays it with omnicml_ros_play at each rate (images restamped at publish,
 # so latency = publish of the image -> publish of its pose) to omnicml_node (default
-# queue of one frame) under a private rosmaster on a free loopback port. Prints one line
+# queue of one frame; the new map's options per frame as configured, so that no frames are
+# held at the start to measure the frame step) under a private rosmaster on a free
+# loopback port. Prints one line
 # per camera and rate: frames received, processed, dropped, latency p50/p99 (ms) and the
 # engine's own time per frame p50 (ms).
 #   scripts/ros_latency.sh [FRAMES] [RATES...]      defaults: 300 frames, 10 30 60 Hz
@@ -55,6 +57,7 @@ for cam in pano ring; do
   for rate in "${rates[@]}"; do
     csv="$work/latency_${cam}_$rate.csv"
     setsid "$build/omnicml_node" __name:=omnicml_node _latency_csv:="$csv" _compressed:="$node_compressed" \
+      _frame_step_frames:=0 \
       >"$work/node.txt" 2>&1 &
     node=$!
     pids+=("$node")

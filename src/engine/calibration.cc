@@ -262,17 +262,21 @@ Calibration Calibrate(FrameSource& source, const CmlEngineOptions& options,
 double MedianOdometryStep(FrameSource& source, int max_frames, double min_step_m) {
   if (max_frames < 2)
     throw Error(StrCat("MedianOdometryStep: max_frames must be >= 2, got ", max_frames));
-  std::vector<double> steps;
+  std::vector<Pose2> odometry;
   Frame frame;
-  std::optional<Pose2> last;
   for (int read = 0; read < max_frames && source.Next(&frame); ++read) {
     if (frame.session_index != 0) break;
-    if (last) {
-      const double step =
-          std::hypot(frame.odom_T_robot.x() - last->x(), frame.odom_T_robot.y() - last->y());
-      if (step > min_step_m) steps.push_back(step);
-    }
-    last = frame.odom_T_robot;
+    odometry.push_back(frame.odom_T_robot);
+  }
+  return MedianOdometryStep(odometry, min_step_m);
+}
+
+double MedianOdometryStep(const std::vector<Pose2>& odometry, double min_step_m) {
+  std::vector<double> steps;
+  for (std::size_t k = 1; k < odometry.size(); ++k) {
+    const double step =
+        std::hypot(odometry[k].x() - odometry[k - 1].x(), odometry[k].y() - odometry[k - 1].y());
+    if (step > min_step_m) steps.push_back(step);
   }
   return steps.size() < 2 ? 0.0 : Median(steps);
 }

@@ -18,6 +18,7 @@ void LiveEngineOptions::Validate() const {
   if (!(session_gap_s >= 0.0) || !std::isfinite(session_gap_s))
     throw Error("session_gap_s must be finite and >= 0");
   if (reference_views_every_frames < 0) throw Error("reference_views_every_frames must be >= 0");
+  if (frame_step_frames < 2) throw Error("frame_step_frames must be >= 2");
 }
 
 LiveEngine::LiveEngine(std::unique_ptr<CmlEngine> engine, const LiveEngineOptions& options,
@@ -30,6 +31,19 @@ LiveEngine::LiveEngine(std::unique_ptr<CmlEngine> engine, const LiveEngineOption
       odometry_(options.odometry_history_s) {
   options_.Validate();
   if (!engine_) throw Error("LiveEngine: no engine");
+  worker_ = std::thread([this] { WorkerLoop(); });
+}
+
+LiveEngine::LiveEngine(EngineFactory make_engine, const LiveEngineOptions& options,
+                       SessionInfo first_session, SessionInfo later_sessions, Callbacks callbacks)
+    : options_(options),
+      first_session_(std::move(first_session)),
+      later_sessions_(std::move(later_sessions)),
+      callbacks_(std::move(callbacks)),
+      odometry_(options.odometry_history_s) {
+  options_.Validate();
+  if (!make_engine) throw Error("LiveEngine: no engine factory");
+  make_engine_ = std::move(make_engine);
   worker_ = std::thread([this] { WorkerLoop(); });
 }
 
@@ -84,33 +98,39 @@ bool LiveEngine::Enqueue(QueuedFrame frame) {
   return !dropped;
 }
 
-void LiveEngine::EnqueueCommand(std::function<void()> run) {
+void LiveEngine::EnqueueCommand(std::function<void()> run, Command::Kind kind) {
   {
     std::lock_guard<std::mutex> lock(mutex_);
-    queue_.emplace_back(Command{std::move(run)});
+    queue_.emplace_back(Command{std::move(run), kind});
   }
   cv_.notify_all();
 }
 
 void LiveEngine::BeginSession(SessionInfo info) {
-  EnqueueCommand([this, info = std::move(info)] { pending_session_ = info; });
+  EnqueueCommand([this, info = std::move(info)] { pending_session_ = info; },
+                 Command::Kind::kBeginSession);
 }
 
 void LiveEngine::SetForgettingMode(ForgettingMode mode) {
-  EnqueueCommand([this, mode] { engine_->SetForgettingMode(mode); });
+  EnqueueCommand([this, mode] {
+    if (engine_) engine_->SetForgettingMode(mode);
+  });
 }
 
 std::future<std::string> LiveEngine::Save(std::string path) {
   auto promise = std::make_shared<std::promise<std::string>>();
   std::future<std::string> result = promise->get_future();
-  EnqueueCommand([this, promise, path = std::move(path)] {
-    try {
-      SaveEngine(*engine_, path);
-      promise->set_value("");
-    } catch (const std::exception& e) {
-      promise->set_value(e.what());
-    }
-  });
+  EnqueueCommand(
+      [this, promise, path = std::move(path)] {
+        try {
+          if (!engine_) throw Error("no engine (its factory failed)");
+          SaveEngine(*engine_, path);
+          promise->set_value("");
+        } catch (const std::exception& e) {
+          promise->set_value(e.what());
+        }
+      },
+      Command::Kind::kSave);
   return result;
 }
 
@@ -133,6 +153,7 @@ LiveStats LiveEngine::stats() const {
 
 CmlEngine& LiveEngine::engine() {
   OMNICML_CHECK(stopped_) << "LiveEngine::engine() before Stop()";
+  OMNICML_CHECK(engine_ != nullptr) << "LiveEngine::engine(): its factory made no engine";
   return *engine_;
 }
 
@@ -141,14 +162,34 @@ void LiveEngine::WorkerLoop() {
   while (true) {
     cv_.wait(lock, [&] { return stopping_ || !queue_.empty(); });
     if (queue_.empty()) {
-      if (stopping_) break;
+      if (stopping_) {
+        if (make_engine_) {
+          lock.unlock();
+          if (!drain_) {
+            {
+              std::lock_guard<std::mutex> counts(mutex_);
+              stats_.dropped_frames += static_cast<std::int64_t>(held_frames_);
+            }
+            std::erase_if(held_,
+                          [](const auto& item) { return std::holds_alternative<HeldFrame>(item); });
+            held_frames_ = 0;
+          }
+          EndHolding();
+          lock.lock();
+        }
+        break;
+      }
       continue;
     }
     if (auto* command = std::get_if<Command>(&queue_.front())) {
       Command c = std::move(*command);
       queue_.pop_front();
       lock.unlock();
-      c.run();
+      if (make_engine_) {
+        HoldCommand(std::move(c));
+      } else {
+        c.run();
+      }
       lock.lock();
       continue;
     }
@@ -184,8 +225,61 @@ void LiveEngine::WorkerLoop() {
     }
     if (held) ++stats_.odometry_held_frames;
     lock.unlock();
-    Process(std::move(frame), held);
+    if (make_engine_) {
+      Hold(std::move(frame), held);
+    } else {
+      Process(std::move(frame), held);
+    }
     lock.lock();
+  }
+}
+
+void LiveEngine::Hold(QueuedFrame frame, bool odometry_held) {
+  if (last_held_stamp_s_ && (frame.stamp_s <= *last_held_stamp_s_ ||
+                             (options_.session_gap_s > 0.0 &&
+                              frame.stamp_s - *last_held_stamp_s_ > options_.session_gap_s))) {
+    // The first session ends here (an offline run reads its first session only).
+    EndHolding();
+    Process(std::move(frame), odometry_held);
+    return;
+  }
+  last_held_stamp_s_ = frame.stamp_s;
+  held_.emplace_back(HeldFrame{std::move(frame), odometry_held});
+  ++held_frames_;
+  if (held_frames_ >= static_cast<std::size_t>(options_.frame_step_frames)) EndHolding();
+}
+
+void LiveEngine::HoldCommand(Command command) {
+  const bool ends = command.kind == Command::Kind::kSave ||
+                    (command.kind == Command::Kind::kBeginSession && held_frames_ > 0);
+  held_.emplace_back(std::move(command));
+  if (ends) EndHolding();
+}
+
+void LiveEngine::EndHolding() {
+  if (!make_engine_) return;
+  const EngineFactory make = std::move(make_engine_);
+  make_engine_ = nullptr;
+  std::vector<Pose2> odometry;
+  odometry.reserve(held_frames_);
+  for (const auto& item : held_)
+    if (const auto* h = std::get_if<HeldFrame>(&item)) odometry.push_back(*h->frame.odom_T_robot);
+  try {
+    engine_ = make(odometry);
+    if (!engine_) throw Error("the engine factory returned no engine");
+  } catch (const std::exception& e) {
+    engine_.reset();
+    if (callbacks_.on_error) callbacks_.on_error(StrCat("new map: ", e.what()));
+  }
+  std::vector<std::variant<HeldFrame, Command>> held = std::move(held_);
+  held_.clear();
+  held_frames_ = 0;
+  for (auto& item : held) {
+    if (auto* h = std::get_if<HeldFrame>(&item)) {
+      Process(std::move(h->frame), h->odometry_held);
+    } else {
+      std::get<Command>(item).run();
+    }
   }
 }
 
@@ -204,6 +298,7 @@ void LiveEngine::BeginSessionNow(SessionInfo info, const cv::Mat& image) {
 void LiveEngine::Process(QueuedFrame queued, bool odometry_held) {
   const auto t_start = std::chrono::steady_clock::now();
   try {
+    if (!engine_) throw Error("no engine (its factory failed)");
     if (queued.decode) queued.image = queued.decode();
     // Sessions: an explicit one, the first, or one begun by a gap in the stamps.
     if (pending_session_) {

@@ -107,6 +107,7 @@ bool Ok();
 void Shutdown();
 double NowSeconds();  // ros::Time::now()
 void LogInfo(const std::string& text);
+void LogWarn(const std::string& text);
 void LogWarnThrottled(double period_s, const std::string& text);
 void LogError(const std::string& text);
 

@@ -52,6 +52,7 @@ bool Ok() { return ros::ok(); }
 void Shutdown() { ros::shutdown(); }
 double NowSeconds() { return ros::Time::now().toSec(); }
 void LogInfo(const std::string& text) { ROS_INFO("%s", text.c_str()); }
+void LogWarn(const std::string& text) { ROS_WARN("%s", text.c_str()); }
 void LogWarnThrottled(double period_s, const std::string& text) {
   ROS_WARN_THROTTLE(period_s, "%s", text.c_str());
 }
@@ -136,12 +137,12 @@ NodeTransport::NodeTransport(const NodeTopics& topics, NodeHandlers handlers)
   Impl& s = *impl_;
   s.topics = topics;
   s.handlers = std::move(handlers);
-  s.pose_pub = s.pnh.advertise<geometry_msgs::PoseWithCovarianceStamped>("pose", 10);
+  s.pose_pub = s.pnh.advertise<geometry_msgs::PoseWithCovarianceStamped>("pose", 1000);
   s.hypotheses_pub = s.pnh.advertise<geometry_msgs::PoseArray>("hypotheses", 10);
   s.views_pub =
       s.pnh.advertise<visualization_msgs::MarkerArray>("reference_views", 1, /*latch=*/true);
   s.dropped_pub = s.pnh.advertise<std_msgs::Int64>("dropped_frames", 10, /*latch=*/true);
-  s.tf_pub = s.nh.advertise<tf2_msgs::TFMessage>("/tf", 100);
+  s.tf_pub = s.nh.advertise<tf2_msgs::TFMessage>("/tf", 1000);
   const auto hints = ros::TransportHints().tcpNoDelay();
   if (topics.compressed)
     s.image_sub =

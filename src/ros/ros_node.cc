@@ -10,8 +10,10 @@
 #include "omnicml/common/common.h"
 #include "omnicml/common/file_io.h"
 #include "omnicml/common/options.h"
+#include "omnicml/engine/calibration.h"
 #include "omnicml/engine/engine_io.h"
 #include "omnicml/ros/rosbag_io.h"
+#include "omnicml/run/run_config.h"
 #include "ros/ros1.h"
 
 namespace omnicml {
@@ -51,24 +53,61 @@ RosNodeParameters ReadParameters() {
   Param("session_gap_s", &p.session_gap_s);
   Param("views_every_frames", &p.views_every_frames);
   Param("latency_csv", &p.latency_csv);
+  Param("frame_step_frames", &p.frame_step_frames);
+  if (p.frame_step_frames < 0) throw Error("~frame_step_frames must be >= 0");
   if (p.start_pose.size() != 3) throw Error("~start_pose must be [x_m, y_m, phi_rad]");
   if (p.start_mode.empty()) p.start_mode = p.map_in.empty() ? "known" : "global";
   return p;
 }
 
+// The configuration file and the forgetting and threads parameters, as `omnicml run`'s
+// --config, --forgetting and --threads.
+OptionOverrides Overrides(const RosNodeParameters& p) {
+  OptionOverrides overrides;
+  overrides.config_path = p.config;
+  if (!p.forgetting.empty()) overrides.forgetting = p.forgetting;
+  if (p.threads > 0) overrides.threads = p.threads;
+  return overrides;
+}
+
+// The engine of a loaded map, or of a new map whose per-frame options need no frame step.
 std::unique_ptr<CmlEngine> MakeEngine(const RosNodeParameters& p) {
-  std::unique_ptr<CmlEngine> engine;
-  if (!p.map_in.empty()) {
-    engine = LoadEngine(p.map_in);
-  } else {
-    CmlEngineOptions options =
-        p.config.empty() ? CmlEngineOptions{} : LoadOptionsYaml<CmlEngineOptions>(p.config);
-    options.Validate();
-    engine = std::make_unique<CmlEngine>(options);
-  }
+  if (p.map_in.empty()) return std::make_unique<CmlEngine>(ResolveEngineOptions(Overrides(p)));
+  std::unique_ptr<CmlEngine> engine = LoadEngine(p.map_in);
   if (!p.forgetting.empty()) engine->SetForgettingMode(ForgettingModeFromString(p.forgetting));
   if (p.threads > 0) engine->SetThreads(p.threads);
   return engine;
+}
+
+// A new map whose per-frame options are restated for the frame step of its first frames,
+// as `omnicml run` does from its log's first session (ResolveNewMapOptions).
+LiveEngine::EngineFactory NewMapFactory(const RosNodeParameters& p) {
+  return [overrides = Overrides(p)](const std::vector<Pose2>& odometry) {
+    const double reference = ResolveEngineOptions(overrides).reference_frame_step_m;
+    const double step = MedianOdometryStep(odometry, 0.01 * reference);
+    std::string note;
+    const CmlEngineOptions options = ResolveFrameStepOptions(overrides, step, &note);
+    ros1::LogInfo(StrCat(
+        "omnicml: new map, frame step measured over the first ", odometry.size(),
+        " frames: ", note.empty() ? StrCat("median ", step, " m, options as configured") : note));
+    return std::make_unique<CmlEngine>(options);
+  };
+}
+
+// What only an offline run derives from its log (the live node cannot read ahead).
+void WarnOfflineOnlySources(const CmlEngineOptions& o) {
+  if (o.motion_noise_source == MotionNoiseSource::kIdentified)
+    ros1::LogWarn(
+        "omnicml: motion_noise_source identified needs the whole first session: "
+        "the configured tracker.motion is used live");
+  if (o.spatial_scale_source == SpatialScaleSource::kCalibrated)
+    ros1::LogWarn(
+        "omnicml: spatial_scale_source calibrated needs the log: the configured "
+        "spatial thresholds are used live");
+  if (o.appearance_offset_source == AppearanceOffsetSource::kCalibrated)
+    ros1::LogWarn(
+        "omnicml: appearance_offset_source calibrated needs the log: the "
+        "configured appearance_offset_curve is used live");
 }
 
 SessionInfo SessionTemplate(const RosNodeParameters& p, const std::string& mode, int number) {
@@ -160,9 +199,21 @@ RosNode::RosNode() : impl_(std::make_unique<Impl>()) {
     s.transport->PublishViews(views);
   };
   callbacks.on_error = [](const std::string& e) { ros1::LogError("omnicml: " + e); };
-  s.live = std::make_unique<LiveEngine>(
-      MakeEngine(p), live_options, SessionTemplate(p, p.start_mode, 1),
-      SessionTemplate(p, p.new_session_start, 2), std::move(callbacks));
+  if (p.map_in.empty()) {
+    const CmlEngineOptions configured = ResolveEngineOptions(Overrides(p));  // errors now
+    WarnOfflineOnlySources(configured);
+    if (configured.reference_frame_step_m > 0.0 && p.frame_step_frames >= 2) {
+      live_options.frame_step_frames = p.frame_step_frames;
+      s.live = std::make_unique<LiveEngine>(
+          NewMapFactory(p), live_options, SessionTemplate(p, p.start_mode, 1),
+          SessionTemplate(p, p.new_session_start, 2), std::move(callbacks));
+    }
+  }
+  if (!s.live) {
+    s.live = std::make_unique<LiveEngine>(
+        MakeEngine(p), live_options, SessionTemplate(p, p.start_mode, 1),
+        SessionTemplate(p, p.new_session_start, 2), std::move(callbacks));
+  }
 
   ros1::NodeTopics topics;
   topics.image_topic = p.image_topic;

@@ -107,6 +107,58 @@ std::string ReadRunForgetting(const std::filesystem::path& run_dir) {
   return find(root);
 }
 
+namespace {
+
+// The frame-step part of ResolveNewMapOptions: `calibrated`'s a1..a4 (unless identified)
+// and hypothesis_evidence_scale restated for frames step_m apart; the note through
+// add_note.
+void RestateForFrameStep(const CmlEngineOptions& resolved, double step_m,
+                         CmlEngineOptions* calibrated,
+                         const std::function<void(const std::string&)>& add_note) {
+  const double reference_step = resolved.reference_frame_step_m;
+  if (!(reference_step > 0.0)) return;
+  const double k = FrameStepScale(reference_step, step_m);
+  if (step_m <= 0.0) {
+    add_note(
+        StrCat("motion noise and appearance evidence per frame as configured (the "
+               "first session's odometry has fewer than two steps above ",
+               0.01 * reference_step, " m)"));
+    return;
+  }
+  if (k == 1.0) return;
+  std::string what;
+  if (resolved.motion_noise_source != MotionNoiseSource::kIdentified) {
+    MotionNoise& m = calibrated->tracker.motion;
+    m.a1 *= k;
+    m.a2 *= k;
+    m.a3 *= k;
+    m.a4 *= k;
+    what = StrCat("motion noise a1..a4 x ", k);
+  }
+  if (k > 1.0) {
+    calibrated->hypothesis_evidence_scale /= k;
+    what += StrCat(what.empty() ? "" : ", ", "appearance evidence per frame x ", 1.0 / k);
+  }
+  if (!what.empty()) {
+    add_note(StrCat(what, " for frames ", step_m,
+                    " m apart (median step of the first session; the options are stated for ",
+                    reference_step, " m)"));
+  }
+}
+
+}  // namespace
+
+CmlEngineOptions ResolveFrameStepOptions(const OptionOverrides& overrides, double step_m,
+                                         std::string* note, const CmlEngineOptions& base) {
+  const CmlEngineOptions resolved = ResolveEngineOptions(overrides, base);
+  CmlEngineOptions calibrated = base;
+  std::string joined;
+  RestateForFrameStep(resolved, step_m, &calibrated,
+                      [&joined](const std::string& line) { joined = line; });
+  if (note != nullptr) *note = joined;
+  return joined.empty() ? resolved : ResolveEngineOptions(overrides, calibrated);
+}
+
 CmlEngineOptions ResolveNewMapOptions(const OptionOverrides& overrides, const RunInput& input,
                                       std::string* note, const CmlEngineOptions& base) {
   if (note != nullptr) note->clear();
@@ -121,38 +173,11 @@ CmlEngineOptions ResolveNewMapOptions(const OptionOverrides& overrides, const Ru
     joined += (joined.empty() ? "" : "; ") + line;
   };
   if (reference_step > 0.0) {
-    // The options' per-frame quantities restated for the log's frame step
-    // (CmlEngineOptions::reference_frame_step_m); the median of a few hundred steps is
-    // stable.
+    // The median of a few hundred steps is stable.
     const std::unique_ptr<FrameSource> poses = OpenPoseOnlySource(input);
-    const double step = MedianOdometryStep(*poses, 300, 0.01 * reference_step);
-    const double k = FrameStepScale(reference_step, step);
-    if (step <= 0.0) {
-      add_note(
-          StrCat("motion noise and appearance evidence per frame as configured (the "
-                 "first session's odometry has fewer than two steps above ",
-                 0.01 * reference_step, " m)"));
-    } else if (k != 1.0) {
-      std::string what;
-      if (!identify) {
-        MotionNoise& m = calibrated.tracker.motion;
-        m.a1 *= k;
-        m.a2 *= k;
-        m.a3 *= k;
-        m.a4 *= k;
-        what = StrCat("motion noise a1..a4 x ", k);
-      }
-      if (k > 1.0) {
-        calibrated.hypothesis_evidence_scale /= k;
-        what += StrCat(what.empty() ? "" : ", ", "appearance evidence per frame x ", 1.0 / k);
-      }
-      if (!what.empty()) {
-        add_note(StrCat(what, " for frames ", step,
-                        " m apart (median step of the first session; the options are stated "
-                        "for ",
-                        reference_step, " m)"));
-      }
-    }
+    RestateForFrameStep(resolved,
+                        MedianOdometryStep(*poses, kFrameStepSampleFrames, 0.01 * reference_step),
+                        &calibrated, add_note);
   }
   if (!scale && !identify && !offsets) {
     if (note != nullptr) *note = joined;

@@ -288,5 +288,129 @@ TEST(LiveEngine, ReportsAFailedFrameAndGoesOn) {
   EXPECT_EQ(live.stats().failed_frames, 2);
 }
 
+// A new map (the factory constructor): the first frame_step_frames frames are held, the
+// factory gets exactly their odometry, and then every frame, held or not, gives the
+// estimate of an engine with the factory's options fed directly, in order.
+TEST(LiveEngine, NewMapHoldsTheFirstFramesForItsFrameStep) {
+  std::vector<SessionInfo> sessions;
+  const std::vector<Frame> frames = SimulatedFrames(1, 40, &sessions);
+  // Options that depend on what the factory got, so that a wrong hand-over shows.
+  const auto options_for = [](const std::vector<Pose2>& odometry) {
+    CmlEngineOptions o;
+    o.tracker.motion.a3 *= 1.0 + 0.1 * static_cast<double>(odometry.size());
+    return o;
+  };
+  std::vector<Pose2> first(frames.size());
+  for (std::size_t k = 0; k < frames.size(); ++k) first[k] = frames[k].odom_T_robot;
+  first.resize(12);
+  CmlEngine direct(options_for(first));
+  direct.BeginSession(sessions[0]);
+  std::vector<Pose2> expected;
+  for (const Frame& f : frames) expected.push_back(direct.ProcessFrame(f).estimate->strongest.mean);
+
+  std::mutex mutex;
+  std::vector<LiveOutput> outputs;
+  std::vector<std::vector<Pose2>> factory_calls;
+  LiveEngineOptions live_options;
+  live_options.queue_capacity_frames = 1000;
+  live_options.frame_step_frames = 12;
+  LiveEngine live(
+      [&](const std::vector<Pose2>& odometry) {
+        factory_calls.push_back(odometry);
+        return std::make_unique<CmlEngine>(options_for(odometry));
+      },
+      live_options, sessions[0], sessions[0],
+      {[&](const LiveOutput& o) {
+         std::lock_guard<std::mutex> lock(mutex);
+         outputs.push_back(o);
+       },
+       {},
+       {}});
+  for (const Frame& f : frames) {
+    live.AddOdometry(f.stamp_s, f.odom_T_robot);
+    live.AddImage(f.stamp_s, f.image);
+  }
+  live.Stop(true);
+  ASSERT_EQ(factory_calls.size(), 1u);
+  EXPECT_EQ(factory_calls[0], first);
+  ASSERT_EQ(outputs.size(), frames.size());
+  for (std::size_t k = 0; k < frames.size(); ++k) {
+    EXPECT_EQ(outputs[k].frame, static_cast<std::int64_t>(k));
+    ASSERT_TRUE(outputs[k].estimate.has_value());
+    EXPECT_EQ(outputs[k].estimate->strongest.mean, expected[k]) << "frame " << k;
+  }
+  EXPECT_EQ(live.engine().options().tracker.motion.a3, options_for(first).tracker.motion.a3);
+}
+
+// While the first frames are held, a forgetting-mode change waits in order with them; a
+// Save ends the holding (the factory gets the frames so far) and saves after them; so
+// does a BeginSession after the first held frame; Stop(false) drops held frames but still
+// makes the engine.
+TEST(LiveEngine, CommandsWhileHoldingRunInOrder) {
+  std::vector<SessionInfo> sessions;
+  const std::vector<Frame> frames = SimulatedFrames(1, 10, &sessions);
+  const std::filesystem::path path =
+      std::filesystem::temp_directory_path() /
+      ("omnicml_live_hold_test_" + std::to_string(::getpid()) + ".bin");
+  LiveEngineOptions options;
+  options.queue_capacity_frames = 1000;
+  options.frame_step_frames = 100;
+  {
+    std::vector<std::size_t> factory_sizes;
+    int outputs = 0;
+    LiveEngine live(
+        [&](const std::vector<Pose2>& odometry) {
+          factory_sizes.push_back(odometry.size());
+          return std::make_unique<CmlEngine>(CmlEngineOptions{});
+        },
+        options, sessions[0], sessions[0], {[&](const LiveOutput&) { ++outputs; }, {}, {}});
+    live.BeginSession(sessions[0]);  // before any frame: held, does not end the holding
+    for (int k = 0; k < 4; ++k)
+      live.AddFrame(frames[k].stamp_s, frames[k].image, frames[k].odom_T_robot);
+    live.SetForgettingMode(ForgettingMode::kStatic);
+    std::future<std::string> saved = live.Save(path.string());
+    for (int k = 4; k < 10; ++k)
+      live.AddFrame(frames[k].stamp_s, frames[k].image, frames[k].odom_T_robot);
+    EXPECT_EQ(saved.get(), "");
+    live.Stop(true);
+    EXPECT_EQ(factory_sizes, std::vector<std::size_t>{4});
+    EXPECT_EQ(outputs, 10);
+    const std::unique_ptr<CmlEngine> loaded = LoadEngine(path.string());
+    EXPECT_EQ(loaded->counters().frames, 4);
+    EXPECT_EQ(loaded->options().model.forgetting.mode, ForgettingMode::kStatic);
+    EXPECT_EQ(live.stats().sessions, 1);
+  }
+  {
+    std::vector<std::size_t> factory_sizes;
+    LiveEngine live(
+        [&](const std::vector<Pose2>& odometry) {
+          factory_sizes.push_back(odometry.size());
+          return std::make_unique<CmlEngine>(CmlEngineOptions{});
+        },
+        options, sessions[0], sessions[0], {});
+    for (int k = 0; k < 3; ++k)
+      live.AddFrame(frames[k].stamp_s, frames[k].image, frames[k].odom_T_robot);
+    live.BeginSession(sessions[0]);
+    for (int k = 3; k < 5; ++k)
+      live.AddFrame(frames[k].stamp_s, frames[k].image, frames[k].odom_T_robot);
+    live.Stop(true);
+    EXPECT_EQ(factory_sizes, std::vector<std::size_t>{3});
+    EXPECT_EQ(live.stats().sessions, 2);
+    EXPECT_EQ(live.engine().counters().frames, 5);
+  }
+  {
+    LiveEngine live(
+        [](const std::vector<Pose2>&) { return std::make_unique<CmlEngine>(CmlEngineOptions{}); },
+        options, sessions[0], sessions[0], {});
+    for (int k = 0; k < 5; ++k)
+      live.AddFrame(frames[k].stamp_s, frames[k].image, frames[k].odom_T_robot);
+    live.Stop(false);
+    EXPECT_EQ(live.stats().dropped_frames, 5);
+    EXPECT_EQ(live.stats().processed_frames, 0);
+    EXPECT_EQ(live.engine().counters().frames, 0);
+  }
+  std::filesystem::remove(path);
+}
+
 }  // namespace
 }  // namespace omnicml

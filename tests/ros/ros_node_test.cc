@@ -1,5 +1,7 @@
-// Integration test of omnicml_node under a real ROS 1 master: a simulated 2-day log is
-// exported to a bag and played to the node by omnicml_ros_play (lockstep); the poses the
+// Integration test of omnicml_node under a real ROS 1 master: a simulated 2-day log with
+// frames 0.1 m apart is exported to a bag and played to the node by omnicml_ros_play
+// (lockstep; the node holds the first day's frames to measure the frame step and restates
+// its per-frame options for it, as the offline run does from the log); the poses the
 // node publishes must have the position error of the engine run offline on the same log
 // (mean and max within 1e-6 m: the run is the same computation, the bag's quaternions
 // change odometry angles in their last bits), every frame must get a pose, the
@@ -33,6 +35,7 @@
 #include "omnicml/engine/engine_io.h"
 #include "omnicml/logs/log_format.h"
 #include "omnicml/ros/rosbag_io.h"
+#include "omnicml/run/run_config.h"
 #include "omnicml/sim/simulator.h"
 #include "ros/ros1.h"
 
@@ -127,10 +130,13 @@ struct Errors {
   double mean_m = 0.0, max_m = 0.0;
 };
 
-// Offline: the engine over the log; position errors against the truth by stamp.
-Errors RunOffline(const fs::path& log, std::size_t* views) {
+// Offline: the engine over the log with the options `omnicml run` derives for a new map
+// (the frame step); position errors against the truth by stamp.
+Errors RunOffline(const fs::path& log, std::size_t* views, std::string* note) {
+  RunInput input;
+  input.log_dirs = {log.string()};
+  CmlEngine engine(ResolveNewMapOptions(OptionOverrides{}, input, note));
   LogReader reader(log.string());
-  CmlEngine engine(CmlEngineOptions{});
   Frame f;
   int session = -1;
   Errors e;
@@ -192,13 +198,16 @@ TEST(RosNode, LocalizesAPlayedBagLikeTheOfflineRun) {
     options.frames_per_day = 60;
     options.output = ImageKind::kPanorama;
     options.seed = 4;
+    options.step_m = 0.1;  // k = 2: twice the motion noise, half the evidence per frame
     SimulatedFrameSource source(options);
     LogWriter writer((tmp / "log").string());
     WriteFrames(source, writer);
     writer.Finish();
   }
   std::size_t offline_views = 0;
-  const Errors offline = RunOffline(tmp / "log", &offline_views);
+  std::string note;
+  const Errors offline = RunOffline(tmp / "log", &offline_views, &note);
+  ASSERT_NE(note.find("motion noise a1..a4 x 2"), std::string::npos) << note;
   const RosbagExportSummary exported =
       ExportRosbag((tmp / "log").string(), (tmp / "log.bag").string());
 
@@ -216,7 +225,7 @@ TEST(RosNode, LocalizesAPlayedBagLikeTheOfflineRun) {
               "_queue_size:=1000", "_views_every_frames:=30"},
              tmp / "node.txt");
   Child player({bin + "/omnicml_ros_play", (tmp / "log.bag").string(), "--lockstep", "--poses-out",
-                (tmp / "poses.csv").string(), "--timeout", "30"},
+                (tmp / "poses.csv").string(), "--timeout", "30", "--hold", "300"},
                tmp / "player.txt");
   const int player_rc = player.Wait(90.0);
   ASSERT_EQ(player_rc, 0) << "player: " << Slurp(tmp / "player.txt")
@@ -237,7 +246,7 @@ TEST(RosNode, LocalizesAPlayedBagLikeTheOfflineRun) {
   master.Kill();
 
   const Errors live = NodeErrors(tmp / "poses.csv", tmp / "log", exported.stamp_offset_s);
-  EXPECT_EQ(live.frames, offline.frames) << Slurp(tmp / "player.txt");
+  EXPECT_EQ(live.frames, offline.frames) << Slurp(tmp / "player.txt") << Slurp(tmp / "node.txt");
   EXPECT_NEAR(live.mean_m, offline.mean_m, 1e-6);
   EXPECT_NEAR(live.max_m, offline.max_m, 1e-6);
   const std::unique_ptr<CmlEngine> saved = LoadEngine(map.string());  // saved on shutdown

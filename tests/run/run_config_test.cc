@@ -355,6 +355,25 @@ TEST(RunConfig, PerFrameOptionsFollowTheFrameStep) {
   EXPECT_EQ(note.find("motion noise a1..a4 x"), std::string::npos) << note;
   EXPECT_NE(note.find("appearance evidence per frame x 0.5"), std::string::npos) << note;
   EXPECT_DOUBLE_EQ(id.hypothesis_evidence_scale, 0.5);
+
+  // The live node's path (the step measured on its held first frames) gives the same
+  // options and the same note for the same step, explicit values winning as above.
+  const std::unique_ptr<FrameSource> poses = OpenPoseOnlySource(input);
+  const double step = MedianOdometryStep(*poses, kFrameStepSampleFrames, 0.004);
+  for (const std::string& yaml :
+       {std::string("threads: 1\n"), std::string("tracker: {motion: {a3: 0.07}}\n"),
+        std::string("hypothesis_evidence_scale: 0.8\n")}) {
+    file.Write(yaml);
+    std::string live_note;
+    EXPECT_TRUE(SameEngineOptions(ResolveFrameStepOptions(file.overrides, step, &live_note, sparse),
+                                  ResolveNewMapOptions(file.overrides, input, &note, sparse)))
+        << yaml;
+    EXPECT_EQ(live_note, note) << yaml;
+  }
+  std::string live_note;
+  EXPECT_TRUE(SameEngineOptions(ResolveFrameStepOptions(file.overrides, 0.0, &live_note, sparse),
+                                ResolveEngineOptions(file.overrides, sparse)));
+  EXPECT_NE(live_note.find("as configured"), std::string::npos) << live_note;
 }
 
 // `omnicml calibrate`'s YAML loads as a configuration: the default spatial thresholds

@@ -84,6 +84,12 @@ inline constexpr double kReferenceMapUpdateSpacingM = 0.15;
 // frames (>= 2); images are not looked at, so a pose-only source will do. 0 when fewer
 // than two moving steps were read. Throws omnicml::Error on a bad frame.
 double MedianOdometryStep(FrameSource& source, int max_frames, double min_step_m);
+// The same over the odometry poses of consecutive frames (a live node's first frames).
+double MedianOdometryStep(const std::vector<Pose2>& odometry, double min_step_m);
+// How many frames of the first session a new map reads for its frame step
+// (CmlEngineOptions::reference_frame_step_m): the run's pose-only read and the live
+// node's held first frames.
+inline constexpr int kFrameStepSampleFrames = 300;
 
 // The factor k for CmlEngineOptions::reference_frame_step_m: reference / step rounded to
 // a half octave (2^(round(2 log2 x) / 2); 1 for x in [0.841, 1.189)). Thrun's

@@ -21,6 +21,17 @@
 // session template given at construction (first session) or later_sessions (after a gap);
 // a template camera of size 0 x 0 gets the frame's size (kind and calibration kept).
 //
+// A new map (the factory constructor): the engine's per-frame options depend on the
+// distance between frames (CmlEngineOptions::reference_frame_step_m), which an offline run
+// reads from its log's first session before the first frame. Live, the worker holds the
+// first frames (up to frame_step_frames, with their odometry) without processing them, then
+// calls the factory with their odometry poses, and processes the held frames in order:
+// their outputs come late, and a replayed log gives the outputs of the offline run.
+// Commands that arrive meanwhile are held in order with the frames, except that Save, a
+// BeginSession after the first held frame, a stamp gap (or stamps going backwards) and
+// Stop end the holding early: the factory gets the frames held so far, as an offline run
+// reads only its first session. Stop(false) drops the held frames (commands still run).
+//
 // Frames: map frame = the engine's map; odom frame = that of the odometry poses. The
 // output's map_T_odom = map_T_robot (estimate mean) * odom_T_robot^-1, the transform a
 // localization node publishes as map -> odom.
@@ -47,6 +58,7 @@
 
 #include <opencv2/core.hpp>
 
+#include "omnicml/engine/calibration.h"
 #include "omnicml/engine/cml_engine.h"
 #include "omnicml/live/odometry_buffer.h"
 #include "omnicml/sensor/frame.h"
@@ -67,6 +79,9 @@ struct LiveEngineOptions {
   // Every this many processed frames the reference views go to the views callback; >= 0,
   // 0 never.
   int reference_views_every_frames = 0;
+  // Factory constructor only: frames held before the factory is called, >= 2. The default
+  // is what an offline run reads from its log (kFrameStepSampleFrames).
+  int frame_step_frames = kFrameStepSampleFrames;
 
   void Validate() const;  // throws omnicml::Error naming the field
 };
@@ -121,6 +136,14 @@ class LiveEngine {
   // later_sessions: of sessions begun by a stamp gap. Throws omnicml::Error on bad options.
   LiveEngine(std::unique_ptr<CmlEngine> engine, const LiveEngineOptions& options,
              SessionInfo first_session, SessionInfo later_sessions, Callbacks callbacks);
+  // A new map whose engine is made once the first frames are held (see the top): the
+  // factory gets the odometry poses of the held frames in order (possibly none) and
+  // returns the engine; it runs on the worker thread. An exception from it (or no engine)
+  // goes to the error callback and every frame then fails.
+  using EngineFactory =
+      std::function<std::unique_ptr<CmlEngine>(const std::vector<Pose2>& first_odometry)>;
+  LiveEngine(EngineFactory make_engine, const LiveEngineOptions& options, SessionInfo first_session,
+             SessionInfo later_sessions, Callbacks callbacks);
   ~LiveEngine();  // Stop(false)
   LiveEngine(const LiveEngine&) = delete;
   LiveEngine& operator=(const LiveEngine&) = delete;
@@ -153,7 +176,7 @@ class LiveEngine {
   void Stop(bool drain = true);
 
   LiveStats stats() const;
-  // Only after Stop().
+  // Only after Stop() (and, with the factory constructor, once it made an engine).
   CmlEngine& engine();
 
  private:
@@ -165,17 +188,27 @@ class LiveEngine {
     std::function<cv::Mat()> decode = {};  // set: image is decoded by the worker
   };
   struct Command {
+    enum class Kind { kOther, kBeginSession, kSave };
     std::function<void()> run;
+    Kind kind = Kind::kOther;
   };
   using Item = std::variant<QueuedFrame, Command>;
 
   bool Enqueue(QueuedFrame frame);
-  void EnqueueCommand(std::function<void()> run);
+  void EnqueueCommand(std::function<void()> run, Command::Kind kind = Command::Kind::kOther);
   void WorkerLoop();
   // Worker: blocks until the front frame may run (odometry or timeout); fills odometry.
   // Called with the lock held; returns with it held.
   void WaitForOdometry(std::unique_lock<std::mutex>& lock, QueuedFrame* frame, bool* held);
   void Process(QueuedFrame frame, bool odometry_held);
+  // Factory constructor: holds `frame` for the frame step, or ends the holding first when
+  // it begins a new session.
+  void Hold(QueuedFrame frame, bool odometry_held);
+  // Factory constructor: holds `command` in order with the frames, or ends the holding.
+  void HoldCommand(Command command);
+  // Makes the engine from the held frames' odometry, then processes the held frames and
+  // runs the held commands in order. No-op once made.
+  void EndHolding();
   void BeginSessionNow(SessionInfo info, const cv::Mat& image);
   void EmitViews();
 
@@ -198,6 +231,14 @@ class LiveEngine {
   // Worker-only state.
   std::optional<SessionInfo> pending_session_;  // begin before the next frame
   bool in_session_ = false;
+  EngineFactory make_engine_;  // set until the engine is made
+  struct HeldFrame {
+    QueuedFrame frame;
+    bool odometry_held = false;
+  };
+  std::vector<std::variant<HeldFrame, Command>> held_;
+  std::size_t held_frames_ = 0;
+  std::optional<double> last_held_stamp_s_;
   std::optional<double> last_stamp_s_;
   std::int64_t index_in_session_ = 0;
 

@@ -52,6 +52,9 @@ struct RosNodeParameters {
   double session_gap_s = 0.0;                        // LiveEngineOptions
   int views_every_frames = 20;  // LiveEngineOptions::reference_views_every_frames
   std::string latency_csv;      // per-frame latencies written here on shutdown
+  // A new map: the first frames held to measure the frame step its per-frame options are
+  // restated for (LiveEngineOptions::frame_step_frames); 0 or 1: options as configured.
+  int frame_step_frames = kFrameStepSampleFrames;
 };
 
 class RosNode {

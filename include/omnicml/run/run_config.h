@@ -113,6 +113,15 @@ struct RunInput;  // frame_sources.h
 CmlEngineOptions ResolveNewMapOptions(const OptionOverrides& overrides, const RunInput& input,
                                       std::string* note, const CmlEngineOptions& base = {});
 
+// The frame-step part of ResolveNewMapOptions for a median step measured elsewhere (a
+// live node's first frames, LiveEngine): ResolveEngineOptions(overrides, base) with
+// a1..a4 and hypothesis_evidence_scale restated for frames step_m apart, as
+// ResolveNewMapOptions does for the log's first session (explicit values win; step_m <= 0
+// keeps them as configured). *note (if not null) gets the line ResolveNewMapOptions would
+// write for it, or "" when nothing changed. Throws omnicml::Error.
+CmlEngineOptions ResolveFrameStepOptions(const OptionOverrides& overrides, double step_m,
+                                         std::string* note, const CmlEngineOptions& base = {});
+
 }  // namespace omnicml
 
 #endif  // OMNICML_RUN_RUN_CONFIG_H_

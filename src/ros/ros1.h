@@ -101,7 +101,8 @@ class BagReader {
 // ---------------------------------------------------------------------------------------
 // The node's transport.
 
-// ros::init with the node name (no SIGINT handler: the node installs its own).
+// ros::init with the node name (no SIGINT handler: the node installs its own), then
+// ros::start: the node runs until Shutdown, whatever NodeHandles come and go.
 void InitNode(int& argc, char** argv, const std::string& name);
 bool Ok();
 void Shutdown();

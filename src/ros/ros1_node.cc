@@ -47,6 +47,10 @@ void GetParamT(const std::string& name, T* value) {
 
 void InitNode(int& argc, char** argv, const std::string& name) {
   ros::init(argc, argv, name, ros::init_options::NoSigintHandler);
+  // Started here, not by the first NodeHandle: roscpp shuts a node down when the last
+  // NodeHandle that started it goes (a parameter read's temporary one), and its console
+  // then stays silent for good. Shutdown() ends it.
+  ros::start();
 }
 bool Ok() { return ros::ok(); }
 void Shutdown() { ros::shutdown(); }

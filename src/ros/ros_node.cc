@@ -87,9 +87,11 @@ LiveEngine::EngineFactory NewMapFactory(const RosNodeParameters& p) {
     const double step = MedianOdometryStep(odometry, 0.01 * reference);
     std::string note;
     const CmlEngineOptions options = ResolveFrameStepOptions(overrides, step, &note);
-    ros1::LogInfo(StrCat(
-        "omnicml: new map, frame step measured over the first ", odometry.size(),
-        " frames: ", note.empty() ? StrCat("median ", step, " m, options as configured") : note));
+    if (!odometry.empty()) {
+      ros1::LogInfo(StrCat(
+          "omnicml: new map, frame step measured over the first ", odometry.size(),
+          " frames: ", note.empty() ? StrCat("median ", step, " m, options as configured") : note));
+    }
     return std::make_unique<CmlEngine>(options);
   };
 }

@@ -243,6 +243,11 @@ TEST(RosNode, LocalizesAPlayedBagLikeTheOfflineRun) {
 
   node.Signal(SIGINT);
   EXPECT_EQ(node.Wait(30.0), 0) << Slurp(tmp / "node.txt");
+  // The node's log (its console stays on for the whole run) names the frame step's factors.
+  const std::string node_log = Slurp(tmp / "node.txt");
+  EXPECT_NE(node_log.find("over the first 60 frames: motion noise a1..a4 x 2"), std::string::npos)
+      << node_log;
+  EXPECT_NE(node_log.find("120 processed, 0 dropped"), std::string::npos) << node_log;
   master.Kill();
 
   const Errors live = NodeErrors(tmp / "poses.csv", tmp / "log", exported.stamp_offset_s);

@@ -54,7 +54,7 @@ struct RosNodeParameters {
   std::string latency_csv;      // per-frame latencies written here on shutdown
   // A new map: the first frames held to measure the frame step its per-frame options are
   // restated for (LiveEngineOptions::frame_step_frames); 0 or 1: options as configured.
-  int frame_step_frames = kFrameStepSampleFrames;
+  int frame_step_frames = LiveEngineOptions{}.frame_step_frames;
 };
 
 class RosNode {

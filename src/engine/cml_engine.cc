@@ -11,6 +11,7 @@
 
 #include "omnicml/common/common.h"
 #include "omnicml/common/limits.h"
+#include "omnicml/tracking/fixed_lag_smoother.h"
 
 namespace omnicml {
 namespace {
@@ -639,8 +640,48 @@ FrameResult CmlEngine::ProcessFrame(const Frame& frame) {
       }
     }
   }
+  if (options_.smooth_map_updates) {
+    RecordForSmoothing(t, result);
+    SmoothQueuedUpdates(t + 1);  // handed over before the next frame queries the map
+  }
   EndFrame(frame, t_start, &result);
   return result;
+}
+
+void CmlEngine::RecordForSmoothing(std::int64_t t, const FrameResult& result) {
+  SmoothingFrame s;
+  s.frame = t;
+  s.session = result.session;
+  s.increment = current_increment_;
+  if (result.estimate && result.estimate->unimodal) {
+    s.filtered = result.estimate->mean;
+    s.filtered->weight = 1.0;
+  }
+  smoothing_history_.push_back(std::move(s));
+  while (smoothing_history_.size() > static_cast<std::size_t>(options_.update_delay_frames) + 1)
+    smoothing_history_.pop_front();
+}
+
+void CmlEngine::SmoothQueuedUpdates(std::int64_t due_by) {
+  const std::deque<SmoothingFrame>& h = smoothing_history_;
+  for (MapUpdate& u : updater_->mutable_queued()) {
+    if (u.due_frame > due_by) break;  // due frames never decrease in the queue
+    if (u.reconstructed) continue;
+    std::size_t i = 0;
+    while (i < h.size() && h[i].frame != u.frame) ++i;
+    // Only an update that carries its frame's filtered estimate (not a survey frame's
+    // trusted pose, not one already smoothed or moved by the pose graph).
+    if (i == h.size() || !h[i].filtered || h[i].filtered->mean != u.state.mean) continue;
+    std::vector<Gaussian> chain = {*h[i].filtered};
+    std::vector<OdometryIncrement> increments;
+    for (std::size_t j = i + 1; j < h.size(); ++j) {
+      if (h[j].frame != h[j - 1].frame + 1 || h[j].session != h[i].session || !h[j].filtered) break;
+      chain.push_back(*h[j].filtered);
+      increments.push_back(h[j].increment);
+    }
+    if (increments.empty()) continue;
+    u.state = SmoothFirstOfChain(chain, increments, options_.tracker.motion);
+  }
 }
 
 void CmlEngine::EndFrame(const Frame& frame, Clock::time_point t_start, FrameResult* result) {
@@ -663,6 +704,7 @@ void CmlEngine::ReplaceModel(EnvironmentModel model) {
 
 int CmlEngine::Finish() {
   DropPending(next_frame_ - 1, nullptr);
+  if (options_.smooth_map_updates) SmoothQueuedUpdates(std::numeric_limits<std::int64_t>::max());
   return updater_->Flush();
 }
 

@@ -134,6 +134,8 @@ void CmlEngine::GiveMarginalToComponentsAtTheNode(std::size_t view_index, const 
 void CmlEngine::ApplyPoseGraphCorrections(std::vector<NodeCorrection> corrections,
                                           std::optional<std::int64_t> fixed_by, FrameStats* stats) {
   if (corrections.empty()) return;
+  // The filtered estimates behind the smoothing are in the frame before the correction.
+  smoothing_history_.clear();
   // Sorted by frame (Optimize returns them in node order).
   const auto find = [&](std::int64_t frame) { return FindCorrection(corrections, frame); };
   // Views move with the node of the update that created them: later components were

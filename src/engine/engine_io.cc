@@ -233,6 +233,18 @@ void EngineStateAccess::Write(BinaryWriter& out, const CmlEngine& e) {
       out.Write<double>(e.last_map_update_->y_m);
     }
   }
+  // The frames behind the smoothing of the queued updates, only with smooth_map_updates
+  // (stored only when set).
+  if (e.options_.smooth_map_updates) {
+    out.Write<std::uint64_t>(e.smoothing_history_.size());
+    for (const CmlEngine::SmoothingFrame& s : e.smoothing_history_) {
+      out.Write<std::int64_t>(s.frame);
+      out.Write<std::int32_t>(s.session);
+      WriteIncrement(out, s.increment);
+      out.Write<bool>(s.filtered.has_value());
+      if (s.filtered) WriteGaussian(out, *s.filtered);
+    }
+  }
   // Tracker mixture.
   const Mixture& m = e.tracker_.state();
   out.Write<std::uint64_t>(m.size());
@@ -304,6 +316,22 @@ std::unique_ptr<CmlEngine> EngineStateAccess::Read(BinaryReader& in) {
     if (!std::isfinite(last.x_m) || !std::isfinite(last.y_m))
       in.Fail("last_map_update", "position is not finite");
     e->last_map_update_ = last;
+  }
+  if (e->options_.smooth_map_updates) {
+    const std::size_t frames = in.ReadCount("smoothing_history", 8 + 4 + 24 + 1);
+    if (frames > static_cast<std::size_t>(e->options_.update_delay_frames) + 1)
+      in.Fail("smoothing_history", "more frames than update_delay_frames + 1");
+    for (std::size_t i = 0; i < frames; ++i) {
+      CmlEngine::SmoothingFrame s;
+      s.frame = in.Read<std::int64_t>("smoothing_history.frame");
+      s.session = in.Read<std::int32_t>("smoothing_history.session");
+      s.increment = ReadIncrement(in, "smoothing_history.increment");
+      if (in.Read<bool>("smoothing_history.filtered"))
+        s.filtered = ReadGaussian(in, "smoothing_history.filtered");
+      if (!e->smoothing_history_.empty() && s.frame <= e->smoothing_history_.back().frame)
+        in.Fail("smoothing_history.frame", "frames do not increase");
+      e->smoothing_history_.push_back(std::move(s));
+    }
   }
 
   const std::size_t components = in.ReadCount("tracker.state", 13 * 8);

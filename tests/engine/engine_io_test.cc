@@ -237,6 +237,60 @@ TEST(EngineIo, SaveLoadMidSessionWithSpacingIsBitIdentical) {
   EXPECT_EQ(EncodeEngine(*second), EncodeEngine(whole));
 }
 
+// With smooth_map_updates the frames behind the smoothing of the queued updates are part
+// of the state: a save and load in the middle of the second day continues bit-identically
+// to one run, with one or two threads; and the option changes the map (day 2 localizes
+// against day 1, so its updates are smoothed by later fixes).
+TEST(EngineIo, SaveLoadMidSessionWithSmoothingIsBitIdentical) {
+  const fs::path dir = ScratchDir("smoothing");
+  const std::vector<RouteFrame> day1 = MakeLaps(1, 0.2, 35, 0);
+  const std::vector<RouteFrame> day2 = MakeLaps(1, 0.2, 36, 7);
+  const std::size_t half = day2.size() / 2 + 3;
+  const SessionInfo s1 = PanoramaSession("d1", SessionStartMode::kKnownPose, day1[0].truth);
+  const SessionInfo s2 = PanoramaSession("d2", SessionStartMode::kKnownPose, day2[0].truth);
+  const auto run = [&](CmlEngine& engine, std::size_t begin, std::size_t end) {
+    std::vector<FrameResult> out;
+    for (std::size_t i = begin; i < end; ++i)
+      out.push_back(engine.ProcessFrame(MakeFrame(day2[i], 1, static_cast<std::int64_t>(i))));
+    return out;
+  };
+  CmlEngineOptions plain = TestOptions();
+  CmlEngine unsmoothed(plain);
+  RunDay(unsmoothed, s1, day1, 0);
+  unsmoothed.BeginSession(s2);
+  run(unsmoothed, 0, day2.size());
+  unsmoothed.Finish();
+  for (int threads : {1, 2}) {
+    CmlEngineOptions o = TestOptions();
+    o.smooth_map_updates = true;
+    o.threads = threads;
+    CmlEngine whole(o);
+    RunDay(whole, s1, day1, 0);
+    whole.BeginSession(s2);
+    const std::vector<FrameResult> expected = run(whole, 0, day2.size());
+    whole.Finish();
+    BinaryWriter smoothed_model, unsmoothed_model;
+    whole.model().Serialize(smoothed_model);
+    unsmoothed.model().Serialize(unsmoothed_model);
+    EXPECT_NE(smoothed_model.bytes(), unsmoothed_model.bytes())
+        << "the smoothing changed no update";
+
+    CmlEngine first(o);
+    RunDay(first, s1, day1, 0);
+    first.BeginSession(s2);
+    run(first, 0, half);
+    const fs::path file = dir / "mid_day2.omnicml";
+    SaveEngine(first, file.string());
+    const std::unique_ptr<CmlEngine> second = LoadEngine(file.string());
+    EXPECT_EQ(EncodeEngine(*second), EncodeEngine(first));
+    const std::vector<FrameResult> got = run(*second, half, day2.size());
+    second->Finish();
+    ASSERT_EQ(got.size(), day2.size() - half);
+    for (std::size_t i = 0; i < got.size(); ++i) ExpectSameEstimate(got[i], expected[half + i]);
+    EXPECT_EQ(EncodeEngine(*second), EncodeEngine(whole)) << "threads " << threads;
+  }
+}
+
 // Truncated, corrupted, foreign and future-version files are rejected, naming the file.
 TEST(EngineIo, RejectsDamagedFiles) {
   const fs::path dir = ScratchDir("damaged");

@@ -48,6 +48,7 @@
 #include <array>
 #include <chrono>
 #include <cstdint>
+#include <deque>
 #include <limits>
 #include <memory>
 #include <optional>
@@ -188,6 +189,15 @@ struct CmlEngineOptions {
   // updating the map. Metres, finite, >= 0; 0: every localized frame updates the map. A
   // spatial threshold (spatial_scale_source scales it).
   double map_update_spacing_m = 0.0;
+  // Map updates smoothed over their delay (docs/design.md "Map updates smoothed over the
+  // delay"): an update made from a unimodal frame's filtered estimate reaches the map
+  // update_delay_frames later; with this option it then carries the Rauch-Tung-Striebel
+  // smoothed estimate of its frame given the filtered estimates of the frames since, as
+  // long as they stay unimodal in the same session (tracking/fixed_lag_smoother.h). The
+  // map sees the update at the same frame as without it, so it still never feeds back
+  // into the estimates it came from. Reconstructed states (already smoothed between
+  // anchors) and survey frames are not changed. false: the filtered estimate ([G]).
+  bool smooth_map_updates = false;
   // Panoramas (delivered or unwrapped) are resized to this size when both are > 0
   // (PreparePanorama); 0 keeps the size. Pixels.
   int panorama_width = 0;
@@ -344,6 +354,8 @@ void VisitFields(V& v, CmlEngineOptions& o) {
     w("reference_frame_step_m", o.reference_frame_step_m);
     w("hypothesis_evidence_scale", o.hypothesis_evidence_scale);
   });
+  // Added after engine file format 16: stored only when not the default.
+  v.Since(17, [&](auto& w) { w("smooth_map_updates", o.smooth_map_updates); });
 }
 
 // (d(E) / 2)^2 in m^2 (CmlEngineOptions::appearance_offset_curve): d(E) the travel at
@@ -615,6 +627,22 @@ class CmlEngine {
     double y_m = 0.0;
   };
   std::optional<LastMapUpdate> last_map_update_;
+  // smooth_map_updates only: the latest frames of ProcessFrame, oldest first, at most
+  // update_delay_frames + 1: a unimodal frame's filtered estimate (what its map update
+  // carries) and the odometry increment into the frame.
+  struct SmoothingFrame {
+    std::int64_t frame = 0;
+    int session = 0;
+    std::optional<Gaussian> filtered;
+    OdometryIncrement increment;
+  };
+  std::deque<SmoothingFrame> smoothing_history_;
+  // Appends frame t to smoothing_history_ (dropping the oldest beyond its length).
+  void RecordForSmoothing(std::int64_t t, const FrameResult& result);
+  // Replaces the state of every queued update due at <= due_by that carries its frame's
+  // filtered estimate by the smoothed one (SmoothFirstOfChain over smoothing_history_).
+  // Call between a barrier and the next hand-over (end of a frame, Finish).
+  void SmoothQueuedUpdates(std::int64_t due_by);
 };
 
 }  // namespace omnicml

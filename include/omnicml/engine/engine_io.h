@@ -72,7 +72,8 @@ namespace omnicml {
 // 16: the model section's version 6 (the view persistence counts and belief) and the
 //    options declared Since(16), now part of the format (model.forgetting.
 //    persistence_min_probability added with it). Options added after 16 without a bump
-//    are declared Since(17): stored only when not default.
+//    are declared Since(17): stored only when not default (smooth_map_updates; when it is
+//    set, the session state after next_frame also holds the frames behind the smoothing).
 // The model's options keep these flat names in the file (model.e_max, model.forgetting,
 // ...) although YAML and C++ group them in sections (environment_model_options.h
 // FlatModelOptionsValue), so files of every version keep their bytes and load as before.

@@ -29,9 +29,8 @@ Gaussian SmoothFirstOfChain(const std::vector<Gaussian>& filtered,
     const Eigen::Matrix3d gain = llt.solve(g * f.covariance).transpose();
     const Eigen::Vector3d step = gain * PoseDifference(mean, predicted.mean);
     mean = MakePose(f.mean.x() + step.x(), f.mean.y() + step.y(), f.mean.z() + step.z());
-    cov = RepairCovariance(
-        f.covariance + gain * (cov - predicted.covariance) * gain.transpose(), 1e-12,
-        "SmoothFirstOfChain: smoothed covariance");
+    cov = RepairCovariance(f.covariance + gain * (cov - predicted.covariance) * gain.transpose(),
+                           1e-12, "SmoothFirstOfChain: smoothed covariance");
   }
   Gaussian out;
   out.mean = mean;

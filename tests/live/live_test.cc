@@ -33,6 +33,24 @@ std::vector<Frame> SimulatedFrames(int days, int frames_per_day,
   return frames;
 }
 
+// Odometry, then the image, of every frame: the two channels of a robot.
+void Feed(LiveEngine& live, const std::vector<Frame>& frames) {
+  for (const Frame& f : frames) {
+    live.AddOdometry(f.stamp_s, f.odom_T_robot);
+    live.AddImage(f.stamp_s, f.image);
+  }
+}
+
+// Callbacks that collect the outputs (under `mutex`).
+LiveEngine::Callbacks Collect(std::mutex& mutex, std::vector<LiveOutput>& outputs) {
+  return {[&mutex, &outputs](const LiveOutput& o) {
+            std::lock_guard<std::mutex> lock(mutex);
+            outputs.push_back(o);
+          },
+          {},
+          {}};
+}
+
 // Samples are returned exactly at their stamps and interpolated between them, the angle
 // along the shorter arc (across +-pi).
 TEST(OdometryBuffer, InterpolatesLinearlyAndAlongTheShorterArc) {
@@ -86,16 +104,8 @@ TEST(LiveEngine, MatchesTheEngineFedDirectly) {
   LiveEngineOptions live_options;
   live_options.queue_capacity_frames = 1000;
   LiveEngine live(std::make_unique<CmlEngine>(options), live_options, sessions[0], sessions[0],
-                  {[&](const LiveOutput& o) {
-                     std::lock_guard<std::mutex> lock(mutex);
-                     outputs.push_back(o);
-                   },
-                   {},
-                   {}});
-  for (const Frame& f : frames) {
-    live.AddOdometry(f.stamp_s, f.odom_T_robot);
-    live.AddImage(f.stamp_s, f.image);
-  }
+                  Collect(mutex, outputs));
+  Feed(live, frames);
   live.Stop(true);
   ASSERT_EQ(outputs.size(), frames.size());
   for (std::size_t k = 0; k < frames.size(); ++k) {
@@ -319,17 +329,8 @@ TEST(LiveEngine, NewMapHoldsTheFirstFramesForItsFrameStep) {
         factory_calls.push_back(odometry);
         return std::make_unique<CmlEngine>(options_for(odometry));
       },
-      live_options, sessions[0], sessions[0],
-      {[&](const LiveOutput& o) {
-         std::lock_guard<std::mutex> lock(mutex);
-         outputs.push_back(o);
-       },
-       {},
-       {}});
-  for (const Frame& f : frames) {
-    live.AddOdometry(f.stamp_s, f.odom_T_robot);
-    live.AddImage(f.stamp_s, f.image);
-  }
+      live_options, sessions[0], sessions[0], Collect(mutex, outputs));
+  Feed(live, frames);
   live.Stop(true);
   ASSERT_EQ(factory_calls.size(), 1u);
   EXPECT_EQ(factory_calls[0], first);

@@ -4,9 +4,9 @@
 // widens it.
 #include "omnicml/tracking/fixed_lag_smoother.h"
 
+#include <gtest/gtest.h>
 #include <Eigen/Eigenvalues>
 #include <Eigen/LU>
-#include <gtest/gtest.h>
 
 #include "omnicml/common/common.h"
 #include "omnicml/tracking/tracker.h"

@@ -345,8 +345,8 @@ TEST(LiveEngine, NewMapHoldsTheFirstFramesForItsFrameStep) {
 
 // While the first frames are held, a forgetting-mode change waits in order with them; a
 // Save ends the holding (the factory gets the frames so far) and saves after them; so
-// does a BeginSession after the first held frame; Stop(false) drops held frames but still
-// makes the engine.
+// do a BeginSession after the first held frame and a gap in the stamps; Stop(false) drops
+// held frames but still makes the engine.
 TEST(LiveEngine, CommandsWhileHoldingRunInOrder) {
   std::vector<SessionInfo> sessions;
   const std::vector<Frame> frames = SimulatedFrames(1, 10, &sessions);
@@ -398,6 +398,27 @@ TEST(LiveEngine, CommandsWhileHoldingRunInOrder) {
     EXPECT_EQ(factory_sizes, std::vector<std::size_t>{3});
     EXPECT_EQ(live.stats().sessions, 2);
     EXPECT_EQ(live.engine().counters().frames, 5);
+  }
+  {
+    // A gap in the stamps begins the second session: the first session's frames are all
+    // the factory gets, and the new session's frames are not held.
+    std::vector<std::size_t> factory_sizes;
+    LiveEngineOptions gap = options;
+    gap.session_gap_s = 100.0;
+    LiveEngine live(
+        [&](const std::vector<Pose2>& odometry) {
+          factory_sizes.push_back(odometry.size());
+          return std::make_unique<CmlEngine>(CmlEngineOptions{});
+        },
+        gap, sessions[0], sessions[0], {});
+    for (int k = 0; k < 6; ++k)
+      live.AddFrame(frames[k].stamp_s, frames[k].image, frames[k].odom_T_robot);
+    for (int k = 6; k < 10; ++k)
+      live.AddFrame(frames[k].stamp_s + 1000.0, frames[k].image, frames[k].odom_T_robot);
+    live.Stop(true);
+    EXPECT_EQ(factory_sizes, std::vector<std::size_t>{6});
+    EXPECT_EQ(live.stats().sessions, 2);
+    EXPECT_EQ(live.stats().processed_frames, 10);
   }
   {
     LiveEngine live(

@@ -1,5 +1,6 @@
 #include "omnicml/live/live_engine.h"
 
+#include <algorithm>
 #include <cmath>
 #include <exception>
 #include <utility>
@@ -21,31 +22,41 @@ void LiveEngineOptions::Validate() const {
   if (frame_step_frames < 2) throw Error("frame_step_frames must be >= 2");
 }
 
-LiveEngine::LiveEngine(std::unique_ptr<CmlEngine> engine, const LiveEngineOptions& options,
-                       SessionInfo first_session, SessionInfo later_sessions, Callbacks callbacks)
+namespace {
+
+// `p` itself, or omnicml::Error(what) when it is empty.
+template <class T>
+T NonEmpty(T p, const char* what) {
+  if (!p) throw Error(what);
+  return p;
+}
+
+}  // namespace
+
+LiveEngine::LiveEngine(std::unique_ptr<CmlEngine> engine, EngineFactory make_engine,
+                       const LiveEngineOptions& options, SessionInfo first_session,
+                       SessionInfo later_sessions, Callbacks callbacks)
     : engine_(std::move(engine)),
       options_(options),
       first_session_(std::move(first_session)),
       later_sessions_(std::move(later_sessions)),
       callbacks_(std::move(callbacks)),
-      odometry_(options.odometry_history_s) {
+      odometry_(options.odometry_history_s),
+      make_engine_(std::move(make_engine)) {
   options_.Validate();
-  if (!engine_) throw Error("LiveEngine: no engine");
   worker_ = std::thread([this] { WorkerLoop(); });
 }
 
+LiveEngine::LiveEngine(std::unique_ptr<CmlEngine> engine, const LiveEngineOptions& options,
+                       SessionInfo first_session, SessionInfo later_sessions, Callbacks callbacks)
+    : LiveEngine(NonEmpty(std::move(engine), "LiveEngine: no engine"), nullptr, options,
+                 std::move(first_session), std::move(later_sessions), std::move(callbacks)) {}
+
 LiveEngine::LiveEngine(EngineFactory make_engine, const LiveEngineOptions& options,
                        SessionInfo first_session, SessionInfo later_sessions, Callbacks callbacks)
-    : options_(options),
-      first_session_(std::move(first_session)),
-      later_sessions_(std::move(later_sessions)),
-      callbacks_(std::move(callbacks)),
-      odometry_(options.odometry_history_s) {
-  options_.Validate();
-  if (!make_engine) throw Error("LiveEngine: no engine factory");
-  make_engine_ = std::move(make_engine);
-  worker_ = std::thread([this] { WorkerLoop(); });
-}
+    : LiveEngine(nullptr, NonEmpty(std::move(make_engine), "LiveEngine: no engine factory"),
+                 options, std::move(first_session), std::move(later_sessions),
+                 std::move(callbacks)) {}
 
 LiveEngine::~LiveEngine() { Stop(false); }
 
@@ -165,16 +176,7 @@ void LiveEngine::WorkerLoop() {
       if (stopping_) {
         if (make_engine_) {
           lock.unlock();
-          if (!drain_) {
-            {
-              std::lock_guard<std::mutex> counts(mutex_);
-              stats_.dropped_frames += static_cast<std::int64_t>(held_frames_);
-            }
-            std::erase_if(held_,
-                          [](const auto& item) { return std::holds_alternative<HeldFrame>(item); });
-            held_frames_ = 0;
-          }
-          EndHolding();
+          EndHolding(/*drop_frames=*/!drain_);
           lock.lock();
         }
         break;
@@ -234,10 +236,19 @@ void LiveEngine::WorkerLoop() {
   }
 }
 
+bool LiveEngine::StampsBeginSession(const std::optional<double>& previous_s, double stamp_s) const {
+  return previous_s && (stamp_s <= *previous_s || (options_.session_gap_s > 0.0 &&
+                                                   stamp_s - *previous_s > options_.session_gap_s));
+}
+
+std::size_t LiveEngine::HeldFrames() const {
+  return static_cast<std::size_t>(std::count_if(held_.begin(), held_.end(), [](const auto& item) {
+    return std::holds_alternative<HeldFrame>(item);
+  }));
+}
+
 void LiveEngine::Hold(QueuedFrame frame, bool odometry_held) {
-  if (last_held_stamp_s_ && (frame.stamp_s <= *last_held_stamp_s_ ||
-                             (options_.session_gap_s > 0.0 &&
-                              frame.stamp_s - *last_held_stamp_s_ > options_.session_gap_s))) {
+  if (StampsBeginSession(last_held_stamp_s_, frame.stamp_s)) {
     // The first session ends here (an offline run reads its first session only).
     EndHolding();
     Process(std::move(frame), odometry_held);
@@ -245,23 +256,28 @@ void LiveEngine::Hold(QueuedFrame frame, bool odometry_held) {
   }
   last_held_stamp_s_ = frame.stamp_s;
   held_.emplace_back(HeldFrame{std::move(frame), odometry_held});
-  ++held_frames_;
-  if (held_frames_ >= static_cast<std::size_t>(options_.frame_step_frames)) EndHolding();
+  if (HeldFrames() >= static_cast<std::size_t>(options_.frame_step_frames)) EndHolding();
 }
 
 void LiveEngine::HoldCommand(Command command) {
   const bool ends = command.kind == Command::Kind::kSave ||
-                    (command.kind == Command::Kind::kBeginSession && held_frames_ > 0);
+                    (command.kind == Command::Kind::kBeginSession && HeldFrames() > 0);
   held_.emplace_back(std::move(command));
   if (ends) EndHolding();
 }
 
-void LiveEngine::EndHolding() {
+void LiveEngine::EndHolding(bool drop_frames) {
   if (!make_engine_) return;
   const EngineFactory make = std::move(make_engine_);
   make_engine_ = nullptr;
+  if (drop_frames) {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      stats_.dropped_frames += static_cast<std::int64_t>(HeldFrames());
+    }
+    std::erase_if(held_, [](const auto& item) { return std::holds_alternative<HeldFrame>(item); });
+  }
   std::vector<Pose2> odometry;
-  odometry.reserve(held_frames_);
   for (const auto& item : held_)
     if (const auto* h = std::get_if<HeldFrame>(&item)) odometry.push_back(*h->frame.odom_T_robot);
   try {
@@ -273,7 +289,6 @@ void LiveEngine::EndHolding() {
   }
   std::vector<std::variant<HeldFrame, Command>> held = std::move(held_);
   held_.clear();
-  held_frames_ = 0;
   for (auto& item : held) {
     if (auto* h = std::get_if<HeldFrame>(&item)) {
       Process(std::move(h->frame), h->odometry_held);
@@ -307,9 +322,7 @@ void LiveEngine::Process(QueuedFrame queued, bool odometry_held) {
       BeginSessionNow(std::move(info), queued.image);
     } else if (!in_session_) {
       BeginSessionNow(first_session_, queued.image);
-    } else if (last_stamp_s_ && (queued.stamp_s <= *last_stamp_s_ ||
-                                 (options_.session_gap_s > 0.0 &&
-                                  queued.stamp_s - *last_stamp_s_ > options_.session_gap_s))) {
+    } else if (StampsBeginSession(last_stamp_s_, queued.stamp_s)) {
       BeginSessionNow(later_sessions_, queued.image);
     }
     Frame frame;

@@ -70,21 +70,20 @@ OptionOverrides Overrides(const RosNodeParameters& p) {
   return overrides;
 }
 
-// The engine of a loaded map, or of a new map whose per-frame options need no frame step.
-std::unique_ptr<CmlEngine> MakeEngine(const RosNodeParameters& p) {
-  if (p.map_in.empty()) return std::make_unique<CmlEngine>(ResolveEngineOptions(Overrides(p)));
+// The engine of a loaded map (~map_in).
+std::unique_ptr<CmlEngine> LoadMapEngine(const RosNodeParameters& p) {
   std::unique_ptr<CmlEngine> engine = LoadEngine(p.map_in);
   if (!p.forgetting.empty()) engine->SetForgettingMode(ForgettingModeFromString(p.forgetting));
   if (p.threads > 0) engine->SetThreads(p.threads);
   return engine;
 }
 
-// A new map whose per-frame options are restated for the frame step of its first frames,
-// as `omnicml run` does from its log's first session (ResolveNewMapOptions).
-LiveEngine::EngineFactory NewMapFactory(const RosNodeParameters& p) {
-  return [overrides = Overrides(p)](const std::vector<Pose2>& odometry) {
-    const double reference = ResolveEngineOptions(overrides).reference_frame_step_m;
-    const double step = MedianOdometryStep(odometry, 0.01 * reference);
+// A new map whose per-frame options (stated for frames reference_step_m apart) are
+// restated for the frame step of its first frames, as `omnicml run` does from its log's
+// first session (ResolveNewMapOptions).
+LiveEngine::EngineFactory NewMapFactory(const RosNodeParameters& p, double reference_step_m) {
+  return [overrides = Overrides(p), reference_step_m](const std::vector<Pose2>& odometry) {
+    const double step = MedianOdometryStep(odometry, 0.01 * reference_step_m);
     std::string note;
     const CmlEngineOptions options = ResolveFrameStepOptions(overrides, step, &note);
     if (!odometry.empty()) {
@@ -201,20 +200,22 @@ RosNode::RosNode() : impl_(std::make_unique<Impl>()) {
     s.transport->PublishViews(views);
   };
   callbacks.on_error = [](const std::string& e) { ros1::LogError("omnicml: " + e); };
-  if (p.map_in.empty()) {
+  const auto make_live = [&](auto engine_or_factory) {
+    return std::make_unique<LiveEngine>(
+        std::move(engine_or_factory), live_options, SessionTemplate(p, p.start_mode, 1),
+        SessionTemplate(p, p.new_session_start, 2), std::move(callbacks));
+  };
+  if (!p.map_in.empty()) {
+    s.live = make_live(LoadMapEngine(p));
+  } else {
     const CmlEngineOptions configured = ResolveEngineOptions(Overrides(p));  // errors now
     WarnOfflineOnlySources(configured);
     if (configured.reference_frame_step_m > 0.0 && p.frame_step_frames >= 2) {
       live_options.frame_step_frames = p.frame_step_frames;
-      s.live = std::make_unique<LiveEngine>(
-          NewMapFactory(p), live_options, SessionTemplate(p, p.start_mode, 1),
-          SessionTemplate(p, p.new_session_start, 2), std::move(callbacks));
+      s.live = make_live(NewMapFactory(p, configured.reference_frame_step_m));
+    } else {
+      s.live = make_live(std::make_unique<CmlEngine>(configured));
     }
-  }
-  if (!s.live) {
-    s.live = std::make_unique<LiveEngine>(
-        MakeEngine(p), live_options, SessionTemplate(p, p.start_mode, 1),
-        SessionTemplate(p, p.new_session_start, 2), std::move(callbacks));
   }
 
   ros1::NodeTopics topics;

@@ -196,6 +196,10 @@ class LiveEngine {
   };
   using Item = std::variant<QueuedFrame, Command>;
 
+  // Both public constructors: exactly one of engine and make_engine is set.
+  LiveEngine(std::unique_ptr<CmlEngine> engine, EngineFactory make_engine,
+             const LiveEngineOptions& options, SessionInfo first_session,
+             SessionInfo later_sessions, Callbacks callbacks);
   bool Enqueue(QueuedFrame frame);
   void EnqueueCommand(std::function<void()> run, Command::Kind kind = Command::Kind::kOther);
   void WorkerLoop();
@@ -209,8 +213,13 @@ class LiveEngine {
   // Factory constructor: holds `command` in order with the frames, or ends the holding.
   void HoldCommand(Command command);
   // Makes the engine from the held frames' odometry, then processes the held frames and
-  // runs the held commands in order. No-op once made.
-  void EndHolding();
+  // runs the held commands in order; drop_frames: the held frames are dropped (counted)
+  // instead, and the factory gets none. No-op once made.
+  void EndHolding(bool drop_frames = false);
+  std::size_t HeldFrames() const;
+  // Whether a frame stamped stamp_s after one stamped previous_s begins a session: stamps
+  // going backwards, or a gap above session_gap_s.
+  bool StampsBeginSession(const std::optional<double>& previous_s, double stamp_s) const;
   void BeginSessionNow(SessionInfo info, const cv::Mat& image);
   void EmitViews();
 
@@ -239,7 +248,6 @@ class LiveEngine {
     bool odometry_held = false;
   };
   std::vector<std::variant<HeldFrame, Command>> held_;
-  std::size_t held_frames_ = 0;
   std::optional<double> last_held_stamp_s_;
   std::optional<double> last_stamp_s_;
   std::int64_t index_in_session_ = 0;

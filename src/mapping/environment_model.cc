@@ -17,7 +17,9 @@ namespace {
 // the share times the xy precision (EnvironmentModelOptions::Update::merge_precision_weighted).
 // kMomentMatching: MomentMatch with the heading mean anchored at `keep`'s (the wrapped
 // difference, not the circular mean). kCovarianceIntersection: CovarianceIntersection
-// with omega = `other`'s share. eta and w are summed (w clamped to 1 to stay a weight).
+// with omega = `other`'s share. kConvexCombination: MomentMatch's mean and the weighted
+// mean of the two covariances without (14)'s spread term. eta and w are summed (w clamped
+// to 1 to stay a weight).
 ViewComponent Merged(const ViewComponent& keep, const ViewComponent& other,
                      const EnvironmentModelOptions::Update& options) {
   double weight_keep = keep.eta, weight_other = other.eta;
@@ -34,6 +36,12 @@ ViewComponent Merged(const ViewComponent& keep, const ViewComponent& other,
     merged = CovarianceIntersection(pair[0], pair[1], total > 0 ? weight_other / total : 0.5);
   } else {
     merged = MomentMatch(pair, HeadingMean::kAnchored);
+    if (options.merge_fusion == MergeFusion::kConvexCombination) {
+      const double total = weight_keep + weight_other;
+      const double share = total > 0 ? weight_other / total : 0.5;
+      const Eigen::Matrix3d c = (1.0 - share) * keep.covariance + share * other.covariance;
+      merged.covariance = 0.5 * (c + c.transpose());
+    }
   }
   ViewComponent out = keep;
   out.covariance = merged.covariance;

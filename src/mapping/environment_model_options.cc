@@ -92,8 +92,9 @@ void EnvironmentModelOptions::Validate() const {
   finite_above("update.merge_delta", u.merge_delta, true);
   if (u.look_back_frames < 0) fail("update.look_back_frames", ">= 0", u.look_back_frames);
   if (u.merge_fusion != MergeFusion::kMomentMatching &&
-      u.merge_fusion != MergeFusion::kCovarianceIntersection) {
-    fail("update.merge_fusion", "moment_matching or covariance_intersection",
+      u.merge_fusion != MergeFusion::kCovarianceIntersection &&
+      u.merge_fusion != MergeFusion::kConvexCombination) {
+    fail("update.merge_fusion", "moment_matching, covariance_intersection or convex_combination",
          static_cast<int>(u.merge_fusion));
   }
   const Forgetting& f = forgetting;

@@ -40,6 +40,13 @@ enum class MergeFusion : std::uint8_t {
   // The pair as two estimates of one place with unknown correlation: covariance
   // intersection (Julier & Uhlmann 1997) with the merge weights as the shares.
   kCovarianceIntersection = 1,
+  // The pair as two estimates of one place with unknown correlation, combined linearly:
+  // [G] (13)'s weighted mean and the same convex combination of the two covariances,
+  // without (14)'s spread of the means. Consistent whatever the correlation (the
+  // covariance of a convex combination of two errors is at most the convex combination
+  // of their covariances) and, unlike kCovarianceIntersection, the mean moves by the
+  // merge weights alone, not by the weights times the covariances.
+  kConvexCombination = 2,
 };
 
 struct EnvironmentModelOptions {
@@ -261,7 +268,8 @@ void VisitFields(V& v, EnvironmentModelOptions::Update& o) {
   v.Since(15, [&](auto& w) {
     w.NamedEnum("merge_fusion", o.merge_fusion,
                 {{MergeFusion::kMomentMatching, "moment_matching"},
-                 {MergeFusion::kCovarianceIntersection, "covariance_intersection"}});
+                 {MergeFusion::kCovarianceIntersection, "covariance_intersection"},
+                 {MergeFusion::kConvexCombination, "convex_combination"}});
   });
 }
 

@@ -138,6 +138,45 @@ Gaussian CovarianceIntersection(const Gaussian& a, const Gaussian& b, double ome
                             "CovarianceIntersection");
 }
 
+Eigen::Matrix3d LinearCombinationBound(const Eigen::Matrix3d& c_a, double share_a,
+                                       const Eigen::Matrix3d& c_b, double share_b) {
+  if (!(share_a >= 0 && share_b >= 0 && share_a + share_b > 0)) {
+    throw Error(StrCat("LinearCombinationBound: shares must be >= 0 and not both 0, got ", share_a,
+                       ", ", share_b));
+  }
+  const Eigen::Matrix3d a = share_a * share_a * c_a;
+  const Eigen::Matrix3d b = share_b * share_b * c_b;
+  if (share_b == 0) return a;
+  if (share_a == 0) return b;
+  const auto member = [&](double log_k) {
+    const double k = std::exp(log_k);
+    return Eigen::Matrix3d((1.0 + k) * a + (1.0 + 1.0 / k) * b);
+  };
+  // Golden-section search on t = log k, where log det is convex; the interval holds the
+  // minimum k = share_b / share_a of equal covariances with any shares >= 1e-8 apart.
+  constexpr double kInvPhi = 0.6180339887498949;
+  double lo = -40.0, hi = 40.0;
+  double x1 = hi - kInvPhi * (hi - lo), x2 = lo + kInvPhi * (hi - lo);
+  double f1 = member(x1).determinant(), f2 = member(x2).determinant();
+  for (int i = 0; i < 100; ++i) {
+    if (f1 <= f2) {
+      hi = x2;
+      x2 = x1;
+      f2 = f1;
+      x1 = hi - kInvPhi * (hi - lo);
+      f1 = member(x1).determinant();
+    } else {
+      lo = x1;
+      x1 = x2;
+      f1 = f2;
+      x2 = lo + kInvPhi * (hi - lo);
+      f2 = member(x2).determinant();
+    }
+  }
+  const Eigen::Matrix3d c = member(0.5 * (lo + hi));
+  return 0.5 * (c + c.transpose());
+}
+
 double TotalWeight(const Mixture& m) {
   double total = 0.0;
   for (const Gaussian& g : m) total += g.weight;

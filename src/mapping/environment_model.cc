@@ -17,8 +17,9 @@ namespace {
 // the share times the xy precision (EnvironmentModelOptions::Update::merge_precision_weighted).
 // kMomentMatching: MomentMatch with the heading mean anchored at `keep`'s (the wrapped
 // difference, not the circular mean). kCovarianceIntersection: CovarianceIntersection
-// with omega = `other`'s share. kConvexCombination: MomentMatch's mean and the weighted
-// mean of the two covariances without (14)'s spread term. eta and w are summed (w clamped
+// with omega = `other`'s share. kConvexCombination: MomentMatch's mean and, instead of
+// (14), the smallest covariance of that mean that holds for any correlation of the pair
+// (LinearCombinationBound). eta and w are summed (w clamped
 // to 1 to stay a weight).
 ViewComponent Merged(const ViewComponent& keep, const ViewComponent& other,
                      const EnvironmentModelOptions::Update& options) {
@@ -39,8 +40,8 @@ ViewComponent Merged(const ViewComponent& keep, const ViewComponent& other,
     if (options.merge_fusion == MergeFusion::kConvexCombination) {
       const double total = weight_keep + weight_other;
       const double share = total > 0 ? weight_other / total : 0.5;
-      const Eigen::Matrix3d c = (1.0 - share) * keep.covariance + share * other.covariance;
-      merged.covariance = 0.5 * (c + c.transpose());
+      merged.covariance =
+          LinearCombinationBound(keep.covariance, 1.0 - share, other.covariance, share);
     }
   }
   ViewComponent out = keep;

@@ -226,5 +226,62 @@ TEST(LargestEigenvalue2, MatchesTheEigenSolver) {
   EXPECT_DOUBLE_EQ(LargestEigenvalue2(Eigen::Vector2d(0.04, 0.25).asDiagonal()), 0.25);
 }
 
+// The bound holds for every correlation of the pair: the exact covariance of
+// s_a e_a + s_b e_b, s_a^2 C_a + s_b^2 C_b + s_a s_b (X + X^T) with the cross-covariance
+// X = C_a^(1/2) R C_b^(1/2) for a contraction R (rho times a rotation or reflection;
+// rho = 1 is perfect correlation, the worst case), never exceeds it. It is no wider in
+// determinant than the convex combination of the covariances.
+TEST(LinearCombinationBound, HoldsForEveryCorrelationAndIsNoWiderThanTheConvexCombination) {
+  std::mt19937_64 rng(17);
+  std::uniform_real_distribution<double> share(0.02, 0.98), rho(-1.0, 1.0);
+  for (int trial = 0; trial < 200; ++trial) {
+    const Eigen::Matrix3d ca = RandomSpd(rng), cb = RandomSpd(rng);
+    const double sb = share(rng), sa = 1.0 - sb;
+    const Eigen::Matrix3d bound = LinearCombinationBound(ca, sa, cb, sb);
+    const Eigen::Matrix3d root_a =
+        Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(ca).operatorSqrt();
+    const Eigen::Matrix3d root_b =
+        Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cb).operatorSqrt();
+    for (int k = 0; k < 20; ++k) {
+      Eigen::Matrix3d g;
+      for (int i = 0; i < 9; ++i) g(i / 3, i % 3) = rho(rng);
+      const Eigen::Matrix3d q = Eigen::HouseholderQR<Eigen::Matrix3d>(g).householderQ();
+      const double r = k == 0 ? 1.0 : std::abs(rho(rng));
+      const Eigen::Matrix3d x = root_a * (r * q) * root_b;
+      const Eigen::Matrix3d cov = sa * sa * ca + sb * sb * cb + sa * sb * (x + x.transpose());
+      const double min_gap =
+          Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(bound - cov).eigenvalues().minCoeff();
+      EXPECT_GT(min_gap, -1e-9 * bound.norm()) << "trial " << trial << " k " << k;
+    }
+    const Eigen::Matrix3d convex = sa * ca + sb * cb;
+    EXPECT_LE(bound.determinant(), convex.determinant() * (1 + 1e-12)) << trial;
+  }
+}
+
+// Equal covariances: the bound is that covariance whatever the shares (k = s_b / s_a
+// gives (s_a + s_b)^2 C). Proportional ones, sigma_a^2 C and sigma_b^2 C: (s_a sigma_a +
+// s_b sigma_b)^2 C, the variance of perfectly correlated errors, below the convex
+// combination's s_a sigma_a^2 + s_b sigma_b^2. A zero share leaves the other side, scaled
+// by its share squared.
+TEST(LinearCombinationBound, EqualProportionalAndZeroShares) {
+  std::mt19937_64 rng(3);
+  for (int trial = 0; trial < 50; ++trial) {
+    const Eigen::Matrix3d c = RandomSpd(rng);
+    for (const double sb : {0.01, 0.3, 0.5, 0.9}) {
+      const Eigen::Matrix3d bound = LinearCombinationBound(c, 1.0 - sb, c, sb);
+      EXPECT_LT((bound - c).norm(), 1e-9 * c.norm()) << trial << " " << sb;
+    }
+  }
+  const Eigen::Matrix3d c = RandomSpd(rng);
+  const Eigen::Matrix3d proportional = LinearCombinationBound(c, 0.8, 4.0 * c, 0.2);
+  EXPECT_LT((proportional - 1.44 * c).norm(), 1e-9 * c.norm()) << proportional;  // (0.8 + 0.4)^2
+  const Eigen::Matrix3d a = Eigen::Vector3d(1, 2, 3).asDiagonal();
+  const Eigen::Matrix3d b = Eigen::Vector3d(4, 5, 6).asDiagonal();
+  EXPECT_EQ(LinearCombinationBound(a, 1.0, b, 0.0), a);
+  EXPECT_EQ(LinearCombinationBound(a, 0.0, b, 0.5), 0.25 * b);
+  EXPECT_THROW(LinearCombinationBound(a, 0.0, b, 0.0), Error);
+  EXPECT_THROW(LinearCombinationBound(a, -0.1, b, 1.1), Error);
+}
+
 }  // namespace
 }  // namespace omnicml

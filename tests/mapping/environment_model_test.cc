@@ -538,44 +538,46 @@ TEST(EnvironmentModel, CovarianceIntersectionMergeDoesNotWidenWithScatter) {
   EXPECT_LT(offset[1], 0.06);
 }
 
-// The convex combination keeps [G] (13)'s mean and drops (14)'s spread term: with eta
-// shares (every estimate matches with S = 1, so the k-th merge has share 1 / (k + 1)) the
-// merged mean equals moment matching's after every merge, and the covariance is the
-// running mean of the merged estimates' covariances however far apart their means are.
-TEST(EnvironmentModel, ConvexCombinationMergeIsTheMeanOfTheCovariances) {
+// The convex combination keeps [G] (13)'s mean and replaces (14) by the bound of that
+// mean's error for any correlation: with eta shares (merge_precision_weighted off) the
+// merged mean equals moment matching's after every merge, whatever the covariances; with
+// estimates of one covariance scattered about the place, the component keeps exactly that
+// covariance (the bound of equal covariances), while moment matching adds the scatter.
+TEST(EnvironmentModel, ConvexCombinationMergeKeepsTheMeanAndDropsTheScatter) {
   auto fx = MakeFakeExtractor(2);
   const Descriptor y = fx->Make({0, 0});
   std::mt19937 rng(3);
   std::normal_distribution<double> noise(0.0, 0.2);
   std::uniform_real_distribution<double> sigma(0.05, 0.4);
-  std::vector<Gaussian> estimates;
-  for (int t = 0; t < 30; ++t) {
-    estimates.push_back(
-        Est(noise(rng), noise(rng), 0.1 * noise(rng), sigma(rng), sigma(rng), 0.05));
-  }
-  std::vector<ViewComponent> last;
-  for (const MergeFusion fusion : {MergeFusion::kMomentMatching, MergeFusion::kConvexCombination}) {
-    EnvironmentModelOptions o = TestOptions();
-    o.update.merge_delta = 1e6;  // every estimate merges
-    o.update.merge_precision_weighted = false;
-    o.update.merge_fusion = fusion;
-    EnvironmentModel m(o, fx);
-    Eigen::Matrix3d sum = Eigen::Matrix3d::Zero();
-    for (std::size_t t = 0; t < estimates.size(); ++t) {
-      m.Update(y, estimates[t], {static_cast<std::int64_t>(t), 0});
-      sum += estimates[t].covariance;
-      ASSERT_EQ(m.views()[0].components.size(), 1u);
-      if (fusion == MergeFusion::kConvexCombination) {
-        const Eigen::Matrix3d expected = sum / static_cast<double>(t + 1);
-        EXPECT_LT((m.views()[0].components[0].covariance - expected).norm(), 1e-12) << t;
-      }
+  for (const bool equal_covariances : {false, true}) {
+    std::vector<Gaussian> estimates;
+    for (int t = 0; t < 30; ++t) {
+      const double sx = equal_covariances ? 0.1 : sigma(rng);
+      const double sy = equal_covariances ? 0.1 : sigma(rng);
+      estimates.push_back(Est(noise(rng), noise(rng), 0.1 * noise(rng), sx, sy, 0.05));
     }
-    m.CheckInvariants();
-    last.push_back(m.views()[0].components[0]);
+    std::vector<ViewComponent> last;
+    for (const MergeFusion fusion :
+         {MergeFusion::kMomentMatching, MergeFusion::kConvexCombination}) {
+      EnvironmentModelOptions o = TestOptions();
+      o.update.merge_delta = 1e6;  // every estimate merges
+      o.update.merge_precision_weighted = false;
+      o.update.merge_fusion = fusion;
+      EnvironmentModel m(o, fx);
+      for (std::size_t t = 0; t < estimates.size(); ++t) {
+        m.Update(y, estimates[t], {static_cast<std::int64_t>(t), 0});
+        ASSERT_EQ(m.views()[0].components.size(), 1u);
+      }
+      m.CheckInvariants();
+      last.push_back(m.views()[0].components[0]);
+    }
+    EXPECT_LT(PoseDifference(last[0].mean, last[1].mean).norm(), 1e-12);
+    // Moment matching adds the scatter of the means (0.2 m) on top.
+    EXPECT_GT(last[0].covariance(0, 0), last[1].covariance(0, 0) + 0.5 * 0.2 * 0.2);
+    if (equal_covariances) {
+      EXPECT_LT((last[1].covariance - estimates[0].covariance).norm(), 1e-9) << last[1].covariance;
+    }
   }
-  EXPECT_LT(PoseDifference(last[0].mean, last[1].mean).norm(), 1e-12);
-  // Moment matching adds the scatter of the means (0.2 m) on top of the same average.
-  EXPECT_GT(last[0].covariance(0, 0), last[1].covariance(0, 0) + 0.5 * 0.2 * 0.2);
 }
 
 // A component's spread is the scatter of the estimates merged into it about its mean:

@@ -79,6 +79,18 @@ Gaussian CombineInformation(const Gaussian& a, const Eigen::Matrix3d& info_a, do
 // be in [0, 1].
 Gaussian CovarianceIntersection(const Gaussian& a, const Gaussian& b, double omega);
 
+// A covariance of the error of share_a x_a + share_b x_b that holds whatever the
+// correlation of x_a and x_b (covariances c_a, c_b): for every k > 0,
+// Cov <= (1 + k) share_a^2 c_a + (1 + 1/k) share_b^2 c_b (expand (sqrt(k) share_a e_a -
+// share_b e_b / sqrt(k)) (...)^T >= 0); returns the member of smallest determinant (its
+// log determinant is convex in log k). Equals c when c_a = c_b = c and share_a + share_b =
+// 1, never exceeds share_a c_a + share_b c_b (the member k = share_b / share_a) in
+// determinant; a zero share returns the other side's covariance scaled by its share
+// squared. Shares must be >= 0 and not both 0; c_a, c_b symmetric positive
+// semi-definite.
+Eigen::Matrix3d LinearCombinationBound(const Eigen::Matrix3d& c_a, double share_a,
+                                       const Eigen::Matrix3d& c_b, double share_b);
+
 // Sum of weights.
 double TotalWeight(const Mixture& m);
 

@@ -41,11 +41,13 @@ enum class MergeFusion : std::uint8_t {
   // intersection (Julier & Uhlmann 1997) with the merge weights as the shares.
   kCovarianceIntersection = 1,
   // The pair as two estimates of one place with unknown correlation, combined linearly:
-  // [G] (13)'s weighted mean and the same convex combination of the two covariances,
-  // without (14)'s spread of the means. Consistent whatever the correlation (the
-  // covariance of a convex combination of two errors is at most the convex combination
-  // of their covariances) and, unlike kCovarianceIntersection, the mean moves by the
-  // merge weights alone, not by the weights times the covariances.
+  // [G] (13)'s weighted mean s_n mu_n + s_m mu_m, and for (14) the covariance of that
+  // mean's error that holds whatever the correlation, the smallest (in determinant) of
+  // (1 + k) s_n^2 C_n + (1 + 1/k) s_m^2 C_m over k > 0 (LinearCombinationBound in
+  // geometry/gaussian_mixture.h): C when C_n = C_m = C, determinant at most that of
+  // s_n C_n + s_m C_m, no
+  // spread of the means. Unlike kCovarianceIntersection the mean moves by the merge
+  // weights alone, not by the weights times the covariances.
   kConvexCombination = 2,
 };
 
@@ -109,7 +111,10 @@ struct EnvironmentModelOptions {
     // estimates of the same place whose errors are correlated (both come from poses
     // localized against this map): C = (s_n C_n^-1 + s_m C_m^-1)^-1 and the matching
     // mean, s_n, s_m the merge weights normalised to sum 1. It is consistent for any
-    // correlation and never wider than the wider of the two.
+    // correlation and never wider than the wider of the two. kConvexCombination keeps
+    // (13)'s mean with a covariance that is as consistent (wider than covariance
+    // intersection's when the pair's covariances differ); its mean does not weight the
+    // pair by covariances that may say little about their errors.
     MergeFusion merge_fusion = MergeFusion::kMomentMatching;
     // Look-back (an addition to [G 2.3], docs/design.md "Environment model"): a view made
     // at frame t is also given a component at each of the preceding updates of the same

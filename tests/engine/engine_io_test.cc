@@ -255,6 +255,7 @@ TEST(EngineIo, SaveLoadMidSessionWithSmoothingIsBitIdentical) {
     return out;
   };
   CmlEngineOptions plain = TestOptions();
+  plain.smooth_map_updates = false;
   CmlEngine unsmoothed(plain);
   RunDay(unsmoothed, s1, day1, 0);
   unsmoothed.BeginSession(s2);

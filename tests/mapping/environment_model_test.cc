@@ -426,6 +426,7 @@ TEST_P(MergeWeights, MergeKeepsEtaMeanAndCovariance) {
   auto fx = MakeFakeExtractor(2);
   EnvironmentModelOptions o = TestOptions();
   o.update.merge_delta = 1.0;
+  o.update.merge_fusion = MergeFusion::kMomentMatching;  // [G] (13)-(14)
   o.update.merge_precision_weighted = precision_weighted;
   EnvironmentModel m(o, fx);
   const Descriptor y = fx->Make({0, 0});

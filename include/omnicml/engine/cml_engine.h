@@ -197,7 +197,7 @@ struct CmlEngineOptions {
   // map sees the update at the same frame as without it, so it still never feeds back
   // into the estimates it came from. Reconstructed states (already smoothed between
   // anchors) and survey frames are not changed. false: the filtered estimate ([G]).
-  bool smooth_map_updates = false;
+  bool smooth_map_updates = true;
   // Panoramas (delivered or unwrapped) are resized to this size when both are > 0
   // (PreparePanorama); 0 keeps the size. Pixels.
   int panorama_width = 0;
@@ -354,7 +354,7 @@ void VisitFields(V& v, CmlEngineOptions& o) {
     w("reference_frame_step_m", o.reference_frame_step_m);
     w("hypothesis_evidence_scale", o.hypothesis_evidence_scale);
   });
-  // Added after engine file format 16: stored only when not the default.
+  // Engine file format 17.
   v.Since(17, [&](auto& w) { w("smooth_map_updates", o.smooth_map_updates); });
 }
 

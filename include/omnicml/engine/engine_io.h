@@ -71,13 +71,16 @@ namespace omnicml {
 //    hypothesis_evidence_scale (the first read only when a run starts a new map).
 // 16: the model section's version 6 (the view persistence counts and belief) and the
 //    options declared Since(16), now part of the format (model.forgetting.
-//    persistence_min_probability added with it). Options added after 16 without a bump
-//    are declared Since(17): stored only when not default (smooth_map_updates; when it is
-//    set, the session state after next_frame also holds the frames behind the smoothing).
+//    persistence_min_probability added with it).
+// 17: option smooth_map_updates, declared Since(17) (when it is set, the session state
+//    after next_frame also holds the frames behind the smoothing); the defaults of
+//    smooth_map_updates (true) and model.merge_fusion (convex_combination) changed with it.
+//    Options added after 17 without a bump are declared Since(18): stored only when not
+//    default.
 // The model's options keep these flat names in the file (model.e_max, model.forgetting,
 // ...) although YAML and C++ group them in sections (environment_model_options.h
 // FlatModelOptionsValue), so files of every version keep their bytes and load as before.
-inline constexpr std::uint32_t kEngineFormatVersion = 16;
+inline constexpr std::uint32_t kEngineFormatVersion = 17;
 // The 8 magic bytes (including the terminating NUL).
 inline constexpr char kEngineMagic[8] = {'O', 'M', 'N', 'I', 'C', 'M', 'L', '\0'};
 

@@ -111,11 +111,11 @@ struct EnvironmentModelOptions {
     // estimates of the same place whose errors are correlated (both come from poses
     // localized against this map): C = (s_n C_n^-1 + s_m C_m^-1)^-1 and the matching
     // mean, s_n, s_m the merge weights normalised to sum 1. It is consistent for any
-    // correlation and never wider than the wider of the two. kConvexCombination keeps
-    // (13)'s mean with a covariance that is as consistent (wider than covariance
-    // intersection's when the pair's covariances differ); its mean does not weight the
-    // pair by covariances that may say little about their errors.
-    MergeFusion merge_fusion = MergeFusion::kMomentMatching;
+    // correlation and never wider than the wider of the two. kConvexCombination (the
+    // default) keeps (13)'s mean with a covariance that is as consistent (wider than
+    // covariance intersection's when the pair's covariances differ); its mean does not
+    // weight the pair by covariances that may say little about their errors.
+    MergeFusion merge_fusion = MergeFusion::kConvexCombination;
     // Look-back (an addition to [G 2.3], docs/design.md "Environment model"): a view made
     // at frame t is also given a component at each of the preceding updates of the same
     // session, newest first, whose descriptor matches it (E < e_max), stopping at the

@@ -45,9 +45,8 @@ enum class MergeFusion : std::uint8_t {
   // mean's error that holds whatever the correlation, the smallest (in determinant) of
   // (1 + k) s_n^2 C_n + (1 + 1/k) s_m^2 C_m over k > 0 (LinearCombinationBound in
   // geometry/gaussian_mixture.h): C when C_n = C_m = C, determinant at most that of
-  // s_n C_n + s_m C_m, no
-  // spread of the means. Unlike kCovarianceIntersection the mean moves by the merge
-  // weights alone, not by the weights times the covariances.
+  // s_n C_n + s_m C_m, no spread of the means. Unlike kCovarianceIntersection the mean
+  // moves by the merge weights alone, not by the weights times the covariances.
   kConvexCombination = 2,
 };
 

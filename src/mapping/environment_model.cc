@@ -19,8 +19,7 @@ namespace {
 // difference, not the circular mean). kCovarianceIntersection: CovarianceIntersection
 // with omega = `other`'s share. kConvexCombination: MomentMatch's mean and, instead of
 // (14), the smallest covariance of that mean that holds for any correlation of the pair
-// (LinearCombinationBound). eta and w are summed (w clamped
-// to 1 to stay a weight).
+// (LinearCombinationBound). eta and w are summed (w clamped to 1 to stay a weight).
 ViewComponent Merged(const ViewComponent& keep, const ViewComponent& other,
                      const EnvironmentModelOptions::Update& options) {
   double weight_keep = keep.eta, weight_other = other.eta;
@@ -31,17 +30,16 @@ ViewComponent Merged(const ViewComponent& keep, const ViewComponent& other,
   }
   const Gaussian pair[2] = {Gaussian{keep.mean, keep.covariance, weight_keep},
                             Gaussian{other.mean, other.covariance, weight_other}};
+  const double weight_total = weight_keep + weight_other;
+  const double weight_share = weight_total > 0 ? weight_other / weight_total : 0.5;  // other's
   Gaussian merged;
   if (options.merge_fusion == MergeFusion::kCovarianceIntersection) {
-    const double total = weight_keep + weight_other;
-    merged = CovarianceIntersection(pair[0], pair[1], total > 0 ? weight_other / total : 0.5);
+    merged = CovarianceIntersection(pair[0], pair[1], weight_share);
   } else {
     merged = MomentMatch(pair, HeadingMean::kAnchored);
     if (options.merge_fusion == MergeFusion::kConvexCombination) {
-      const double total = weight_keep + weight_other;
-      const double share = total > 0 ? weight_other / total : 0.5;
-      merged.covariance =
-          LinearCombinationBound(keep.covariance, 1.0 - share, other.covariance, share);
+      merged.covariance = LinearCombinationBound(keep.covariance, 1.0 - weight_share,
+                                                 other.covariance, weight_share);
     }
   }
   ViewComponent out = keep;
